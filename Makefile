@@ -1,0 +1,46 @@
+# Two commands a user needs (see README):  make demo   and   make test
+# `make setup` is idempotent: it reinstalls only when requirements change and rebuilds
+# the colcon workspace only when a package's metadata or data files change (sources are
+# symlinked, so editing Python needs no rebuild).
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+WS := ros2_ws
+PKGS := $(sort $(dir $(wildcard $(WS)/src/*/package.xml)))
+# Files whose change needs a colcon rebuild (metadata, entry points, installed data).
+PKG_META := $(wildcard $(WS)/src/*/package.xml $(WS)/src/*/setup.py $(WS)/src/*/setup.cfg \
+             $(WS)/src/*/resource/* $(WS)/src/*/config/*)
+BAG ?= bags/quick
+RUN_ENV := source ./env.sh &&
+
+.PHONY: setup test demo lint clean
+setup: $(VENV)/.installed $(WS)/install/.built
+
+$(VENV)/.installed: requirements.txt
+	@test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
+	@echo "[setup] installing pinned requirements into $(VENV) (first time: about a minute)"
+	$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check -r requirements.txt
+	@touch $@
+
+$(WS)/install/.built: $(VENV)/.installed $(PKG_META)
+	@echo "[setup] colcon build --symlink-install ($(words $(PKGS)) packages)"
+	@source $(VENV)/bin/activate && export AMENT_PREFIX_PATH=$$VIRTUAL_ENV && \
+	  cd $(WS) && colcon --log-base log build --symlink-install --event-handlers console_cohesion- \
+	  > build.log 2>&1 || { tail -40 build.log; echo "[setup] colcon build failed, see $(WS)/build.log"; exit 1; }
+	@touch $@
+
+test: setup
+	$(RUN_ENV) python -m pytest $(PYTEST_ARGS)
+
+lint: setup
+	$(RUN_ENV) ruff check ros2_ws/src tests bench
+
+demo: setup
+	@if [ ! -d "$(BAG)/rosbag" ]; then \
+	  $(RUN_ENV) command -v atacama_sim >/dev/null || { \
+	    echo "demo: cannot generate $(BAG): the atacama_sim generator is not built yet (issue 3)"; exit 2; }; \
+	  $(RUN_ENV) atacama_sim generate --preset quick --seed 1 --out $(BAG); fi
+	$(RUN_ENV) globloc run $(BAG) --out out
+
+clean:
+	rm -rf $(WS)/build $(WS)/install $(WS)/log $(WS)/build.log

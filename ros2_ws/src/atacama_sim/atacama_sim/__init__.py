@@ -1,0 +1,1 @@
+"""Synthetic Atacama-style world and rosbag2 bag writer."""

@@ -1,0 +1,1 @@
+"""2D DARCES matching of Local onto Global ROI networks: library, node, evaluation CLI."""

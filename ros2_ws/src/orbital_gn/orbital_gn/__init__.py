@@ -1,0 +1,1 @@
+"""Offline Global Network preparation from a georeferenced orthoimage, and the gn_server node."""

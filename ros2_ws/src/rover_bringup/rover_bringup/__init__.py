@@ -1,0 +1,1 @@
+"""Graph launcher, bag player, output recorder, parameters and evaluation (the globloc command)."""

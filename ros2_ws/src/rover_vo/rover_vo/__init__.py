@@ -1,0 +1,1 @@
+"""Stereo + IMU visual odometry library and node."""
