@@ -17,7 +17,9 @@ setup(
     zip_safe=True,
     maintainer='globloc developers',
     maintainer_email='dev@globloc.invalid',
-    description='2D DARCES matching of Local onto Global ROI networks: library, node, evaluation CLI.',
+    description=(
+        '2D DARCES matching of Local onto Global ROI networks: library, node, evaluation CLI.'
+    ),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

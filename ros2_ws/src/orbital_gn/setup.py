@@ -17,7 +17,9 @@ setup(
     zip_safe=True,
     maintainer='globloc developers',
     maintainer_email='dev@globloc.invalid',
-    description='Offline Global Network preparation from a georeferenced orthoimage, and the gn_server node.',
+    description=(
+        'Offline Global Network preparation from a georeferenced orthoimage, and the gn_server node.'
+    ),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

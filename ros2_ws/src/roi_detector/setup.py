@@ -17,7 +17,9 @@ setup(
     zip_safe=True,
     maintainer='globloc developers',
     maintainer_email='dev@globloc.invalid',
-    description='ROI detection and classification (orbital and rover imagery), roi_detector and ln_builder nodes.',
+    description=(
+        'ROI detection and classification (orbital and rover imagery), roi_detector and ln_builder nodes.'
+    ),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

@@ -17,7 +17,9 @@ setup(
     zip_safe=True,
     maintainer='globloc developers',
     maintainer_email='dev@globloc.invalid',
-    description='Shared data model: ROI records and networks, 2D rigid transforms, GeoJSON and PointCloud2 codecs.',
+    description=(
+        'Shared data model: ROI records and networks, 2D rigid transforms, GeoJSON and PointCloud2 codecs.'
+    ),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [

@@ -17,7 +17,9 @@ setup(
     zip_safe=True,
     maintainer='globloc developers',
     maintainer_email='dev@globloc.invalid',
-    description='Graph launcher, bag player, output recorder, parameters and evaluation (the globloc command).',
+    description=(
+        'Graph launcher, bag player, output recorder, parameters and evaluation (the globloc command).'
+    ),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
