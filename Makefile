@@ -18,6 +18,7 @@ setup: $(VENV)/.installed $(WS)/install/.built
 
 $(VENV)/.installed: requirements.txt
 	@test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
+	@bash scripts/install-system-deps.sh
 	@echo "[setup] installing pinned requirements into $(VENV) (first time: about a minute)"
 	$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check -r requirements.txt
 	@touch $@

@@ -12,4 +12,9 @@ export AMENT_PREFIX_PATH="$VIRTUAL_ENV${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"
 _nounset=$(set +o | grep nounset); set +u
 source "$_here/ros2_ws/install/setup.bash"
 eval "$_nounset"
-unset _here _nounset
+# There is no `ros2 run`: put each package's executables (install/<pkg>/lib/<pkg>) on PATH.
+for _d in "$_here"/ros2_ws/install/*/lib/*/; do
+  case ":$PATH:" in *":${_d%/}:"*) ;; *) PATH="${_d%/}:$PATH" ;; esac
+done
+export PATH
+unset _here _nounset _d

@@ -1,0 +1,200 @@
+"""The ``globloc`` command: ``play`` a bag, ``run`` the node graph on a bag, ``record`` outputs.
+
+Only argument mapping lives here; each subcommand is a function taking an options object.
+User errors (``GloblocError``) become one ``globloc: error: ...`` line on stderr and exit
+status 1, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from rover_bringup.errors import GloblocError
+
+PROG = 'globloc'
+
+
+def _split_ros_args(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    # Everything after --ros-args belongs to rclpy (remappings, log levels...), as with
+    # `ros2 run`; argparse must not see it.
+    argv = list(argv)
+    if '--ros-args' in argv:
+        i = argv.index('--ros-args')
+        return argv[:i], argv[i + 1 :]
+    return argv, []
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f'must be >= 0, got {text}')
+    return value
+
+
+def _add_play(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        'play',
+        help='replay a bag (MCAP or sqlite3) with its recorded QoS, and /clock',
+        description='Replay a rosbag2 bag: stored CDR bytes, recorded QoS, /clock from bag '
+        'time. Arguments after --ros-args go to rclpy.',
+    )
+    p.add_argument('bag', type=Path, metavar='BAG_DIR',
+                   help='rosbag2 directory, or a bag directory bags/<name>/ holding rosbag/')
+    p.add_argument('--rate', type=_positive_float, default=1.0,
+                   help='rate factor: 10 plays ten times faster; 0 as fast as possible '
+                   '(default: %(default)s)')
+    p.add_argument('--start', type=_positive_float, default=0.0, metavar='S',
+                   help='skip the first S seconds of the bag (default: %(default)s)')
+    p.add_argument('--topics', nargs='+', metavar='T', help='play only these topics')
+    p.add_argument('--wait-topics', nargs='*', metavar='T',
+                   help='topics that need a subscriber before the first message (default: '
+                   'every played topic; give the flag alone for none)')
+    p.add_argument('--wait-for', type=int, default=0, metavar='N',
+                   help='also wait for N subscribers on /clock, i.e. N nodes started with '
+                   'use_sim_time (default: %(default)s)')
+    p.add_argument('--wait-subscribers', type=_positive_float, default=5.0, metavar='SEC',
+                   help='upper bound of the wait for subscribers; 0: do not wait '
+                   '(default: %(default)s)')
+    p.add_argument('--settle', type=_positive_float, default=0.3, metavar='SEC',
+                   help='pause after the subscribers matched, before the first message '
+                   '(default: %(default)s)')
+    p.add_argument('--ack-timeout', type=_positive_float, default=10.0, metavar='SEC',
+                   help='upper bound of the final wait for acknowledgements on reliable '
+                   'topics (default: %(default)s)')
+    p.add_argument('--clock-hz', type=float, default=100.0, metavar='HZ',
+                   help='/clock ticks per wall second between messages (default: %(default)s)')
+    p.add_argument('--progress', type=_positive_float, default=2.0, metavar='SEC',
+                   help='seconds between progress lines (default: %(default)s)')
+
+
+def _add_run(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        'run',
+        help='run the node graph on a bag and record its outputs',
+        description='Start every node of the graph (one process each, use_sim_time), play '
+        'the bag, record the output topics to out/<bag>/<run>/outputs/, stop the nodes.',
+    )
+    p.add_argument('bag', type=Path, metavar='BAG_DIR',
+                   help='bag directory bags/<name>/ (or a rosbag2 directory)')
+    p.add_argument('--params', type=Path, metavar='FILE',
+                   help='ROS params file of all nodes (default: rover_bringup/config/'
+                   'globloc.yaml)')
+    p.add_argument('--graph', type=Path, metavar='FILE',
+                   help='graph file listing the nodes (default: rover_bringup/config/'
+                   'graph.yaml)')
+    p.add_argument('--rate', type=_positive_float, default=1.0,
+                   help='playback rate factor (default: %(default)s)')
+    p.add_argument('--out', type=Path, default=Path('out'), metavar='DIR',
+                   help='output root; the run goes to DIR/<bag>/<run>/ (default: %(default)s)')
+    p.add_argument('--run-id', metavar='ID',
+                   help='run directory name (default: local time, e.g. 20261122-031500)')
+    p.add_argument('--drain', type=_positive_float, default=2.0, metavar='SEC',
+                   help='seconds the graph keeps running after the bag ends '
+                   '(default: %(default)s)')
+    p.add_argument('--startup-timeout', type=_positive_float, default=30.0, metavar='SEC',
+                   help='upper bound of the wait for the nodes to subscribe to /clock before '
+                   'playing (default: %(default)s)')
+    p.add_argument('--settle', type=_positive_float, default=3.5, metavar='SEC',
+                   help='pause between the last node subscribing and the first message, so '
+                   'that every pair of processes has discovered each other; Fast DDS can miss '
+                   'the initial announcements and recover only at its next periodic one, 3 s '
+                   'later (default: %(default)s)')
+    p.add_argument('--stop-timeout', type=_positive_float, default=10.0, metavar='SEC',
+                   help='seconds a process gets after SIGTERM before SIGKILL '
+                   '(default: %(default)s)')
+    p.add_argument('--strict', action='store_true',
+                   help='fail when a node of the graph is not built, instead of skipping it')
+
+
+def _add_record(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        'record',
+        help='record output topics to a rosbag2 MCAP bag (used by run)',
+        description='Record the pipeline output topics (raw CDR, offered QoS) into a new '
+        'rosbag2 directory with MCAP storage until SIGINT/SIGTERM. Arguments after '
+        '--ros-args go to rclpy (run passes -p use_sim_time:=true).',
+    )
+    p.add_argument('out', type=Path, metavar='OUT_BAG_DIR', help='bag directory to create')
+    p.add_argument('--topics', nargs='+', metavar='T',
+                   help='topics to record (default: every output topic of the design)')
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``globloc`` argument parser."""
+    parser = argparse.ArgumentParser(
+        prog=PROG, description='Rover global localization: bag playback and node graph.'
+    )
+    sub = parser.add_subparsers(dest='command', required=True, metavar='COMMAND')
+    _add_play(sub)
+    _add_run(sub)
+    _add_record(sub)
+    return parser
+
+
+def _dispatch(args: argparse.Namespace, ros: list[str]) -> int:
+    if args.command == 'play':
+        from rover_bringup.play import PlayOptions, play
+
+        return play(
+            PlayOptions(
+                bag=args.bag,
+                rate=args.rate,
+                start_s=args.start,
+                topics=args.topics,
+                wait_topics=args.wait_topics,
+                wait_for=args.wait_for,
+                wait_timeout_s=args.wait_subscribers,
+                settle_s=args.settle,
+                ack_timeout_s=args.ack_timeout,
+                clock_hz=args.clock_hz,
+                progress_s=args.progress,
+                ros_args=ros,
+            )
+        )
+    if args.command == 'record':
+        from rover_bringup.record import RecordOptions, record
+
+        return record(RecordOptions(out=args.out, topics=args.topics, ros_args=ros))
+    from rover_bringup.run import RunOptions, run
+
+    return run(
+        RunOptions(
+            bag=args.bag,
+            params=args.params,
+            graph=args.graph,
+            rate=args.rate,
+            out=args.out,
+            run_id=args.run_id,
+            drain_s=args.drain,
+            startup_timeout_s=args.startup_timeout,
+            settle_s=args.settle,
+            stop_timeout_s=args.stop_timeout,
+            strict=args.strict,
+            argv=[PROG, *sys.argv[1:]],
+        )
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``globloc`` console script.
+
+    Args:
+        argv: Arguments without the program name (default: ``sys.argv[1:]``).
+
+    Returns:
+        Exit status.
+    """
+    own, ros = _split_ros_args(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(own)
+    try:
+        return _dispatch(args, ros)
+    except GloblocError as exc:
+        print(f'{PROG}: error: {exc}', file=sys.stderr, flush=True)
+        return 1
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,362 @@
+"""``globloc run``: the node graph on a bag, as ``ros2 launch`` + ``ros2 bag play/record`` would.
+
+Sequence: check the bag and the graph; start the recorder and every node (one process each,
+``use_sim_time``); play the bag once all of them subscribed to /clock; let the graph drain;
+stop nodes, then the recorder, with SIGTERM; write ``run.yaml``. Output layout::
+
+    <out>/<bag>/<run>/
+        outputs/metadata.yaml, outputs/outputs.mcap   rosbag2 bag of every output topic
+        logs/<node>.log, logs/globloc_player.log, logs/globloc_recorder.log
+        params.yaml                                   params file given to the nodes
+        run.yaml                                      what ran, exit codes, message counts
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from rover_bringup.bag import Bag, BagLocation, locate_bag
+from rover_bringup.errors import GloblocError
+from rover_bringup.graph import (
+    Availability,
+    Resolved,
+    load_graph,
+    load_params,
+    node_command,
+    resolve,
+    substitute,
+)
+from rover_bringup.launcher import ManagedProcess, start, stop, tail
+from rover_bringup.msgtypes import message_classes
+from rover_bringup.recording import count_messages
+from rover_bringup.topics import OUTPUT_TOPICS
+
+PACKAGE = 'rover_bringup'
+PLAYER = 'globloc_player'
+RECORDER = 'globloc_recorder'
+OUTPUTS = 'outputs'
+#: Lines of a crashed node's log shown in the error.
+TAIL_LINES = 20
+_POLL_S = 0.1
+
+
+@dataclass
+class RunOptions:
+    """What ``globloc run`` does; defaults match the CLI's.
+
+    Attributes:
+        bag: Bag directory.
+        params: Params file (None: the package's config/globloc.yaml).
+        graph: Graph file (None: the package's config/graph.yaml).
+        rate: Playback rate factor (0: as fast as possible).
+        out: Output root.
+        run_id: Run directory name (None: local time stamp).
+        drain_s: Seconds the graph keeps running after the bag ends.
+        startup_timeout_s: Upper bound of the wait for nodes to subscribe before playing.
+        settle_s: Pause between the last node subscribing and the first message (see
+            docs/bringup.md, "Discovery": Fast DDS sometimes misses the initial announcements
+            between two processes and pairs them only at its next periodic one, 3 s later).
+        stop_timeout_s: Grace period between SIGTERM and SIGKILL.
+        strict: Fail on nodes that are not built instead of skipping them.
+        argv: The command line, for run.yaml.
+    """
+
+    bag: Path
+    params: Path | None = None
+    graph: Path | None = None
+    rate: float = 1.0
+    out: Path = Path('out')
+    run_id: str | None = None
+    drain_s: float = 2.0
+    startup_timeout_s: float = 30.0
+    settle_s: float = 3.5
+    stop_timeout_s: float = 10.0
+    strict: bool = False
+    argv: list[str] = field(default_factory=list)
+
+
+def config_file(name: str) -> Path:
+    """A file of this package's ``config/``: the installed copy, else the source tree's."""
+    try:
+        from ament_index_python.packages import (
+            PackageNotFoundError,
+            get_package_share_directory,
+        )
+
+        installed = Path(get_package_share_directory(PACKAGE)) / 'config' / name
+        if installed.is_file():
+            return installed
+    except (ImportError, PackageNotFoundError, ValueError):
+        pass
+    return Path(__file__).resolve().parent.parent / 'config' / name
+
+
+def _warn(message: str) -> None:
+    print(f'globloc: warning: {message}', file=sys.stderr, flush=True)
+
+
+def _info(message: str) -> None:
+    print(f'globloc: {message}', file=sys.stderr, flush=True)
+
+
+def _new_run_dir(out: Path, location: BagLocation, run_id: str | None) -> Path:
+    base = out / location.name
+    if run_id is not None:
+        run_dir = base / run_id
+        if run_dir.exists():
+            raise GloblocError(f'run directory {run_dir} exists already (choose another --run-id)')
+    else:
+        stamp = datetime.now().strftime('%Y%m%d-%H%M%S')
+        run_dir, n = base / stamp, 1
+        while run_dir.exists():  # two runs in the same second
+            n += 1
+            run_dir = base / f'{stamp}-{n}'
+    try:
+        run_dir.mkdir(parents=True)
+        (run_dir / 'logs').mkdir()
+    except OSError as exc:
+        raise GloblocError(f'cannot create run directory {run_dir}: {exc}') from None
+    return run_dir
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """Everything checked before any process starts."""
+
+    location: BagLocation
+    nodes: list[Resolved]
+    params: dict[str, Any]
+    graph_path: Path
+    params_path: Path
+
+    @property
+    def ready(self) -> list[Resolved]:
+        return [r for r in self.nodes if r.availability is Availability.READY]
+
+
+def _prepare(options: RunOptions) -> _Plan:
+    """Every check that needs no process: bag, types, graph, params, executables."""
+    location = locate_bag(options.bag)
+    with Bag(location) as bag:
+        message_classes({t.name: t.msgtype for t in bag.topics.values()})
+    graph_path = options.graph or config_file('graph.yaml')
+    params_path = options.params or config_file('globloc.yaml')
+    nodes = load_graph(graph_path)
+    params = load_params(params_path)
+    if reserved := [n.name for n in nodes if n.name in (PLAYER, RECORDER)]:
+        raise GloblocError(f'graph file {graph_path}: node name {reserved[0]} is reserved')
+    # $RUN_DIR is not known yet: a command using it keeps the placeholder until start.
+    variables = {'BAG_DIR': str(location.root.resolve()), 'PYTHON': sys.executable}
+    prefixes = os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep)
+    resolved = [resolve(n, variables, prefixes) for n in nodes]
+    # A missing package or command is a mistake in the graph file: fatal. A package without
+    # the executable, or a node whose input file is not prepared yet, is work in progress:
+    # the graph runs with what exists, unless --strict.
+    if missing := [r for r in resolved if r.availability is Availability.MISSING]:
+        raise GloblocError(missing[0].reason)
+    not_built = [r for r in resolved
+                 if r.availability in (Availability.NOT_BUILT, Availability.NO_INPUT)]
+    if not_built and options.strict:
+        raise GloblocError(not_built[0].reason.replace(': skipped', ' (--strict)'))
+    for r in not_built:
+        _warn(r.reason)
+    return _Plan(location, resolved, params, graph_path, params_path)
+
+
+def _write_params(plan: _Plan, run_dir: Path, variables: dict[str, str]) -> list[Path]:
+    """Write ``<run>/params.yaml``; return the params files every node gets, in order."""
+    params_run = run_dir / 'params.yaml'
+    params_run.write_text(
+        f'# {plan.params_path} with $BAG_DIR/$RUN_DIR substituted, as given to every node\n'
+        + yaml.safe_dump(substitute(plan.params, variables), sort_keys=False)
+    )
+    files = [params_run]
+    if (rover := plan.location.root / 'rover.yaml').is_file():
+        files.append(rover)
+    return files
+
+
+def _supervise(
+    options: RunOptions, plan: _Plan, run_dir: Path, params_files: list[Path],
+    variables: dict[str, str], processes: dict[str, ManagedProcess], errors: list[str],
+) -> None:
+    """Start recorder, nodes and player (filling ``processes``); return when the run is over.
+
+    Over means: the bag was played and the drain time passed, or a node crashed (as a
+    required node does under ``ros2 launch``, a crash ends the run: the outputs of a graph
+    with a dead node are not worth waiting for, and a node that dies at start-up would
+    otherwise keep the player waiting for its /clock subscription).
+    """
+    logs = run_dir / 'logs'
+    python = [sys.executable, '-m', 'rover_bringup.cli']
+    processes[RECORDER] = start(
+        RECORDER,
+        [*python, 'record', str(run_dir / OUTPUTS), '--ros-args', '-p', 'use_sim_time:=true'],
+        logs,
+    )
+    for r in plan.ready:
+        argv = [substitute(a, variables) for a in node_command(r, params_files)]
+        processes[r.spec.name] = start(r.spec.name, argv, logs)
+    watched = list(processes.values())
+    player = processes[PLAYER] = start(
+        PLAYER,
+        [
+            *python, 'play', str(plan.location.rosbag), '--rate', str(options.rate),
+            # Graph nodes subscribe to what they need, not to every bag topic (nobody reads
+            # the ground truth): wait for each node's /clock subscription instead.
+            '--wait-topics', '--wait-for', str(len(watched)),
+            '--wait-subscribers', str(options.startup_timeout_s),
+            '--settle', str(options.settle_s),
+        ],
+        logs,
+        echo=True,
+    )
+    reported: set[str] = set()
+    crash = _watch(watched, reported, until=lambda: player.returncode is not None)
+    if crash is None:
+        if player.returncode != 0:
+            errors.append(f'player exited with status {player.returncode} '
+                          f'(log: {player.log_path})')
+        end = time.monotonic() + options.drain_s
+        crash = _watch(watched, reported, until=lambda: time.monotonic() >= end)
+    if crash is not None:
+        _warn(f'{crash.name} crashed: stopping the run')
+
+
+def run(options: RunOptions) -> int:
+    """Run the graph on a bag; see the module docstring.
+
+    Returns:
+        0 when every node ran to the end and the player delivered everything; 1 when a node
+        crashed (the error names it and shows its log tail) or playback failed; 130 when
+        interrupted.
+
+    Raises:
+        GloblocError: Bad bag, graph or params file, or a missing executable (before anything
+            is started).
+    """
+    plan = _prepare(options)
+    run_dir = _new_run_dir(options.out, plan.location, options.run_id)
+    variables = {
+        'BAG_DIR': str(plan.location.root.resolve()),
+        'RUN_DIR': str(run_dir.resolve()),
+        'PYTHON': sys.executable,
+    }
+    params_files = _write_params(plan, run_dir, variables)
+    started = datetime.now().isoformat(timespec='seconds')
+    _info(f'run {run_dir}: {len(plan.ready)} of {len(plan.nodes)} nodes, '
+          f'bag {plan.location.rosbag}')
+
+    processes: dict[str, ManagedProcess] = {}
+    errors: list[str] = []
+    status = 0
+    try:
+        _supervise(options, plan, run_dir, params_files, variables, processes, errors)
+    except KeyboardInterrupt:
+        errors.append('interrupted')
+        status = 130
+    finally:
+        nodes = [processes[r.spec.name] for r in plan.ready if r.spec.name in processes]
+        # Nodes first, so that the recorder still gets what they publish while stopping.
+        stop(nodes, options.stop_timeout_s)
+        stop([p for p in processes.values() if p.name in (PLAYER, RECORDER)],
+             options.stop_timeout_s)
+
+    for proc in [*nodes, processes.get(RECORDER)]:
+        if proc is not None and proc.crashed:
+            what = 'the recorder' if proc.name == RECORDER else f'node {proc.name}'
+            errors.append(
+                f'{what} crashed (exit status {proc.returncode}); last lines of '
+                f'{proc.log_path}:\n{tail(proc.log_path, TAIL_LINES).rstrip()}'
+            )
+    try:
+        counts = count_messages(run_dir / OUTPUTS)
+    except GloblocError as exc:
+        counts = {}
+        errors.append(str(exc))
+    report = {
+        'command': options.argv,
+        'bag': {'dir': str(plan.location.root), 'rosbag': str(plan.location.rosbag)},
+        'run_dir': str(run_dir),
+        'rate': options.rate,
+        'graph_file': str(plan.graph_path),
+        'params_file': str(plan.params_path),
+        'params_files_used': [str(p) for p in params_files],
+        'started': started,
+        'finished': datetime.now().isoformat(timespec='seconds'),
+        'nodes': [_node_entry(r, processes.get(r.spec.name), run_dir) for r in plan.nodes],
+        'tools': {name: _proc_entry(processes[name], run_dir)
+                  for name in (PLAYER, RECORDER) if name in processes},
+        'outputs': {
+            'bag': str(run_dir / OUTPUTS),
+            'messages': {t: counts.get(t, 0) for t in OUTPUT_TOPICS}
+            | {t: n for t, n in counts.items() if t not in OUTPUT_TOPICS},
+        },
+        'status': 'failed' if errors else 'ok',
+        'errors': errors,
+    }
+    (run_dir / 'run.yaml').write_text(yaml.safe_dump(report, sort_keys=False))
+    recorded = ', '.join(f'{t} {n}' for t, n in counts.items() if n) or 'nothing'
+    _info(f'recorded {recorded} -> {run_dir / OUTPUTS}')
+    for error in errors:
+        print(f'globloc: error: {error}', file=sys.stderr, flush=True)
+    return (status or 1) if errors else 0
+
+
+def _watch(
+    processes: list[ManagedProcess], reported: set[str], until: Callable[[], bool]
+) -> ManagedProcess | None:
+    """Poll until ``until()`` or a crash.
+
+    Args:
+        processes: Processes that should keep running (nodes, recorder).
+        reported: Names already reported as exited (updated).
+        until: Condition that ends the watch.
+
+    Returns:
+        The first process found crashed (exited non-zero on its own), else None.
+    """
+    while not until():
+        for proc in processes:
+            if proc.crashed:
+                return proc
+            if proc.name not in reported and proc.returncode is not None:
+                reported.add(proc.name)  # exited 0 on its own: odd, not fatal
+                _warn(f'{proc.name} exited with status 0 while running (log: {proc.log_path})')
+        time.sleep(_POLL_S)
+    return None
+
+
+def _proc_entry(proc: ManagedProcess, run_dir: Path) -> dict[str, Any]:
+    return {
+        'command': proc.argv,
+        'exit_code': proc.returncode,
+        'crashed': proc.crashed,
+        'killed': proc.killed,
+        'log': str(proc.log_path.relative_to(run_dir)),
+    }
+
+
+def _node_entry(r: Resolved, proc: ManagedProcess | None, run_dir: Path) -> dict[str, Any]:
+    spec = r.spec
+    entry: dict[str, Any] = {'name': spec.name}
+    if spec.command is not None:
+        entry['command'] = list(spec.command)
+    else:
+        entry.update(package=spec.package, executable=spec.executable)
+    if proc is None:
+        entry['status'] = r.availability.value
+        entry['reason'] = r.reason
+        return entry
+    entry['status'] = 'crashed' if proc.crashed else 'ran'
+    entry.update(_proc_entry(proc, run_dir))
+    return entry

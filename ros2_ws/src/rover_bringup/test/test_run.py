@@ -1,0 +1,128 @@
+"""``globloc run``: nodes in their own processes, outputs recorded, crashes reported.
+
+The graph is a test node (fake_pipeline_node.py, given as an explicit ``command:``) that turns
+IMU messages into /vo/odometry and /global_pose and latches a /global_network, plus a node
+whose executable is not built.
+"""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+import yaml
+
+pytestmark = pytest.mark.ros
+
+HERE = Path(__file__).resolve().parent
+FAKE = HERE / 'fake_pipeline_node.py'
+
+
+def _setup(tmp_path: Path, bagfactory: ModuleType, mode: str, name: str) -> tuple[Path, list]:
+    """A project bag dir (rosbag/ + rover.yaml), a graph file and a params file."""
+    bag_dir = tmp_path / 'bags' / 'tiny'
+    spec = bagfactory.write_bag(bag_dir / 'rosbag', bagfactory.BagSpec(duration_s=2.0))
+    (bag_dir / 'rover.yaml').write_text('/**:\n  ros__parameters:\n    camera_height: 1.25\n')
+    (tmp_path / 'graph.yaml').write_text(
+        'nodes:\n'
+        f'  - {{name: {name}, command: [$PYTHON, {FAKE}]}}\n'
+        '  - {name: later, package: rover_bringup, executable: no_such_node}\n'
+    )
+    (tmp_path / 'params.yaml').write_text(
+        f'{name}:\n  ros__parameters:\n    mode: {mode}\n    bag_dir: $BAG_DIR/gn.geojson\n'
+    )
+    return bag_dir, spec.expected[bagfactory.IMU_TOPIC]
+
+
+def _run(
+    globloc_cmd: list[str], tmp_path: Path, bag_dir: Path, env: dict[str, str], *extra: str
+) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [*globloc_cmd, 'run', str(bag_dir), '--graph', str(tmp_path / 'graph.yaml'),
+         '--params', str(tmp_path / 'params.yaml'), '--out', str(tmp_path / 'out'),
+         '--run-id', 'r1', '--rate', '10', '--drain', '1', *extra],
+        env=env, capture_output=True, text=True, timeout=120, check=False,
+    )
+
+
+def test_run_records_outputs(
+    tmp_path: Path, bagfactory: ModuleType, ros_env: dict[str, str], globloc_cmd: list[str]
+):
+    bag_dir, imu = _setup(tmp_path, bagfactory, 'echo', 'fake_vo')
+    # Default discovery settings and default --settle: the configuration users get.
+    result = _run(globloc_cmd, tmp_path, bag_dir, ros_env)
+    assert result.returncode == 0, result.stderr
+    assert ('globloc: warning: node later (package rover_bringup, executable no_such_node) '
+            'is not built yet: skipped') in result.stderr
+    run_dir = tmp_path / 'out' / 'tiny' / 'r1'
+
+    report = yaml.safe_load((run_dir / 'run.yaml').read_text())
+    assert report['status'] == 'ok' and report['errors'] == []
+    fake, later = report['nodes']
+    assert (fake['name'], fake['status'], fake['exit_code']) == ('fake_vo', 'ran', 0)
+    assert (later['name'], later['status']) == ('later', 'not built')
+    assert report['tools']['globloc_player']['exit_code'] == 0
+    counts = report['outputs']['messages']
+    assert counts['/vo/odometry'] == len(imu) == 200
+    assert counts['/global_pose'] == 20 and counts['/global_network'] == 1
+    assert counts['/rois/tracks'] == 0
+    assert report['params_files_used'] == [
+        str(run_dir / 'params.yaml'), str(bag_dir / 'rover.yaml')]
+
+    # Parameters: $BAG_DIR substituted, rover.yaml passed after the params file.
+    log = (run_dir / 'logs' / 'fake_vo.log').read_text()
+    assert f'bag_dir={bag_dir.resolve()}/gn.geojson' in log and 'camera_height=1.25' in log
+    assert (run_dir / 'logs' / 'globloc_player.log').is_file()
+
+    # The bag, read by rosbags: types, offered QoS, sim-time receive stamps.
+    from rosbags.rosbag2 import Reader
+
+    from rover_bringup.qos import qos_from_offers
+
+    with Reader(run_dir / 'outputs') as reader:
+        conns = {c.topic: c for c in reader.connections}
+        assert conns['/vo/odometry'].msgtype == 'nav_msgs/msg/Odometry'
+        assert conns['/global_pose'].msgtype == 'geometry_msgs/msg/PoseWithCovarianceStamped'
+        assert qos_from_offers(conns['/global_network'].ext.offered_qos_profiles).transient_local
+        assert qos_from_offers(conns['/vo/odometry'].ext.offered_qos_profiles).reliable
+        times = [t for _, t, _ in reader.messages()]
+        assert min(times) >= bagfactory.T0_NS and max(times) <= imu[-1]['stamp'] + 10**9
+
+    # ... and by the mcap library with the ROS 2 decoder (what Foxglove uses).
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    with (run_dir / 'outputs' / 'outputs.mcap').open('rb') as fh:
+        decoded = [
+            (channel.topic, msg)
+            for _, channel, _, msg in make_reader(
+                fh, decoder_factories=[DecoderFactory()]
+            ).iter_decoded_messages()
+        ]
+    odom = [m for t, m in decoded if t == '/vo/odometry']
+    assert [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in odom] == [
+        m['stamp'] for m in imu]
+    assert [round(m.pose.pose.position.x) for m in odom] == list(range(len(imu)))
+    poses = [m for t, m in decoded if t == '/global_pose']
+    assert [m.header.frame_id for m in poses] == ['map'] * 20
+
+
+def test_run_reports_crashed_node(
+    tmp_path: Path, bagfactory: ModuleType, fast_discovery_env: dict[str, str],
+    globloc_cmd: list[str],
+):
+    bag_dir, _ = _setup(tmp_path, bagfactory, 'crash', 'crasher')
+    # Fast DDS announcing every 0.5 s lets a 1 s settle suffice (keeps this test short).
+    result = _run(globloc_cmd, tmp_path, bag_dir, fast_discovery_env, '--settle', '1')
+    assert result.returncode == 1
+    assert 'Traceback' not in result.stderr
+    assert 'globloc: error: node crasher crashed (exit status 3); last lines of' in result.stderr
+    # The tail of its log (20 lines), not the whole log.
+    assert 'fake failure detail line 29' in result.stderr
+    assert 'fake failure detail line 10' in result.stderr
+    assert 'fake failure detail line 9\n' not in result.stderr
+    report = yaml.safe_load((tmp_path / 'out' / 'tiny' / 'r1' / 'run.yaml').read_text())
+    assert report['status'] == 'failed'
+    assert report['nodes'][0]['crashed'] and report['nodes'][0]['exit_code'] == 3
