@@ -13,12 +13,15 @@ PKG_META := $(wildcard $(WS)/src/*/package.xml $(WS)/src/*/setup.py $(WS)/src/*/
 BAG ?= bags/quick
 RUN_ENV := source ./env.sh &&
 
-.PHONY: setup test demo lint clean
-setup: $(VENV)/.installed $(WS)/install/.built
+.PHONY: setup sysdeps test demo lint clean
+setup: sysdeps $(VENV)/.installed $(WS)/install/.built
+
+# Debian packages beyond PyPI (Mesa EGL for the simulator's renderer); a no-op when present.
+sysdeps:
+	@bash scripts/install-system-deps.sh
 
 $(VENV)/.installed: requirements.txt
 	@test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
-	@bash scripts/install-system-deps.sh
 	@echo "[setup] installing pinned requirements into $(VENV) (first time: about a minute)"
 	$(VENV)/bin/python -m pip install --quiet --disable-pip-version-check -r requirements.txt
 	@touch $@
