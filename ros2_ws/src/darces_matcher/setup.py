@@ -23,6 +23,8 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
+            'darces_eval = darces_matcher.eval_cli:main',
+            'darces_matcher = darces_matcher.matcher_node:main',
         ],
     },
 )

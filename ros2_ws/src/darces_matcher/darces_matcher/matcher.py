@@ -1,0 +1,505 @@
+"""DARCES matching of a Local Network onto the Global Network (paper Sec. 6).
+
+:class:`Matcher` holds the GN index (built once) and fits LNs onto it::
+
+    matcher = Matcher(gn, MatchConfig())
+    result = matcher.match(ln_records)          # LN in odom, GN in map
+    if result.status == "fix":
+        map_T_odom = result.map_T_odom          # roi_network.transform.Rigid2D
+
+``MatchConfig.original()`` gives the paper's baseline, the original DARCES (no triangle
+orientation, no class labels).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+import numpy as np
+
+from darces_matcher.gn_index import GnIndex
+from darces_matcher.hypotheses import (
+    apply_batch,
+    fit_rigid_batch,
+    query_triangles,
+    triangle_hypotheses,
+)
+from darces_matcher.triplets import control_triplets
+from darces_matcher.vote import pose_covariance, predicted_variance, refine, vote
+from roi_network.network import RoiNetwork
+from roi_network.records import as_records, xy
+from roi_network.transform import Rigid2D
+
+Status = Literal["fix", "no_fix"]
+
+
+@dataclass(frozen=True)
+class MatchConfig:
+    """Every tunable of the matcher, with its default (see docs/matcher.md).
+
+    Attributes:
+        use_orientation: triangles must have the same orientation (cw/ccw); False is the
+            original DARCES. Halves the hypotheses and rejects mirrored LNs.
+        use_labels: triangles and verification must agree on class labels; False is the
+            original DARCES. Divides the hypotheses by the label combinations.
+        n_sigma: tolerance of a node in standard deviations of its position error.
+            Larger: more robust to drift, more random hypotheses and votes.
+        gn_sigma_m: 1-sigma position error of a GN node per axis (orbital), metres.
+        ln_sigma_floor_m: smallest 1-sigma LN position error per axis, metres.
+        min_tol_m: smallest node tolerance in the edge tolerance d_D, metres.
+        min_gate_m: smallest verification gate, metres: a node within this of a GN node
+            of its class under a hypothesis votes for it. Too tight and the precise
+            nodes drop out when the far ones move the fit; too loose, random votes.
+        max_tol_m: largest node tolerance, metres (caps far, drifted nodes).
+        n_triplets: control triplets tried per LN at most. More: robustness to outliers
+            and misclassified nodes, at linear cost.
+        triplet_batch: triplets per round; matching stops after the first round that
+            gives a fix, so clean LNs cost one round.
+        min_side_m: shortest side of a control triangle, metres.
+        min_height_ratio: smallest control-triangle height over the sum of its vertex
+            tolerances (orientation must survive the noise).
+        max_uses_per_node: control triplets that may share one LN node.
+        max_hypotheses: hypotheses kept per control triplet (bounds the cost on huge GNs).
+        max_candidates: on a local (large-GN) index, control triplets whose lookup
+            returns more candidate triangles than this, or none, are not used (cost cap;
+            no candidate means a vertex has no counterpart). None: max(30000, 0.3 x GN
+            size), i.e. the cap grows with the random candidates a precise triplet has.
+        prefilter_above: with more hypotheses than this in a round, only those confirmed
+            by a precise LN node other than their own vertices are fully verified.
+        prefilter_nodes: how many of the most precise LN nodes may confirm.
+        n_refine: distinct transforms refined (the best and its alternatives).
+        min_refine_support: alternatives with less raw support are not refined (their
+            raw support is taken as is); 3 is a triangle's own vertices.
+        refine_iterations: association/refit rounds of the final least squares.
+        distinct_ratio: after refining a candidate, hypotheses that map every LN node
+            within this many tolerances of it are suppressed before refining the next.
+            The runner-up is a refined candidate sharing less than half of the
+            winner's correspondences.
+        min_inliers: least support for a fix (LN nodes matched).
+        min_inlier_fraction: least support for a fix as a fraction of the LN.
+        max_position_sigma_m: largest predicted 1-sigma error (per axis, from the fit's
+            covariance) of any mapped LN node for a fix, metres.
+        min_votes: least control triplets whose hypothesis agrees with the refined fix.
+        min_margin: least lead of the winner's support over the best distinct
+            alternative; below it the matcher abstains (ambiguity) rather than guesses.
+        index_max_side_m: longest indexed GN triangle side, metres; None: automatic
+            (every triangle for small GNs, local triangles for large ones).
+        index_exhaustive_max_nodes: GN size up to which every triangle is indexed.
+        index_neighbours: with automatic side limit, about this many neighbours per node
+            fall inside it (index memory ~ neighbours^2 per node).
+        index_quant_m: side-length quantisation of the triangle keys, metres; None:
+            4 m for an exhaustive index, 1 m for a local one.
+    """
+
+    use_orientation: bool = True
+    use_labels: bool = True
+    n_sigma: float = 3.0
+    gn_sigma_m: float = 0.3
+    ln_sigma_floor_m: float = 0.2
+    min_tol_m: float = 1.0
+    min_gate_m: float = 2.5
+    max_tol_m: float = 30.0
+    n_triplets: int = 12
+    triplet_batch: int = 4
+    min_side_m: float = 10.0
+    min_height_ratio: float = 0.5
+    max_uses_per_node: int = 3
+    max_hypotheses: int = 4000
+    max_candidates: int | None = None
+    prefilter_above: int = 200
+    prefilter_nodes: int = 8
+    n_refine: int = 4
+    min_refine_support: int = 5
+    refine_iterations: int = 6
+    distinct_ratio: float = 2.0
+    min_inliers: int = 9
+    min_inlier_fraction: float = 0.5
+    min_margin: int = 4
+    min_votes: int = 1
+    max_position_sigma_m: float = 2.0
+    index_max_side_m: float | None = None
+    index_exhaustive_max_nodes: int = 300
+    index_neighbours: int = 14
+    index_quant_m: float | None = None
+
+    @classmethod
+    def original(cls, **overrides: object) -> MatchConfig:
+        """The original DARCES: no orientation and no semantic constraint."""
+        return replace(cls(use_orientation=False, use_labels=False), **overrides)
+
+
+@dataclass
+class MatchResult:
+    """Outcome of matching one LN.
+
+    Attributes:
+        status: ``"fix"`` or ``"no_fix"``.
+        reason: why (``"ok"``, ``"too_few_nodes"``, ``"no_control_triplet"``,
+            ``"no_hypothesis"``, ``"insufficient_support"``, ``"unsupported_refit"``,
+            ``"imprecise"``, ``"ambiguous"``).
+        map_T_odom: fitted transform (``odom`` -> ``map``) of the best hypothesis, also
+            given on no_fix when there was one, for diagnostics; use it only on a fix.
+        covariance: (3, 3) covariance of (x, y, yaw) of ``map_T_odom``, m^2 and rad^2.
+        inliers: (K, 2) int pairs (LN index, GN index).
+        votes: control triplets with a triangle hypothesis made of three of the winner's
+            inlier correspondences.
+        support: inliers of the winner.
+        runner_up: inliers of the best distinct alternative (0 if none).
+        margin: support - runner_up.
+        position_sigma_m: largest predicted 1-sigma error per axis of a mapped LN node
+            under the fit's covariance, metres.
+        n_triplets: control triplets tried.
+        n_hypotheses: triangle hypotheses verified.
+        timings_ms: wall time per stage, milliseconds.
+    """
+
+    status: Status
+    reason: str
+    map_T_odom: Rigid2D | None = None
+    covariance: np.ndarray | None = None
+    inliers: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
+    votes: int = 0
+    support: int = 0
+    runner_up: int = 0
+    margin: int = 0
+    position_sigma_m: float = float("inf")
+    n_triplets: int = 0
+    n_hypotheses: int = 0
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def is_fix(self) -> bool:
+        """True when the matcher reports a fix."""
+        return self.status == "fix"
+
+
+class Matcher:
+    """DARCES matcher of LNs (``odom``) against one GN (``map``).
+
+    Args:
+        gn: the Global Network, ``map`` frame, at least 3 ROIs.
+        config: matcher settings; defaults to the improved DARCES.
+
+    Raises:
+        ValueError: if the GN has fewer than 3 ROIs or non-finite positions.
+    """
+
+    def __init__(self, gn: RoiNetwork, config: MatchConfig | None = None) -> None:
+        self.config = config or MatchConfig()
+        self.index = GnIndex(
+            gn,
+            use_labels=self.config.use_labels,
+            max_side_m=self.config.index_max_side_m,
+            exhaustive_max_nodes=self.config.index_exhaustive_max_nodes,
+            neighbours=self.config.index_neighbours,
+            quant_m=self.config.index_quant_m,
+        )
+
+    @property
+    def max_candidates(self) -> int:
+        """The effective ``MatchConfig.max_candidates``."""
+        if self.config.max_candidates is not None:
+            return self.config.max_candidates
+        return max(30000, int(0.3 * len(self.index.pts)))
+
+    def node_sigma(self, records: np.ndarray, ln_sigma: np.ndarray | None) -> np.ndarray:
+        """1-sigma position error per axis of each LN node, metres.
+
+        From ``ln_sigma`` when given, else from the records' covariance (cov_xx, cov_yy),
+        floored at ``ln_sigma_floor_m``.
+        """
+        if ln_sigma is None:
+            var = 0.5 * (records["cov_xx"].astype(float) + records["cov_yy"].astype(float))
+            sigma = np.sqrt(np.clip(np.nan_to_num(var), 0.0, None))
+        else:
+            sigma = np.asarray(ln_sigma, dtype=float).reshape(len(records))
+        return np.maximum(sigma, self.config.ln_sigma_floor_m)
+
+    def match(
+        self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None = None
+    ) -> MatchResult:
+        """Fit an LN onto the GN.
+
+        Args:
+            ln: LN records (:data:`~roi_network.records.ROI_DTYPE`) or network, ``odom``.
+            ln_sigma: optional (N,) 1-sigma position error per axis of each LN node,
+                metres (the LN error model: VO drift grows with distance travelled);
+                default: from the records' covariance.
+
+        Returns:
+            The :class:`MatchResult`; never raises on a degenerate LN.
+        """
+        cfg = self.config
+        t_start = time.perf_counter()
+        timings: dict[str, float] = {}
+        records = as_records(ln.records if isinstance(ln, RoiNetwork) else ln)
+        # Nodes with non-finite positions are left out; `kept` maps back to the input.
+        kept = np.flatnonzero(np.isfinite(xy(records)).all(axis=1))
+        sigma = self.node_sigma(records, ln_sigma)[kept]
+        records = records[kept]
+        pts, labels = xy(records), records["label"].astype(np.int64)
+        if len(kept) < 3:
+            return MatchResult("no_fix", "too_few_nodes", timings_ms=_since(t_start, timings))
+
+        # d_D: node tolerance from the LN error model plus the GN position error.
+        var = sigma**2 + cfg.gn_sigma_m**2
+        node_tol = np.clip(cfg.n_sigma * np.sqrt(var), cfg.min_tol_m, cfg.max_tol_m)
+        # Verification gate: the node tolerance, but never tighter than the fit itself is
+        # known (a precise node must stay an inlier while the far ones move the fit).
+        gate = np.maximum(node_tol, cfg.min_gate_m)
+        groups = self.index.label_groups(labels)
+        # The most precise nodes, which confirm hypotheses cheaply before the full vote.
+        precise_nodes = np.argsort(node_tol, kind="stable")[: cfg.prefilter_nodes]
+        precise = (precise_nodes, self.index.label_groups(labels[precise_nodes]))
+        # An edge's length error is the difference of its end errors projected on it.
+        edge_tol = cfg.n_sigma * np.sqrt(var[:, None] + var[None, :])
+        edge_tol = np.clip(edge_tol, cfg.min_tol_m, 2 * cfg.max_tol_m)
+        weights = 1.0 / (sigma**2 + cfg.gn_sigma_m**2)
+
+        # Control triplets: precise, well conditioned, spread over nodes.
+        t0 = time.perf_counter()
+        triplets = control_triplets(
+            pts, node_tol, cfg.n_triplets,
+            min_side_m=cfg.min_side_m, max_side_m=self.index.max_side_m,
+            min_height_ratio=cfg.min_height_ratio, max_uses_per_node=cfg.max_uses_per_node,
+            # Counting candidates pays off only where random congruent triangles abound.
+            cost=None if self.index.exhaustive else (
+                lambda trips: self._candidates(pts, labels, edge_tol, trips)),
+            max_cost=self.max_candidates,
+        )
+        timings["triplets"] = _ms(t0)
+        if len(triplets) == 0:
+            return MatchResult("no_fix", "no_control_triplet", timings_ms=_since(t_start, timings))
+
+        # Hypotheses and votes, one batch of control triplets at a time, best triplets
+        # first; stop as soon as the decision is a clear fix.
+        pool = _Pool()
+        result = MatchResult("no_fix", "no_hypothesis", n_triplets=len(triplets))
+        for first in range(0, len(triplets), cfg.triplet_batch):
+            batch = triplets[first : first + cfg.triplet_batch]
+            t0 = time.perf_counter()
+            # Hypotheses: congruent GN triangles (edges within d_D, orientation, labels).
+            ln_idx, gn_idx, source = triangle_hypotheses(
+                self.index, pts, labels, edge_tol, batch,
+                use_orientation=cfg.use_orientation, max_hypotheses=cfg.max_hypotheses,
+            )
+            source += first
+            _add(timings, "hypotheses", t0)
+            t0 = time.perf_counter()
+            # Each hypothesis gives a proper rigid transform (never a reflection).
+            yaw, trans = fit_rigid_batch(pts[ln_idx], self.index.pts[gn_idx])
+            # Cheap first look on the most precise nodes (huge GNs: many random triangles).
+            if len(yaw) > cfg.prefilter_above:
+                keep = self._confirmed(pts, gate, precise, yaw, trans, ln_idx)
+                yaw, trans, source = yaw[keep], trans[keep], source[keep]
+                ln_idx, gn_idx = ln_idx[keep], gn_idx[keep]
+            # Verification: every hypothesis votes with the whole LN.
+            mapped = apply_batch(yaw, trans, pts)
+            support = vote(self.index, groups, gate, mapped)
+            pool.add(yaw, trans, mapped, support, source, ln_idx, gn_idx)
+            _add(timings, "vote", t0)
+            if not len(pool.yaw):
+                continue
+            t0 = time.perf_counter()
+            # Refit the best distinct transforms on all their inliers.
+            candidates, leftover = self._refine_distinct(pts, groups, gate, weights, pool)
+            # Decision: enough support AND a clear margin over the best distinct alternative.
+            result = self._decide(candidates, leftover, pool, pts, gate, weights, kept)
+            result.n_triplets = min(first + cfg.triplet_batch, len(triplets))
+            _add(timings, "refine", t0)
+            if result.is_fix:
+                break
+        result.n_hypotheses = len(pool.yaw)
+        result.timings_ms = _since(t_start, timings)
+        return result
+
+    def _confirmed(
+        self,
+        pts: np.ndarray,
+        gate: np.ndarray,
+        precise: tuple[np.ndarray, list],
+        yaw: np.ndarray,
+        trans: np.ndarray,
+        ln_idx: np.ndarray,
+    ) -> np.ndarray:
+        """Hypotheses confirmed by at least one precise LN node besides their own vertices.
+
+        A random congruent GN triangle seldom also has a GN node of the right class where
+        a fourth, precise LN node lands, the true one almost always does: a star
+        tracker's fourth star. Only the survivors get the full vote.
+        """
+        nodes, groups = precise
+        mapped = apply_batch(yaw, trans, pts[nodes])
+        dist, _ = self.index.nearest_same_label(mapped, groups, float(gate[nodes].max()))
+        hit = dist <= gate[nodes][None, :]
+        own = (ln_idx[:, :, None] == nodes[None, None, :]).any(axis=1)
+        return np.flatnonzero((hit & ~own).any(axis=1))
+
+    def _candidates(
+        self, pts: np.ndarray, labels: np.ndarray, edge_tol: np.ndarray, triplets: np.ndarray
+    ) -> np.ndarray:
+        """GN candidate count of each triplet, from the triangle index (selectivity)."""
+        _, owner, sides, tol, codes = query_triangles(
+            pts, labels, edge_tol, triplets,
+            use_orientation=self.config.use_orientation, use_labels=self.index.use_labels,
+        )
+        per_query = self.index.count_candidates(sides, tol, codes)
+        return np.bincount(owner, weights=per_query, minlength=len(triplets))
+
+    def _decide(
+        self,
+        candidates: list[_Refined],
+        leftover: int,
+        pool: _Pool,
+        pts: np.ndarray,
+        node_tol: np.ndarray,
+        weights: np.ndarray,
+        kept: np.ndarray,
+    ) -> MatchResult:
+        """Fix or no fix from the refined candidates (best first)."""
+        cfg = self.config
+        best = candidates[0]
+        best_T = Rigid2D(best.yaw, best.t[0], best.t[1])
+        # The runner-up is the best candidate that is a different fix: it shares less than
+        # half of its correspondences with the winner.
+        runner_up = max((len(c.ln) for c in candidates[1:] if not _same_fix(best, c)),
+                        default=0)
+        runner_up = max(runner_up, leftover)
+        support = len(best.ln)
+        # A triplet votes for the fix when one of its triangle hypotheses is made of three
+        # of the fix's inlier correspondences.
+        n_gn = len(self.index.pts)
+        agreeing = np.isin(pool.ln_idx * n_gn + pool.gn_idx, best.ln * n_gn + best.gn).all(axis=1)
+        votes = len(np.unique(pool.source[agreeing]))
+        covariance = pose_covariance(pts[best.ln], best.yaw, weights[best.ln])
+        spread = float(np.sqrt(predicted_variance(pts, best.yaw, covariance).max()))
+        status: Status = "fix"
+        reason = "ok"
+        if support < max(cfg.min_inliers, cfg.min_inlier_fraction * len(pts)):
+            status, reason = "no_fix", "insufficient_support"
+        elif votes < cfg.min_votes:
+            # The refit drifted away from every triangle hypothesis: not trustworthy.
+            status, reason = "no_fix", "unsupported_refit"
+        elif spread > cfg.max_position_sigma_m:
+            # Right or wrong, a fit this loose cannot place the LN within metres.
+            status, reason = "no_fix", "imprecise"
+        elif support - runner_up < cfg.min_margin:
+            status, reason = "no_fix", "ambiguous"
+        return MatchResult(
+            status=status, reason=reason, map_T_odom=best_T,
+            covariance=covariance, position_sigma_m=spread,
+            inliers=np.column_stack([kept[best.ln], best.gn]).astype(np.int64),
+            votes=votes, support=support,
+            runner_up=runner_up, margin=support - runner_up,
+        )
+
+    def _refine_distinct(
+        self,
+        pts: np.ndarray,
+        groups: list,
+        node_tol: np.ndarray,
+        weights: np.ndarray,
+        pool: _Pool,
+    ) -> tuple[list[_Refined], int]:
+        """Refine the ``n_refine`` best mutually distinct hypotheses, best first.
+
+        Non-maximum suppression: after refining the best remaining hypothesis, every
+        hypothesis within ``distinct_ratio`` tolerances of it is set aside.
+
+        Returns:
+            The refined transforms, by decreasing support, then increasing residual, and
+            the best raw support of the hypotheses left unrefined.
+        """
+        cfg = self.config
+        alive = np.ones(len(pool.yaw), dtype=bool)
+        refined = []
+        for _ in range(cfg.n_refine):
+            if not alive.any():
+                break
+            pick = int(np.flatnonzero(alive)[np.argmax(pool.support[alive])])
+            # An alternative supported by little more than its own triangle is not worth
+            # refining: its raw support stands for it.
+            if refined and pool.support[pick] < cfg.min_refine_support:
+                break
+            yaw, t, ln, gn = refine(
+                self.index, pts, groups, node_tol, weights, float(pool.yaw[pick]), pool.t[pick],
+                iterations=cfg.refine_iterations, n_sigma=cfg.n_sigma, max_gate=cfg.max_tol_m,
+            )
+            residual = apply_batch(np.array([yaw]), t[None], pts[ln])[0] - self.index.pts[gn]
+            cost = float(np.sum(weights[ln] * np.sum(residual**2, axis=1)))
+            refined.append(_Refined(yaw, t, ln, gn, cost))
+            alive &= _displacement(pool.mapped, pool.mapped[pick], node_tol) > cfg.distinct_ratio
+        leftover = int(pool.support[alive].max(initial=0))
+        return sorted(refined, key=lambda r: (-len(r.ln), r.cost)), leftover
+
+
+@dataclass
+class _Refined:
+    """A refined transform: yaw (rad), t (m), inlier LN/GN indices, weighted cost."""
+
+    yaw: float
+    t: np.ndarray
+    ln: np.ndarray
+    gn: np.ndarray
+    cost: float
+
+
+class _Pool:
+    """Hypotheses verified so far: transforms, mapped LN, support, source triplet and
+    triangle correspondences (LN and GN indices)."""
+
+    def __init__(self) -> None:
+        self.yaw = np.zeros(0)
+        self.t = np.zeros((0, 2))
+        self.mapped = np.zeros((0, 0, 2))
+        self.support = np.zeros(0, dtype=np.int64)
+        self.source = np.zeros(0, dtype=np.int64)
+        self.ln_idx = np.zeros((0, 3), dtype=np.int64)
+        self.gn_idx = np.zeros((0, 3), dtype=np.int64)
+
+    def add(self, yaw: np.ndarray, t: np.ndarray, mapped: np.ndarray, support: np.ndarray,
+            source: np.ndarray, ln_idx: np.ndarray, gn_idx: np.ndarray) -> None:
+        """Append a batch of verified hypotheses."""
+        if not len(self.yaw):
+            self.mapped = mapped
+        else:
+            self.mapped = np.concatenate([self.mapped, mapped])
+        self.yaw = np.concatenate([self.yaw, yaw])
+        self.t = np.concatenate([self.t, t])
+        self.support = np.concatenate([self.support, support])
+        self.source = np.concatenate([self.source, source])
+        self.ln_idx = np.concatenate([self.ln_idx, ln_idx])
+        self.gn_idx = np.concatenate([self.gn_idx, gn_idx])
+
+
+def _same_fix(a: _Refined, b: _Refined) -> bool:
+    """Whether two refined transforms share at least half of the smaller inlier set."""
+    pairs_a = set(zip(a.ln.tolist(), a.gn.tolist(), strict=True))
+    shared = sum((p in pairs_a) for p in zip(b.ln.tolist(), b.gn.tolist(), strict=True))
+    return shared >= 0.5 * max(1, min(len(a.ln), len(b.ln)))
+
+
+def _displacement(mapped: np.ndarray, ref: np.ndarray, node_tol: np.ndarray) -> np.ndarray:
+    """Largest displacement of LN nodes between transforms, in node tolerances.
+
+    Args:
+        mapped: (H, N, 2) or (N, 2) LN nodes mapped by the hypotheses, metres.
+        ref: (N, 2) LN nodes mapped by the reference transform, metres.
+        node_tol: (N,) node tolerances, metres.
+    """
+    return np.max(np.linalg.norm(mapped - ref, axis=-1) / node_tol, axis=-1)
+
+
+def _ms(t0: float) -> float:
+    return 1e3 * (time.perf_counter() - t0)
+
+
+def _add(timings: dict[str, float], stage: str, t0: float) -> None:
+    timings[stage] = timings.get(stage, 0.0) + _ms(t0)
+
+
+def _since(t_start: float, timings: dict[str, float]) -> dict[str, float]:
+    timings["total"] = _ms(t_start)
+    return timings

@@ -1,0 +1,72 @@
+"""The ``darces_eval`` CLI: report fields, bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from darces_matcher.eval_cli import main
+from darces_matcher.gn_generator import GnSpec, generate_gn
+
+
+@pytest.fixture(scope="module")
+def gn_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    geojson = pytest.importorskip("roi_network.geojson")
+    path = tmp_path_factory.mktemp("gn") / "gn.geojson"
+    geojson.write_geojson(generate_gn(GnSpec(n_rois=120), seed=3), path)
+    return path
+
+
+def test_report_fields(gn_file: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out.json"
+    code = main(["--gn", str(gn_file), "--max-lns", "8", "--outliers", "0.2",
+                 "--methods", "darces,darces_original", "--json", str(out)])
+    assert code == 0
+    report = json.loads(out.read_text())
+    assert report["lns"] == 8
+    assert report["options"]["outliers"] == 0.2
+    for name in ("darces", "darces_original"):
+        r = report["methods"][name]
+        assert r["lns"] == 8
+        assert r["correct"] + r["false_fix"] + r["no_fix"] == 8
+        assert r["correct_match"] + r["false_match"] + r["no_fix"] == 8
+        assert abs(r["correct_rate"] + r["false_fix_rate"] + r["no_fix_rate"] - 1) < 1e-9
+        assert r["time_ms"]["median"] > 0 and r["time_ms"]["p95"] >= r["time_ms"]["median"]
+    assert report["methods"]["darces"]["false_match"] == 0
+
+
+def test_kiss_matcher_baseline_runs(gn_file: Path, tmp_path: Path) -> None:
+    pytest.importorskip("kiss_matcher")
+    out = tmp_path / "out.json"
+    assert main(["--gn", str(gn_file), "--max-lns", "2", "--methods", "kiss_matcher",
+                 "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["methods"]["kiss_matcher"]["lns"] == 2
+
+
+def test_corrupt_gn_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "bad.geojson"
+    bad.write_text("{ not json")
+    assert main(["--gn", str(bad), "--json", str(tmp_path / "o.json")]) == 1
+    assert "cannot read the GN" in capsys.readouterr().err
+    missing = tmp_path / "missing.geojson"
+    assert main(["--gn", str(missing), "--json", str(tmp_path / "o.json")]) == 1
+
+
+def test_empty_gn_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    empty = tmp_path / "empty.geojson"
+    empty.write_text(json.dumps({
+        "type": "FeatureCollection",
+        "metadata": {"crs": "EPSG:32719", "map_origin": [0.0, 0.0]},
+        "features": [],
+    }))
+    code = main(["--gn", str(empty), "--json", str(tmp_path / "o.json")])
+    assert code == 1
+    assert "GN" in capsys.readouterr().err
+
+
+def test_bad_options(tmp_path: Path) -> None:
+    out = str(tmp_path / "o.json")
+    assert main(["--synthetic", "60", "--methods", "nope", "--json", out]) == 2
+    assert main(["--synthetic", "60", "--outliers", "1.5", "--json", out]) == 2

@@ -1,0 +1,163 @@
+"""Matcher behaviour: recovery, orientation and semantic constraints, abstention, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from darces_matcher.gn_generator import GnSpec, generate_gn, repeated_pattern_gn
+from darces_matcher.matcher import MatchConfig, Matcher
+from darces_matcher.simulate import SimOptions, iter_lns, transform_error
+from roi_network.network import RoiNetwork
+from roi_network.records import OUTCROP, ROCK, empty_records, xy
+from roi_network.transform import Rigid2D
+
+
+@pytest.fixture(scope="module")
+def gn() -> RoiNetwork:
+    return generate_gn(GnSpec(n_rois=120), seed=3)
+
+
+@pytest.fixture(scope="module")
+def matcher(gn: RoiNetwork) -> Matcher:
+    return Matcher(gn)
+
+
+def _lns(gn: RoiNetwork, n: int, **options: float) -> list:
+    return list(iter_lns(gn, SimOptions(**options), seed=7, max_lns=n))
+
+
+def test_exact_recovery_on_noiseless_lns(gn: RoiNetwork, matcher: Matcher) -> None:
+    gn_pts = xy(gn.records)
+    lns = _lns(gn, 12, noise_fraction=0.0)
+    assert len(lns) == 12
+    for sim in lns:
+        result = matcher.match(sim.records)
+        assert result.status == "fix", result.reason
+        assert transform_error(result.map_T_odom, sim, gn_pts) < 1e-6
+        # Every LN node is an inlier, paired with its own GN node.
+        assert result.support == len(sim.records)
+        assert np.array_equal(sim.truth_gn[result.inliers[:, 0]], result.inliers[:, 1])
+        assert result.covariance.shape == (3, 3)
+        assert np.all(np.linalg.eigvalsh(result.covariance) > 0)
+
+
+def test_paper_protocol_noise_gives_right_matches(gn: RoiNetwork, matcher: Matcher) -> None:
+    gn_pts = xy(gn.records)
+    for sim in _lns(gn, 20):
+        result = matcher.match(sim.records)
+        assert result.status == "fix", result.reason
+        # Drift limits the fit (see eval_cli): the right place, within a few metres.
+        assert transform_error(result.map_T_odom, sim, gn_pts) < 6.0
+
+
+def test_mirrored_ln_is_rejected(gn: RoiNetwork, matcher: Matcher) -> None:
+    for sim in _lns(gn, 6, noise_fraction=0.0):
+        mirrored = sim.records.copy()
+        mirrored["x"] = -mirrored["x"]
+        result = matcher.match(mirrored)
+        assert result.status == "no_fix"
+
+
+def test_original_darces_ignores_orientation_and_labels(gn: RoiNetwork) -> None:
+    original = Matcher(gn, MatchConfig.original())
+    assert not original.config.use_orientation and not original.config.use_labels
+    sim = _lns(gn, 1, noise_fraction=0.0)[0]
+    result = original.match(sim.records)
+    assert result.status == "fix"
+    assert transform_error(result.map_T_odom, sim, xy(gn.records)) < 1e-6
+
+
+def test_class_swapped_ln_is_rejected(gn: RoiNetwork, matcher: Matcher) -> None:
+    for sim in _lns(gn, 6, noise_fraction=0.0):
+        swapped = sim.records.copy()
+        swapped["label"] = np.where(swapped["label"] == ROCK, OUTCROP, ROCK)
+        assert matcher.match(swapped).status == "no_fix"
+
+
+def test_repeated_pattern_gives_no_fix() -> None:
+    gn = repeated_pattern_gn(n_copies=2, seed=1)
+    matcher = Matcher(gn)
+    rng = np.random.default_rng(0)
+    copy0 = np.flatnonzero(gn.records["x"] < 1000.0)
+    nodes = rng.choice(copy0, 15, replace=False)
+    truth = Rigid2D(0.7, 123.0, -456.0)
+    ln = empty_records(len(nodes))
+    odom = truth.inverse().apply(xy(gn.records[nodes]))
+    ln["x"], ln["y"], ln["label"] = odom[:, 0], odom[:, 1], gn.records["label"][nodes]
+    result = matcher.match(ln)
+    assert result.status == "no_fix"
+    assert result.reason == "ambiguous"
+    assert result.support == result.runner_up == len(nodes)
+
+
+def test_fewer_than_three_nodes(matcher: Matcher) -> None:
+    for n in (0, 1, 2):
+        ln = empty_records(n)
+        ln["label"] = ROCK
+        result = matcher.match(ln)
+        assert (result.status, result.reason) == ("no_fix", "too_few_nodes")
+
+
+def test_collinear_nodes(matcher: Matcher) -> None:
+    ln = empty_records(10)
+    ln["x"] = np.arange(10) * 30.0
+    ln["label"] = ROCK
+    result = matcher.match(ln)
+    assert (result.status, result.reason) == ("no_fix", "no_control_triplet")
+
+
+def test_non_finite_nodes_are_ignored(gn: RoiNetwork, matcher: Matcher) -> None:
+    sim = _lns(gn, 1, noise_fraction=0.0)[0]
+    records = sim.records.copy()
+    records["x"][0] = np.nan
+    result = matcher.match(records)
+    assert result.status == "fix"
+    assert 0 not in result.inliers[:, 0]
+    assert np.array_equal(sim.truth_gn[result.inliers[:, 0]], result.inliers[:, 1])
+
+
+def test_invalid_records_raise_clearly(matcher: Matcher) -> None:
+    with pytest.raises(ValueError, match="label"):
+        matcher.match(empty_records(5))  # class 0 is no class
+
+
+def test_empty_or_tiny_gn_raises_clearly() -> None:
+    with pytest.raises(ValueError, match="at least 3"):
+        Matcher(RoiNetwork.empty("map"))
+    tiny = empty_records(2)
+    tiny["label"] = ROCK
+    with pytest.raises(ValueError, match="at least 3"):
+        Matcher(RoiNetwork(tiny, "map"))
+
+
+def test_ln_error_model_argument(gn: RoiNetwork, matcher: Matcher) -> None:
+    sim = _lns(gn, 1)[0]
+    records = sim.records.copy()
+    records["cov_xx"] = records["cov_yy"] = 0.0
+    # The error model given explicitly replaces the records' covariance.
+    result = matcher.match(records, ln_sigma=sim.sigma)
+    assert result.status == "fix"
+    assert result.timings_ms["total"] > 0
+
+
+def test_robust_to_outliers_and_label_flips(gn: RoiNetwork, matcher: Matcher) -> None:
+    gn_pts = xy(gn.records)
+    lns = _lns(gn, 20, outliers=0.3, label_flips=0.1)
+    fixed = [matcher.match(sim.records) for sim in lns]
+    errors = [transform_error(r.map_T_odom, s, gn_pts) for r, s in zip(fixed, lns, strict=True)
+              if r.is_fix]
+    assert len(errors) >= 18
+    assert max(errors) < 6.0
+
+
+def test_large_gn_uses_local_triangles() -> None:
+    gn = generate_gn(GnSpec(n_rois=5000, aspect=1.0), seed=2)
+    matcher = Matcher(gn)
+    assert np.isfinite(matcher.index.max_side_m)
+    assert matcher.index.stats.n_triangles < 5000 * 40
+    lns = list(iter_lns(gn, SimOptions(noise_fraction=0.0), seed=1, max_lns=3))
+    for sim in lns:
+        result = matcher.match(sim.records)
+        assert result.status == "fix"
+        assert transform_error(result.map_T_odom, sim, xy(gn.records)) < 1e-6

@@ -1,0 +1,174 @@
+"""The darces_matcher node in its own process, driven by a test node over ROS 2."""
+
+import os
+import shutil
+import signal
+import subprocess
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
+from nav_msgs.msg import Odometry
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from scipy.spatial.transform import Rotation
+
+from darces_matcher.gn_generator import generate_gn
+from darces_matcher.localization import Alignment, AlignmentTracker, compose_pose
+from darces_matcher.matcher import MatchResult
+from roi_network.geojson import write_geojson
+from roi_network.pointcloud import to_pointcloud2
+from roi_network.records import xy
+from roi_network.transform import Rigid2D
+
+pytestmark = pytest.mark.ros
+
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+TRUTH = Rigid2D(0.8, 120.0, -40.0)  # map_T_odom the node must find
+
+
+def _ros_env(domain: int) -> dict[str, str]:
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = str(domain)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    return env
+
+
+def _local_network(gn, n=24, seed=3):
+    """An LN of the GN nodes nearest a 600 m route, in the odom frame of TRUTH."""
+    rng = np.random.default_rng(seed)
+    pts = xy(gn.records)
+    start = pts[np.argmin(pts[:, 0])]
+    route = start + np.linspace(0, 1, 50)[:, None] * np.array([600.0, 0.0])
+    dist = np.min(np.linalg.norm(pts[:, None] - route[None], axis=2), axis=1)
+    ln = gn.records[np.argsort(dist)[:n]].copy()
+    odom = TRUTH.inverse().apply(xy(ln)) + rng.normal(0, 0.2, (n, 2))
+    ln["x"], ln["y"] = odom[:, 0], odom[:, 1]
+    ln["cov_xx"] = ln["cov_yy"] = 0.5**2
+    return ln
+
+
+def _odometry(x, y, yaw, stamp_s):
+    msg = Odometry()
+    msg.header.frame_id, msg.child_frame_id = "odom", "base_link"
+    msg.header.stamp.sec = stamp_s
+    msg.pose.pose.position.x, msg.pose.pose.position.y = x, y
+    q = Rotation.from_euler("z", yaw).as_quat()
+    o = msg.pose.pose.orientation
+    o.x, o.y, o.z, o.w = q
+    msg.pose.covariance = list(np.diag([0.1, 0.1, 0.1, 0.01, 0.01, 0.02]).ravel())
+    return msg
+
+
+@pytest.fixture
+def matcher_process(tmp_path):
+    gn = generate_gn(seed=11)
+    gn_path = tmp_path / "gn.geojson"
+    write_geojson(gn, gn_path)
+    domain = 60 + os.getpid() % 40
+    exe = shutil.which("darces_matcher")
+    assert exe, "darces_matcher executable not on PATH (source env.sh)"
+    proc = subprocess.Popen([exe, "--ros-args", "-p", f"gn_path:={gn_path}"],
+                            env=_ros_env(domain), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    yield gn, domain, proc
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=10)
+
+
+def test_node_publishes_alignment_and_global_pose(matcher_process):
+    gn, domain, proc = matcher_process
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    try:
+        node = rclpy.create_node("matcher_test_driver", context=ctx)
+        executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        got: dict[str, list] = {"alignment": [], "pose": []}
+        node.create_subscription(TransformStamped, "/global_alignment",
+                                 got["alignment"].append, LATCHED)
+        node.create_subscription(PoseWithCovarianceStamped, "/global_pose",
+                                 got["pose"].append, 10)
+        ln_pub = node.create_publisher(type(to_pointcloud2(gn.records[:0], "odom")),
+                                       "/local_network", LATCHED)
+        odom_pub = node.create_publisher(Odometry, "/vo/odometry", 10)
+
+        def spin_until(cond, timeout):
+            end = time.monotonic() + timeout
+            while not cond() and time.monotonic() < end and proc.poll() is None:
+                executor.spin_once(timeout_sec=0.05)
+            return cond()
+
+        # Before any LN: odometry gives no global pose.
+        assert spin_until(lambda: odom_pub.get_subscription_count() > 0, 15), proc.stdout
+        odom_pub.publish(_odometry(0.0, 0.0, 0.0, 1))
+        spin_until(lambda: False, 0.5)
+        assert got["pose"] == []
+
+        ln_pub.publish(to_pointcloud2(_local_network(gn), "odom", stamp=2_000_000_000))
+        assert spin_until(lambda: got["alignment"], 20), "no /global_alignment"
+        a = got["alignment"][-1]
+        assert (a.header.frame_id, a.child_frame_id) == ("map", "odom")
+        yaw = 2 * np.arctan2(a.transform.rotation.z, a.transform.rotation.w)
+        assert abs(np.angle(np.exp(1j * (yaw - TRUTH.yaw)))) < np.radians(0.5)
+        assert np.hypot(a.transform.translation.x - TRUTH.tx,
+                        a.transform.translation.y - TRUTH.ty) < 1.0
+
+        poses = [(10.0, 5.0, 0.3), (25.0, -4.0, -0.2), (40.0, 2.0, 1.0)]
+        for k, (x, y, th) in enumerate(poses):
+            odom_pub.publish(_odometry(x, y, th, 3 + k))
+        assert spin_until(lambda: len(got["pose"]) == len(poses), 10)
+        for msg, (x, y, th) in zip(got["pose"], poses, strict=True):
+            assert msg.header.frame_id == "map"
+            expected = TRUTH.apply([x, y])
+            p = msg.pose.pose.position
+            assert np.hypot(p.x - expected[0], p.y - expected[1]) < 1.0
+            q = msg.pose.pose.orientation
+            got_yaw = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_euler("xyz")[2]
+            assert abs(np.angle(np.exp(1j * (got_yaw - th - TRUTH.yaw)))) < np.radians(0.5)
+            cov = np.array(msg.pose.covariance).reshape(6, 6)
+            assert cov[0, 0] > 0.1 and np.allclose(cov, cov.T)
+        assert proc.poll() is None, "matcher node died"
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
+def test_bad_gn_file_is_a_one_line_error(tmp_path):
+    missing = tmp_path / "missing.geojson"
+    result = subprocess.run(
+        [shutil.which("darces_matcher"), "--ros-args", "-p", f"gn_path:={missing}"],
+        env=_ros_env(61 + os.getpid() % 40), capture_output=True, text=True, timeout=30)
+    assert result.returncode == 1
+    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and str(missing) in lines[0], result.stderr
+
+
+def _fix(t: Rigid2D, support: int) -> MatchResult:
+    return MatchResult("fix", "ok", map_T_odom=t, covariance=np.eye(3) * 0.01, support=support)
+
+
+def test_tracker_refines_switches_and_keeps():
+    ln = np.array([[0.0, 0.0], [100.0, 0.0], [50.0, 80.0]])
+    tracker = AlignmentTracker(consistency_m=5.0)
+    assert tracker.update(MatchResult("no_fix", "ambiguous"), ln) == "none"
+    assert tracker.update(_fix(Rigid2D(0.1, 10, 0), 8), ln) == "first_fix"
+    assert tracker.update(_fix(Rigid2D(0.1, 11, 0), 9), ln) == "refined"
+    assert tracker.update(MatchResult("no_fix", "ambiguous"), ln) == "kept"
+    assert tracker.update(_fix(Rigid2D(2.0, 500, 0), 5), ln) == "conflict"
+    assert tracker.alignment.map_T_odom.tx == 11
+    assert tracker.update(_fix(Rigid2D(2.0, 500, 0), 12), ln) == "switched"
+    assert tracker.alignment.map_T_odom.tx == 500 and tracker.switches == 1
+
+
+def test_compose_pose_propagates_alignment_uncertainty():
+    align = Alignment(Rigid2D(np.pi / 2, 5.0, 0.0), np.diag([0.0, 0.0, 1e-4]), 10, 10)
+    q0 = Rotation.from_euler("z", 0.1).as_quat()
+    pos, quat, cov = compose_pose(align, np.array([100.0, 0.0, 1.0]), q0, np.zeros(36))
+    np.testing.assert_allclose(pos, [5.0, 100.0, 1.0], atol=1e-9)
+    assert Rotation.from_quat(quat).as_euler("xyz")[2] == pytest.approx(np.pi / 2 + 0.1)
+    # 1e-4 rad^2 yaw variance at 100 m lever arm: 1 m^2 across the lever (map x here).
+    assert cov[0, 0] == pytest.approx(1.0) and cov[1, 1] == pytest.approx(0.0, abs=1e-12)
+    assert cov[5, 5] == pytest.approx(1e-4)

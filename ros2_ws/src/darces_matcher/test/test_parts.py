@@ -1,0 +1,160 @@
+"""Building blocks: GN index, triplets, batched fit, simulation protocol, generator."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from darces_matcher.gn_generator import GnSpec, generate_gn
+from darces_matcher.gn_index import GnIndex, label_code, triangle_sides
+from darces_matcher.hypotheses import apply_batch, fit_rigid_batch
+from darces_matcher.simulate import (
+    SimOptions,
+    TrajectoryEnumerator,
+    degrade_gn,
+    iter_lns,
+    start_end_pairs,
+)
+from darces_matcher.triplets import control_triplets
+from roi_network.records import xy
+from roi_network.transform import Rigid2D
+
+
+def test_exhaustive_index_holds_every_non_degenerate_triangle() -> None:
+    gn = generate_gn(GnSpec(n_rois=30), seed=0)
+    index = GnIndex(gn, min_height_m=0.0)
+    assert index.stats.n_triangles == math.comb(30, 3)
+    assert np.all(np.diff(index.keys) >= 0)
+    # Counter-clockwise, longest side first.
+    p = index.pts[index.tri]
+    u, v = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    cross = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+    assert np.all(cross > 0)
+    sides = triangle_sides(index.tri, index.pts)
+    assert np.all(sides[:, 0] >= sides[:, 1:].max(axis=1) - 1e-4)
+
+
+def test_congruent_finds_the_triangle_itself() -> None:
+    gn = generate_gn(GnSpec(n_rois=60), seed=1)
+    index = GnIndex(gn)
+    rows = np.array([0, 17, len(index.tri) - 1])
+    tri = index.tri[rows]
+    codes = label_code(index.labels[tri], True)
+    found, query = index.congruent(triangle_sides(tri, index.pts), np.full((3, 3), 0.5), codes)
+    for q, row in enumerate(rows):
+        assert row in found[query == q]
+
+
+def test_local_index_respects_side_limit() -> None:
+    gn = generate_gn(GnSpec(n_rois=2000, aspect=1.0), seed=1)
+    index = GnIndex(gn, max_side_m=60.0)
+    assert index.stats.max_side_m == 60.0
+    assert triangle_sides(index.tri, index.pts).max() <= 60.0 + 1e-3
+    assert index.stats.memory_bytes > 0 and index.stats.build_s > 0
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    yaw=st.floats(-math.pi, math.pi),
+    tx=st.floats(-1e4, 1e4),
+    ty=st.floats(-1e4, 1e4),
+    seed=st.integers(0, 1000),
+)
+def test_fit_rigid_batch_matches_rigid2d_fit(yaw: float, tx: float, ty: float, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    src = rng.uniform(-500, 500, (5, 2))
+    truth = Rigid2D(yaw, tx, ty)
+    dst = truth.apply(src) + rng.normal(0, 0.5, (5, 2))
+    w = rng.uniform(0.1, 2.0, 5)
+    yaw_b, t_b = fit_rigid_batch(src[None], dst[None], w[None])
+    ref = Rigid2D.fit(src, dst, w)
+    assert abs(math.remainder(yaw_b[0] - ref.yaw, 2 * math.pi)) < 1e-9
+    assert np.allclose(t_b[0], ref.translation, atol=1e-6)
+    mapped = apply_batch(yaw_b, t_b, src)[0]
+    assert np.allclose(mapped, ref.apply(src), atol=1e-6)
+
+
+def test_fit_never_reflects() -> None:
+    src = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 5.0]])
+    mirrored = src * np.array([-1.0, 1.0])
+    yaw, t = fit_rigid_batch(src[None], mirrored[None])
+    fitted = apply_batch(yaw, t, src)[0]
+    # A proper rotation cannot reproduce the mirror image.
+    assert np.abs(fitted - mirrored).max() > 1.0
+
+
+def test_control_triplets_are_ccw_and_non_degenerate() -> None:
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(0, 300, (20, 2))
+    tol = rng.uniform(0.5, 3, 20)
+    trip = control_triplets(pts, tol, 10, min_side_m=10.0, max_side_m=np.inf,
+                            min_height_ratio=1.0, max_uses_per_node=3)
+    assert 0 < len(trip) <= 10
+    p = pts[trip]
+    u, v = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    cross = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+    assert np.all(cross > 0)
+    assert np.bincount(trip.ravel()).max() <= 3
+
+
+def test_control_triplets_none_for_collinear() -> None:
+    pts = np.column_stack([np.arange(8) * 20.0, np.zeros(8)])
+    trip = control_triplets(pts, np.ones(8), 5, min_side_m=10.0, max_side_m=np.inf,
+                            min_height_ratio=1.0, max_uses_per_node=3)
+    assert trip.shape == (0, 3)
+
+
+def test_simulation_follows_the_protocol() -> None:
+    gn = generate_gn(GnSpec(n_rois=120), seed=3)
+    pts = xy(gn.records)
+    options = SimOptions()
+    pairs = start_end_pairs(pts, options)
+    d = np.linalg.norm(pts[pairs[:, 0]] - pts[pairs[:, 1]], axis=1)
+    assert np.all((d >= 600) & (d <= 1000))
+    enum = TrajectoryEnumerator(pts, options, seed=0)
+    n_traj = 0
+    for s, e in pairs[:200]:
+        for traj in enum.trajectories(int(s), int(e)):
+            n_traj += 1
+            assert traj[0] == s and traj[-1] == e
+            assert 19 <= len(traj) <= 29
+            assert len(set(traj.tolist())) == len(traj)
+            assert np.linalg.norm(np.diff(pts[traj], axis=0), axis=1).sum() < 1000
+    assert n_traj > 0
+    lns = list(iter_lns(gn, options, seed=5, max_lns=10))
+    again = list(iter_lns(gn, options, seed=5, max_lns=10))
+    assert len(lns) == 10
+    for sim, twin in zip(lns, again, strict=True):
+        assert np.array_equal(sim.records, twin.records)
+        n = len(sim.trajectory)
+        assert len(sim.records) == n - round(0.2 * n)
+        # Drift never exceeds 1 % of the distance travelled (< 1 km).
+        odom_true = sim.map_T_odom.inverse().apply(pts[sim.truth_gn])
+        assert np.linalg.norm(xy(sim.records) - odom_true, axis=1).max() <= 10.0
+        assert np.allclose(sim.sigma**2, sim.records["cov_xx"], rtol=1e-5, atol=1e-9)
+
+
+def test_stress_options() -> None:
+    gn = generate_gn(GnSpec(n_rois=120), seed=3)
+    sim = next(iter_lns(gn, SimOptions(outliers=0.3, label_flips=0.1), seed=1))
+    true = sim.truth_gn >= 0
+    n_true = int(true.sum())
+    assert (~true).sum() == round(0.3 * n_true)
+    flipped = sim.records["label"][true] != gn.records["label"][sim.truth_gn[true]]
+    assert flipped.sum() == round(0.1 * n_true)
+    degraded, kept = degrade_gn(gn, 0.25, seed=0)
+    assert len(degraded) == len(gn) - 30
+    assert np.array_equal(degraded.records["id"], gn.records["id"][kept])
+
+
+@pytest.mark.parametrize("n", [10, 174, 3000])
+def test_generator_size_and_labels(n: int) -> None:
+    gn = generate_gn(GnSpec(n_rois=n), seed=0)
+    assert len(gn) == n and gn.frame_id == "map"
+    assert set(np.unique(gn.records["label"])) <= {1, 2}
+    w, h = GnSpec(n_rois=n).extent_m
+    assert xy(gn.records).min() >= 0 and gn.records["x"].max() <= w and gn.records["y"].max() <= h
