@@ -319,6 +319,10 @@ class GnIndex:
         ok = np.all(diff <= tol[query], axis=1)
         return rows[ok], query[ok]
 
+    def any_label_groups(self, n: int) -> list[tuple[cKDTree, np.ndarray, np.ndarray]]:
+        """Query plan of N LN nodes against the whole GN, whatever their classes."""
+        return [(self.tree, self._all_ext, np.arange(n))]
+
     def label_groups(self, labels: np.ndarray) -> list[tuple[cKDTree, np.ndarray, np.ndarray]]:
         """Per-class query plan for LN nodes, computed once per LN.
 
@@ -331,7 +335,7 @@ class GnIndex:
             ``use_labels`` False, one group of all nodes against the whole GN.
         """
         if not self.use_labels:
-            return [(self.tree, self._all_ext, np.arange(len(labels)))]
+            return self.any_label_groups(len(labels))
         groups = []
         for label, (tree, members) in self.label_trees.items():
             sel = np.flatnonzero(labels == label)

@@ -91,6 +91,17 @@ class MatchConfig:
             fall inside it (index memory ~ neighbours^2 per node).
         index_quant_m: side-length quantisation of the triangle keys, metres; None:
             4 m for an exhaustive index, 1 m for a local one.
+        label_fallback: with ``use_labels``, when the labelled search gives no fix, search
+            again blind to classes (triangles and votes), and accept that fix only if
+            its inliers mostly agree on class. Misclassified nodes then still count as
+            geometry, while a class-swapped LN is still rejected. Costs a second index
+            (built at the first fallback) and a second search on the LNs that need it;
+            only with an exhaustive index (small GN). Also enables the polish.
+        min_label_agreement: least share of a label-blind fix's (or refit's) inlier
+            pairs whose LN and GN classes agree.
+        polish_label_blind: refit a labelled fix with label-blind association when a
+            non-inlier LN node lands on a GN node of another class; the refit is kept
+            if it has more inliers and passes ``min_label_agreement``.
     """
 
     use_orientation: bool = True
@@ -102,7 +113,7 @@ class MatchConfig:
     min_gate_m: float = 2.5
     max_tol_m: float = 30.0
     n_triplets: int = 12
-    triplet_batch: int = 4
+    triplet_batch: int = 2
     min_side_m: float = 10.0
     min_height_ratio: float = 0.5
     max_uses_per_node: int = 3
@@ -123,6 +134,9 @@ class MatchConfig:
     index_exhaustive_max_nodes: int = 300
     index_neighbours: int = 14
     index_quant_m: float | None = None
+    label_fallback: bool = True
+    min_label_agreement: float = 0.75
+    polish_label_blind: bool = True
 
     @classmethod
     def original(cls, **overrides: object) -> MatchConfig:
@@ -138,7 +152,8 @@ class MatchResult:
         status: ``"fix"`` or ``"no_fix"``.
         reason: why (``"ok"``, ``"too_few_nodes"``, ``"no_control_triplet"``,
             ``"no_hypothesis"``, ``"insufficient_support"``, ``"unsupported_refit"``,
-            ``"imprecise"``, ``"ambiguous"``).
+            ``"imprecise"``, ``"ambiguous"``, ``"label_mismatch"``); a fix found by the
+            label-blind fallback has reason ``"ok_label_blind"``.
         map_T_odom: fitted transform (``odom`` -> ``map``) of the best hypothesis, also
             given on no_fix when there was one, for diagnostics; use it only on a fix.
         covariance: (3, 3) covariance of (x, y, yaw) of ``map_T_odom``, m^2 and rad^2.
@@ -196,6 +211,9 @@ class Matcher:
             neighbours=self.config.index_neighbours,
             quant_m=self.config.index_quant_m,
         )
+        self._gn_labels = gn.records["label"].astype(np.int64)
+        self._gn = gn
+        self._blind: Matcher | None = None
 
     @property
     def max_candidates(self) -> int:
@@ -231,6 +249,82 @@ class Matcher:
         Returns:
             The :class:`MatchResult`; never raises on a degenerate LN.
         """
+        result = self._match(ln, ln_sigma)
+        cfg = self.config
+        if result.is_fix and cfg.use_labels and cfg.label_fallback and cfg.polish_label_blind:
+            return self._polish(result)
+        if result.is_fix or not (cfg.use_labels and cfg.label_fallback) or result.reason in (
+            "too_few_nodes", "no_control_triplet"
+        ) or not self.index.exhaustive:
+            return result
+        # Soft semantics: misclassified nodes cannot vote in the labelled search; search
+        # again on geometry only, and keep that fix if its inliers mostly agree on class
+        # (a class-swapped LN finds its geometric match but fails this check).
+        blind = self._blind_matcher()
+        second = blind._match(ln, ln_sigma)
+        for stage, ms in second.timings_ms.items():
+            key = "total" if stage == "total" else f"blind_{stage}"
+            result.timings_ms[key] = result.timings_ms.get(key, 0.0) + ms
+        if not second.is_fix:
+            return result
+        records = as_records(ln.records if isinstance(ln, RoiNetwork) else ln)
+        ln_lab = records["label"].astype(np.int64)[second.inliers[:, 0]]
+        agree = float(np.mean(ln_lab == self._gn_labels[second.inliers[:, 1]]))
+        if agree < cfg.min_label_agreement:
+            result.reason = "label_mismatch"
+            return result
+        second.reason = "ok_label_blind"
+        second.timings_ms = result.timings_ms
+        second.n_triplets += result.n_triplets
+        second.n_hypotheses += result.n_hypotheses
+        return second
+
+    def _polish(self, result: MatchResult) -> MatchResult:
+        """Refit a labelled fix with label-blind association (misclassified nodes join).
+
+        Kept only if it has at least the labelled support and its inliers mostly agree
+        on class.
+        """
+        cfg = self.config
+        t0 = time.perf_counter()
+        kept, pts, labels, gate, weights = self._last
+        groups = self.index.any_label_groups(len(pts))
+        T = result.map_T_odom
+        # Only worth it when a node outside the labelled inliers lands on a GN node of
+        # another class (a misclassification); a clean LN skips the refit.
+        out = np.setdiff1d(np.arange(len(pts)), np.searchsorted(kept, result.inliers[:, 0]))
+        dist, _ = self.index.tree.query(T.apply(pts[out]), distance_upper_bound=gate.max())
+        if not (dist <= gate[out]).any():
+            result.timings_ms["polish"] = _ms(t0)
+            result.timings_ms["total"] += result.timings_ms["polish"]
+            return result
+        yaw, t, ln_in, gn_in = refine(
+            self.index, pts, groups, gate, weights, float(T.yaw), np.array([T.tx, T.ty]),
+            iterations=cfg.refine_iterations, n_sigma=cfg.n_sigma, max_gate=cfg.max_tol_m,
+        )
+        agree = labels[ln_in] == self._gn_labels[gn_in]
+        if len(ln_in) > result.support and agree.mean() >= cfg.min_label_agreement:
+            covariance = pose_covariance(pts[ln_in], yaw, weights[ln_in])
+            spread = float(np.sqrt(predicted_variance(pts, yaw, covariance).max()))
+            if spread <= cfg.max_position_sigma_m:
+                result.map_T_odom = Rigid2D(yaw, t[0], t[1])
+                result.covariance, result.position_sigma_m = covariance, spread
+                result.inliers = np.column_stack([kept[ln_in], gn_in]).astype(np.int64)
+                result.margin += len(ln_in) - result.support
+                result.support = len(ln_in)
+        result.timings_ms["polish"] = _ms(t0)
+        result.timings_ms["total"] += result.timings_ms["polish"]
+        return result
+
+    def _blind_matcher(self) -> Matcher:
+        """The label-blind matcher of the fallback, its index built at first use."""
+        if self._blind is None:
+            self._blind = Matcher(self._gn, replace(self.config, use_labels=False,
+                                                    label_fallback=False))
+        return self._blind
+
+    def _match(self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None) -> MatchResult:
+        """One search (labelled or not, as configured); see :meth:`match`."""
         cfg = self.config
         t_start = time.perf_counter()
         timings: dict[str, float] = {}
@@ -257,6 +351,9 @@ class Matcher:
         edge_tol = cfg.n_sigma * np.sqrt(var[:, None] + var[None, :])
         edge_tol = np.clip(edge_tol, cfg.min_tol_m, 2 * cfg.max_tol_m)
         weights = 1.0 / (sigma**2 + cfg.gn_sigma_m**2)
+        # Kept for the label-blind polish of a fix (:meth:`_polish`); a Matcher
+        # serves one match at a time.
+        self._last = (kept, pts, labels, gate, weights)
 
         # Control triplets: precise, well conditioned, spread over nodes.
         t0 = time.perf_counter()

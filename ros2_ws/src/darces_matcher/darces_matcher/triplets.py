@@ -93,17 +93,24 @@ def control_triplets(
     # Greedy spread: plain Python lists, the loop is short and numpy calls would dominate.
     # With a cost, pick a few spares: some will be dropped.
     limit = n_triplets if cost is None else spare_factor * n_triplets
-    uses = [0] * n
-    rows = combos.tolist()
+    uses = np.zeros(n, dtype=np.int64)
     chosen: list[int] = []
-    for row in order.tolist():
+    ordered = combos[order]
+    # In blocks: rows holding an already saturated node are dropped with one numpy test
+    # per block, the short greedy loop sees only the others.
+    for start in range(0, len(order), 128):
         if len(chosen) >= limit:
             break
-        if any(uses[v] >= max_uses_per_node for v in rows[row]):
-            continue
-        chosen.append(row)
-        for v in rows[row]:
-            uses[v] += 1
+        block = ordered[start : start + 128]
+        live = np.flatnonzero((uses[block] < max_uses_per_node).all(axis=1))
+        for r in live.tolist():
+            if len(chosen) >= limit:
+                break
+            row = block[r]
+            if (uses[row] >= max_uses_per_node).any():
+                continue
+            chosen.append(int(order[start + r]))
+            uses[row] += 1
     if cost is not None and chosen:
         # The GN index tells the actual number of candidates: none at all means a vertex
         # has no counterpart (outlier, wrong class, GN miss), too many is too costly to

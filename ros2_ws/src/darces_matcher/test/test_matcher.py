@@ -75,6 +75,40 @@ def test_class_swapped_ln_is_rejected(gn: RoiNetwork, matcher: Matcher) -> None:
         assert matcher.match(swapped).status == "no_fix"
 
 
+def _flip_fifth(records: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A copy with the class of every fifth node swapped (rock <-> outcrop)."""
+    flipped = records.copy()
+    nodes = np.arange(0, len(flipped), 5)
+    flipped["label"][nodes] = np.where(flipped["label"][nodes] == ROCK, OUTCROP, ROCK)
+    return flipped, nodes
+
+
+def test_misclassified_nodes_join_the_fix(gn: RoiNetwork, matcher: Matcher) -> None:
+    # Label-blind polish: the labelled fix is refitted with the misclassified nodes.
+    strict = Matcher(gn, MatchConfig(label_fallback=False))
+    for sim in _lns(gn, 6, noise_fraction=0.0):
+        flipped, nodes = _flip_fifth(sim.records)
+        result = matcher.match(flipped)
+        assert result.status == "fix", result.reason
+        assert result.support == len(flipped)
+        assert np.array_equal(sim.truth_gn[result.inliers[:, 0]], result.inliers[:, 1])
+        assert strict.match(flipped).support == len(flipped) - len(nodes)
+
+
+def test_label_blind_fallback(gn: RoiNetwork) -> None:
+    # Labelled support (80 %) below the needed 90 %: only the label-blind search fixes,
+    # and its inliers agree on class at 80 % >= min_label_agreement.
+    matcher = Matcher(gn, MatchConfig(min_inlier_fraction=0.9))
+    strict = Matcher(gn, MatchConfig(min_inlier_fraction=0.9, label_fallback=False))
+    gn_pts = xy(gn.records)
+    for sim in _lns(gn, 4, noise_fraction=0.0):
+        flipped, _ = _flip_fifth(sim.records)
+        assert strict.match(flipped).status == "no_fix"
+        result = matcher.match(flipped)
+        assert result.status == "fix" and result.reason == "ok_label_blind"
+        assert transform_error(result.map_T_odom, sim, gn_pts) < 1e-6
+
+
 def test_repeated_pattern_gives_no_fix() -> None:
     gn = repeated_pattern_gn(n_copies=2, seed=1)
     matcher = Matcher(gn)
