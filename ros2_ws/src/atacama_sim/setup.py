@@ -21,6 +21,7 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
+            'atacama_sim = atacama_sim.cli:main',
         ],
     },
 )

@@ -1,0 +1,181 @@
+"""Make one bag directory (DESIGN.md, Files) from a configuration.
+
+Steps: build the world; plan the route and drive it; synthesise the IMU; render the
+orbital image; stream the traverse into the bag in time order (IMU, ground truth, stereo
+pairs rendered on demand, so memory stays bounded); write truth, rover.yaml, world.yaml
+and the contact sheet.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from atacama_sim.bagwriter import BagWriter
+from atacama_sim.camera import StereoRig
+from atacama_sim.config import WorldConfig, rng_for
+from atacama_sim.contact import contact_sheet
+from atacama_sim.imu import synthesize_imu
+from atacama_sim.orbital import orbital_tiles, render_orbital
+from atacama_sim.renderer import SceneRenderer
+from atacama_sim.route import camera_indices, drive, plan_route
+from atacama_sim.sensor import CameraSensor
+from atacama_sim.truth import write_rover_yaml, write_truth_rois, write_tum, write_world_yaml
+from atacama_sim.world import World
+
+CONTACT_FRAMES = 6
+
+
+def _contact_choice(rig: StereoRig, traj, cam_idx: np.ndarray,
+                    catalogue: np.ndarray) -> set[int]:
+    """Frames for the contact sheet: spread along the route, preferring frames that see
+    truth ROIs (centres projected into the image within 25 m)."""
+    if len(cam_idx) == 0:
+        return set()
+    rot = traj.rotations()
+    pts = np.column_stack([catalogue["x"], catalogue["y"], catalogue["z"]])
+    score = np.zeros(len(cam_idx))
+    for i, k in enumerate(cam_idx):
+        r_wc, c = rig.camera_pose(rot[k].as_matrix(), traj.p[k])
+        uv, z = rig.project(r_wc, c, pts)
+        vis = (z > 1) & (z < 25) & (uv[:, 0] >= 0) & (uv[:, 0] < rig.width) & \
+              (uv[:, 1] >= 0) & (uv[:, 1] < rig.height)
+        score[i] = vis.sum()
+    chosen = set()
+    for part in np.array_split(np.arange(len(cam_idx)), CONTACT_FRAMES):
+        if len(part):
+            chosen.add(int(part[np.argmax(score[part])]))
+    return chosen
+
+
+def generate(cfg: WorldConfig, out: Path, progress: bool = True,
+             keep_aux: bool = False) -> dict[str, Any]:
+    """Write the bag directory ``out``; return the statistics written to world.yaml.
+
+    ``keep_aux``: also return per-frame rendered depth/labels of the left camera
+    (tests only: memory grows with the number of frames).
+    """
+    t_start = time.perf_counter()
+    out = Path(out)
+    if (out / "rosbag").exists():
+        shutil.rmtree(out / "rosbag")
+    (out / "truth").mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+
+    t0 = time.perf_counter()
+    world = World.build(cfg)
+    cat = world.rocks.catalogue
+    route = plan_route(cfg.route, cat, world.terrain.extent, cfg.seed)
+    rate = cfg.imu.rate_hz
+    traj = drive(route, cfg.route, world.terrain, rate, cfg.seed)
+    imu = synthesize_imu(traj, cfg.imu, cfg.seed)
+    cam_idx = camera_indices(traj, cfg.route.frame_spacing_m, cfg.route.stop_frame_period_s,
+                             rate)
+    gt_step = max(1, round(rate / cfg.route.gt_rate_hz))
+    gt_idx = np.union1d(np.arange(0, len(traj.t), gt_step), cam_idx)
+    rig = StereoRig.from_config(cfg.camera)
+    timings["world_s"] = time.perf_counter() - t0
+
+    renderer = SceneRenderer(world.terrain, world.textures, world.rocks,
+                             (cfg.albedo.soil_rgb, cfg.albedo.gravel_rgb,
+                              cfg.albedo.pavement_rgb), (cfg.camera.width, cfg.camera.height))
+    bar = tqdm(total=orbital_tiles(world) + len(cam_idx), unit="step", disable=not progress,
+               desc=f"atacama_sim {cfg.preset}")
+    t0 = time.perf_counter()
+    bar.set_postfix_str("orbital")
+    orb = render_orbital(world, renderer, out / "orbital.tif", out / "truth/orbital_labels.tif",
+                         progress=lambda: bar.update(1))
+    timings["orbital_s"] = time.perf_counter() - t0
+
+    contact = _contact_choice(rig, traj, cam_idx, cat)
+    sensor = CameraSensor(cfg.camera, rig.fx)
+    rot = traj.rotations()
+    cam_set = {int(k): i for i, k in enumerate(cam_idx)}
+    gt_set = set(gt_idx.tolist())
+    seen_px: dict[int, int] = {}
+    frames_contact, aux = [], []
+    t0 = time.perf_counter()
+    render_s = 0.0
+    bar.set_postfix_str("traverse")
+    with BagWriter(out / "rosbag", cfg.start_time_ns) as bag:
+        for k in range(len(traj.t)):
+            t = float(traj.t[k])
+            bag.write_imu(t, imu.gyro[k], imu.accel[k], imu.gyro_sigma, imu.accel_sigma)
+            if k in gt_set:
+                bag.write_pose(t, traj.p[k], traj.q[k])
+            if k not in cam_set:
+                continue
+            i = cam_set[k]
+            r_wb = rot[k].as_matrix()
+            poses = [rig.camera_pose(r_wb, traj.p[k], right=r) for r in (False, True)]
+            tr = time.perf_counter()
+            views = renderer.render_views(rig, poses, cfg.sun, cfg.camera.near_m,
+                                          cfg.camera.far_m, cfg.camera.haze_m,
+                                          want_label=True, want_depth=keep_aux)
+            render_s += time.perf_counter() - tr
+            sensor.expose(views[0]["rad"])
+            rng = rng_for(cfg.seed, f"frame{i}")
+            imgs = [sensor.image(v["rad"], rng) for v in views]
+            bag.write_stereo(t, rig, sensor.jpeg(imgs[0]), sensor.jpeg(imgs[1]))
+            lab = views[0]["label"]
+            ids, cnt = np.unique(lab[lab > 0], return_counts=True)
+            for rid, c in zip(ids.tolist(), cnt.tolist(), strict=True):
+                seen_px[rid] = max(seen_px.get(rid, 0), c)
+            if i in contact:
+                frames_contact.append((imgs[0], lab, t))
+            if keep_aux:
+                aux.append({"k": k, "t": t, "z": views[0]["z"], "label": lab})
+            bar.update(1)
+        counts = dict(bag.counts)
+    bar.close()
+    renderer.release()
+    timings["traverse_s"] = time.perf_counter() - t0
+    timings["render_s"] = render_s
+
+    write_truth_rois(cat, cfg, world.origin, out / "truth/rois.geojson")
+    # TUM stamps are bag time in seconds (= header stamps), like the pipeline's outputs
+    t_abs = cfg.start_time_ns * 1e-9 + traj.t[gt_idx]
+    write_tum(out / "truth/trajectory.tum", t_abs, traj.p[gt_idx], traj.q[gt_idx])
+    write_rover_yaml(out / "rover.yaml", rig, cfg)
+    sheet = contact_sheet(orb["rgb"], world.terrain.extent, route.path, cat, frames_contact,
+                          f"{cfg.preset} seed {cfg.seed}: {len(cat)} ROIs, "
+                          f"route {route.length:.0f} m, net {route.net:.0f} m")
+    cv2.imwrite(str(out / "contact_sheet.png"), sheet)
+
+    n_frames = len(cam_idx)
+    seen = sorted(rid for rid, c in seen_px.items() if c >= 200)
+    timings["total_s"] = time.perf_counter() - t_start
+    stats = {
+        "map_origin": [float(v) for v in world.origin],
+        "crs": cfg.site.crs,
+        "rois": {"total": len(cat), "rocks": int(np.sum(cat["label"] == 1)),
+                 "outcrops": int(np.sum(cat["label"] == 2)),
+                 "clutter_rocks": len(world.rocks.clutter),
+                 "within_roi_range_of_route": len(route.rois_passed),
+                 "seen_by_left_camera_200px": len(seen)},
+        "route": {"length_m": round(route.length, 2), "net_m": round(route.net, 2),
+                  "duration_s": round(float(traj.t[-1]), 2),
+                  "stereo_frames": n_frames,
+                  "mean_frame_spacing_m": round(route.length / max(1, n_frames - 1), 3)},
+        "terrain": {"height_range_m": [round(float(world.terrain.base.min()), 2),
+                                       round(float(world.terrain.base.max()), 2)],
+                    "slope_p95_deg": round(float(np.percentile(world.terrain.slope_deg(),
+                                                               95)), 2)},
+        "messages": counts,
+        "timing_s": {k: round(v, 2) for k, v in timings.items()},
+        "render_s_per_stereo_frame": round(render_s / max(1, n_frames), 4),
+        "total_s_per_stereo_frame": round(timings["traverse_s"] / max(1, n_frames), 4),
+    }
+    write_world_yaml(out / "world.yaml", cfg, stats)
+    if keep_aux:
+        stats["_aux"] = aux
+        stats["_world"] = world
+        stats["_traj"] = traj
+        stats["_cam_idx"] = cam_idx
+    return stats

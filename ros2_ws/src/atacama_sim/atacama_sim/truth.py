@@ -1,0 +1,105 @@
+"""Files beside the bag: truth catalogue (GeoJSON), trajectory (TUM), rover.yaml,
+world.yaml. The GeoJSON goes through the shared codec in ``roi_network``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from atacama_sim.camera import StereoRig, quat_xyzw
+from atacama_sim.config import WorldConfig
+from roi_network.geojson import write_geojson
+from roi_network.network import MapFrame, RoiNetwork
+from roi_network.records import ROI_DTYPE
+
+
+def catalogue_records(catalogue: np.ndarray) -> np.ndarray:
+    """The truth catalogue as roi_network ROI records (map frame, score 1)."""
+    rec = np.zeros(len(catalogue), dtype=ROI_DTYPE)
+    for name in catalogue.dtype.names:
+        rec[name] = catalogue[name]
+    rec["score"] = 1.0
+    return rec
+
+
+def write_truth_rois(catalogue: np.ndarray, cfg: WorldConfig, origin: tuple[float, float],
+                     path: Path) -> None:
+    """truth/rois.geojson: every major ROI (class, centre, footprint ellipse, height)."""
+    net = RoiNetwork(catalogue_records(catalogue), "map", MapFrame(cfg.site.crs, origin),
+                     metadata={"source": "atacama_sim truth catalogue",
+                               "preset": cfg.preset, "seed": cfg.seed,
+                               "gsd_m": cfg.orbital.gsd_m,
+                               "ellipse": "major_m/minor_m: full axis lengths; angle_rad: "
+                                          "major axis from map +x (east), counter-clockwise"})
+    write_geojson(net, path)
+
+
+def write_tum(path: Path, t: np.ndarray, p: np.ndarray, q: np.ndarray) -> None:
+    """TUM trajectory: ``t x y z qx qy qz qw`` per line (t: bag time = header stamp, s)."""
+    data = np.column_stack([t, p, q])
+    np.savetxt(path, data, fmt=["%.9f"] + ["%.6f"] * 3 + ["%.9f"] * 4,
+               header="t x y z qx qy qz qw (map frame, base_link)")
+
+
+def rover_params(rig: StereoRig, cfg: WorldConfig) -> dict[str, Any]:
+    """Extrinsics and sensor constants as ROS 2 node parameters (params-file layout)."""
+    def pose(t: np.ndarray, r: np.ndarray) -> list[float]:
+        return [float(v) for v in (*t, *quat_xyzw(r))]
+    ic = cfg.imu
+    params = {
+        "base_frame": "base_link",
+        "left_camera_frame": "left_camera_optical",
+        "right_camera_frame": "right_camera_optical",
+        "imu_frame": "imu_link",
+        "base_to_left_camera": pose(rig.t_base_left, rig.R_base_cam),
+        "base_to_right_camera": pose(rig.t_base_right, rig.R_base_cam),
+        "base_to_imu": [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+        "baseline_m": float(rig.baseline),
+        "camera_height_m": float(rig.t_base_left[2]),
+        "camera_tilt_deg": float(cfg.camera.tilt_deg),
+        "image_width": int(rig.width),
+        "image_height": int(rig.height),
+        "fx": float(rig.fx), "fy": float(rig.fy), "cx": float(rig.cx), "cy": float(rig.cy),
+        "imu_rate_hz": float(ic.rate_hz),
+        "gyro_noise_density": float(ic.gyro_noise_density),
+        "gyro_bias_random_walk": float(ic.gyro_bias_rw),
+        "accel_noise_density": float(ic.accel_noise_density),
+        "accel_bias_random_walk": float(ic.accel_bias_rw),
+        "gravity": float(ic.gravity),
+    }
+    return {"/**": {"ros__parameters": params}}
+
+
+ROVER_YAML_HEADER = """\
+# Rover extrinsics and sensor constants for this bag, as ROS 2 node parameters
+# (use with --ros-args --params-file rover.yaml). Written by atacama_sim.
+# base_to_*: pose of a sensor frame in base_link as [x, y, z, qx, qy, qz, qw]
+#   (metres; quaternion rotates sensor-frame vectors into base_link).
+#   base_link: x forward, y left, z up, origin on the ground under the rover centre.
+#   camera frames are optical: z forward, x right, y down. Rectified pair: the right
+#   camera is the left one moved baseline_m along the left camera's +x.
+# baseline_m: stereo baseline; camera_height_m: left optical centre above base_link;
+# camera_tilt_deg: optical axis below the base_link x-y plane.
+# image_width/height, fx, fy, cx, cy: rectified pinhole intrinsics (pixels), as in
+#   CameraInfo K (no distortion).
+# imu_*: IMU rate, white-noise densities (rad/s/sqrt(Hz), m/s^2/sqrt(Hz)) and bias
+#   random walks (rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz)); gravity in m/s^2.
+"""
+
+
+def write_rover_yaml(path: Path, rig: StereoRig, cfg: WorldConfig) -> None:
+    with path.open("w") as f:
+        f.write(ROVER_YAML_HEADER)
+        yaml.safe_dump(rover_params(rig, cfg), f, sort_keys=False, default_flow_style=None)
+
+
+def write_world_yaml(path: Path, cfg: WorldConfig, derived: dict[str, Any]) -> None:
+    doc = {"config": cfg.to_dict(), "derived": derived}
+    with path.open("w") as f:
+        f.write("# Every parameter that generated this bag (atacama_sim), and derived facts.\n"
+                "# Camera geometry: MER Navcam stereo bench, Maki et al. (2003), J. Geophys."
+                " Res. 108(E12), 8071.\n")
+        yaml.safe_dump(doc, f, sort_keys=False)
