@@ -11,6 +11,8 @@ PKGS := $(sort $(dir $(wildcard $(WS)/src/*/package.xml)))
 PKG_META := $(wildcard $(WS)/src/*/package.xml $(WS)/src/*/setup.py $(WS)/src/*/setup.cfg \
              $(WS)/src/*/resource/* $(WS)/src/*/config/*)
 BAG ?= bags/quick
+# Playback rate of the demo (the quick bag spans ~30 min of rover time).
+RATE ?= 5
 RUN_ENV := source ./env.sh &&
 
 .PHONY: setup sysdeps test demo lint clean
@@ -44,7 +46,7 @@ demo: setup
 	  $(RUN_ENV) command -v atacama_sim >/dev/null || { \
 	    echo "demo: cannot generate $(BAG): the atacama_sim generator is not built yet (issue 3)"; exit 2; }; \
 	  $(RUN_ENV) atacama_sim generate --preset quick --seed 1 --out $(BAG); fi
-	$(RUN_ENV) globloc run $(BAG) --out out
+	$(RUN_ENV) globloc run $(BAG) --out out --rate $(RATE)
 
 clean:
 	rm -rf $(WS)/build $(WS)/install $(WS)/log $(WS)/build.log
