@@ -318,7 +318,7 @@ def test_orbital_georeference_matches_truth(bag: dict) -> None:
         rows, cols = np.nonzero(labels == rid)
         assert len(rows) > 0, f"ROI {rid} not in the orbital image"
         # centroid of the ROI's pixels (pixel centres at +0.5) in CRS coordinates
-        x, y = transform * (cols.mean() + 0.5, rows.mean() + 0.5)
+        x, y = transform @ (cols.mean() + 0.5, rows.mean() + 0.5)
         errs.append(np.hypot(x - e, y - n) / 0.25)
         ring = cv2.dilate((labels == rid).astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
         ring &= labels == 0
