@@ -19,13 +19,13 @@ from tqdm import tqdm
 
 from atacama_sim.bagwriter import BagWriter
 from atacama_sim.camera import StereoRig
-from atacama_sim.config import WorldConfig, rng_for
+from atacama_sim.config import WorldConfig
 from atacama_sim.contact import contact_sheet
 from atacama_sim.imu import synthesize_imu
 from atacama_sim.orbital import orbital_tiles, render_orbital
 from atacama_sim.renderer import SceneRenderer
 from atacama_sim.route import camera_indices, drive, plan_route
-from atacama_sim.sensor import CameraSensor
+from atacama_sim.sensor import develop, developer_pool
 from atacama_sim.truth import write_rover_yaml, write_truth_rois, write_tum, write_world_yaml
 from atacama_sim.world import World
 
@@ -94,16 +94,39 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
     timings["orbital_s"] = time.perf_counter() - t0
 
     contact = _contact_choice(rig, traj, cam_idx, cat)
-    sensor = CameraSensor(cfg.camera, rig.fx)
     rot = traj.rotations()
     cam_set = {int(k): i for i, k in enumerate(cam_idx)}
     gt_set = set(gt_idx.tolist())
-    seen_px: dict[int, int] = {}
+    seen_px = np.zeros(len(cat) + 1, np.int64)
     frames_contact, aux = [], []
     t0 = time.perf_counter()
     render_s = 0.0
     bar.set_postfix_str("traverse")
-    with BagWriter(out / "rosbag", cfg.start_time_ns) as bag:
+    # Pair i + 1 is rendered (GL, this process) while pair i is developed (noise, JPEG)
+    # in a worker process; the bag is still written in time order.
+    pending: dict[int, Any] = {}
+    n_rendered = 0
+
+    def render_next(pool) -> None:
+        nonlocal n_rendered, render_s
+        i = n_rendered
+        k = int(cam_idx[i])
+        poses = [rig.camera_pose(rot[k].as_matrix(), traj.p[k], right=r) for r in (False, True)]
+        tr = time.perf_counter()
+        views = renderer.render_views(rig, poses, cfg.sun, cfg.camera.near_m,
+                                      cfg.camera.far_m, cfg.camera.haze_m,
+                                      want_label=True, want_depth=keep_aux, half=True)
+        render_s += time.perf_counter() - tr
+        lab = views[0]["label"]
+        np.maximum(seen_px, np.bincount(lab.ravel(), minlength=len(seen_px)), out=seen_px)
+        pending[i] = (pool.submit(develop, i, views[0]["rad"], views[1]["rad"], i in contact),
+                      lab)
+        if keep_aux:
+            aux.append({"k": k, "t": float(traj.t[k]), "z": views[0]["z"], "label": lab})
+        n_rendered += 1
+
+    with developer_pool(cfg.camera, rig.fx, cfg.seed) as pool, \
+            BagWriter(out / "rosbag", cfg.start_time_ns) as bag:
         for k in range(len(traj.t)):
             t = float(traj.t[k])
             bag.write_imu(t, imu.gyro[k], imu.accel[k], imu.gyro_sigma, imu.accel_sigma)
@@ -112,25 +135,13 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
             if k not in cam_set:
                 continue
             i = cam_set[k]
-            r_wb = rot[k].as_matrix()
-            poses = [rig.camera_pose(r_wb, traj.p[k], right=r) for r in (False, True)]
-            tr = time.perf_counter()
-            views = renderer.render_views(rig, poses, cfg.sun, cfg.camera.near_m,
-                                          cfg.camera.far_m, cfg.camera.haze_m,
-                                          want_label=True, want_depth=keep_aux)
-            render_s += time.perf_counter() - tr
-            sensor.expose(views[0]["rad"])
-            rng = rng_for(cfg.seed, f"frame{i}")
-            imgs = [sensor.image(v["rad"], rng) for v in views]
-            bag.write_stereo(t, rig, sensor.jpeg(imgs[0]), sensor.jpeg(imgs[1]))
-            lab = views[0]["label"]
-            ids, cnt = np.unique(lab[lab > 0], return_counts=True)
-            for rid, c in zip(ids.tolist(), cnt.tolist(), strict=True):
-                seen_px[rid] = max(seen_px.get(rid, 0), c)
-            if i in contact:
-                frames_contact.append((imgs[0], lab, t))
-            if keep_aux:
-                aux.append({"k": k, "t": t, "z": views[0]["z"], "label": lab})
+            while n_rendered < min(i + 2, len(cam_idx)):
+                render_next(pool)
+            fut, lab = pending.pop(i)
+            jpeg_l, jpeg_r, left = fut.result()
+            bag.write_stereo(t, rig, jpeg_l, jpeg_r)
+            if left is not None:
+                frames_contact.append((left, lab, t))
             bar.update(1)
         counts = dict(bag.counts)
     bar.close()
@@ -149,7 +160,7 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
     cv2.imwrite(str(out / "contact_sheet.png"), sheet)
 
     n_frames = len(cam_idx)
-    seen = sorted(rid for rid, c in seen_px.items() if c >= 200)
+    seen = np.flatnonzero(seen_px[1:] >= 200) + 1
     timings["total_s"] = time.perf_counter() - t_start
     stats = {
         "map_origin": [float(v) for v in world.origin],

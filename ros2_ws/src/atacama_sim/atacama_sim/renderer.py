@@ -6,7 +6,8 @@ What is drawn, per view:
   of :mod:`atacama_sim.terrain` exactly (texel fetches, same bilinear arithmetic), so the
   geometry does not depend on the view and left/right see the same surface; patch skirts
   hide the cracks between levels;
-- rocks as instanced irregular meshes, outcrops as draped slab meshes;
+- rocks as instanced irregular meshes (indexed: vertices shaded once, facet normals from
+  screen-space derivatives), outcrops as draped slab meshes;
 - per-pixel shading: albedo (material map x two-scale detail textures), bump normals from
   the detail height maps and the roughness tile, Lambert sun + sky ambient, cast shadows
   from a sun shadow map (3x3 PCF), aerial perspective, sky.
@@ -168,23 +169,22 @@ _ROCK_VS = """
 uniform mat4 u_vp;
 uniform mat4 u_view;
 in vec3 a_pos;
-in vec3 a_nrm;
 in vec3 i_pos;
 in vec3 i_scale;
 in float i_yaw;
 in vec3 i_col;
 in float i_label;
 out vec3 v_world;
+out vec3 v_rel;
 out vec3 v_obj;
-out vec3 v_n;
 out vec3 v_col;
 out float v_label;
 out float v_z;
 void main() {
     float c = cos(i_yaw), s = sin(i_yaw);
     mat3 rz = mat3(c, s, 0.0, -s, c, 0.0, 0.0, 0.0, 1.0);
-    vec3 w = i_pos + rz * (a_pos * i_scale);
-    v_n = normalize(rz * (a_nrm / i_scale));
+    v_rel = rz * (a_pos * i_scale);
+    vec3 w = i_pos + v_rel;
     v_obj = a_pos * i_scale + vec3(i_pos.xy * 0.37, 0.0);
     v_world = w;
     v_col = i_col;
@@ -196,8 +196,8 @@ void main() {
 
 _ROCK_FS = "#version 430\n" + _LIGHTING + """
 in vec3 v_world;
+in vec3 v_rel;
 in vec3 v_obj;
-in vec3 v_n;
 in vec3 v_col;
 in float v_label;
 in float v_z;
@@ -205,7 +205,10 @@ layout(location = 0) out vec4 o_rad;
 layout(location = 1) out float o_z;
 layout(location = 2) out float o_label;
 void main() {
-    vec3 n = normalize(v_n);
+    // flat shading: the facet normal from screen-space derivatives of the position
+    // (relative to the instance, for precision), turned towards the viewer
+    vec3 n = normalize(cross(dFdx(v_rel), dFdy(v_rel)));
+    if (dot(n, u_cam - v_world) < 0.0) n = -n;
     vec3 w = abs(n) / (abs(n.x) + abs(n.y) + abs(n.z));
     float k = 255.0 / 128.0;
     // triplanar rock texture in object coordinates
@@ -221,7 +224,7 @@ void main() {
 _SKY_VS = """
 #version 430
 in vec2 a_xy;
-void main() { gl_Position = vec4(a_xy, 1.0, 1.0); }
+void main() { gl_Position = vec4(a_xy, 1.0, 1.0); }  // on the far plane
 """
 
 _SKY_FS = """
@@ -281,39 +284,43 @@ def select_patches(cam_xy: np.ndarray, fwd_xy: np.ndarray | None, half_angle: fl
     Patches lie on a world-fixed grid per level, so geometry never depends on the view.
     ``fwd_xy`` None selects every patch within ``limit`` (shadow or top-down use).
     Patches come sorted near to far, so early depth rejection saves shading.
+    The quadtree is walked one level at a time over arrays of patches.
     """
+    cam_xy = np.asarray(cam_xy, np.float64)
     top = len(LEVEL_CELLS) - 1
     size_top = LEVEL_CELLS[top] * PATCH
     lo = np.floor((cam_xy - limit) / size_top) * size_top
     hi = cam_xy + limit
-    todo = [(x, y, top) for x in np.arange(lo[0], hi[0], size_top)
-            for y in np.arange(lo[1], hi[1], size_top)]
-    out = []
+    gx, gy = np.meshgrid(np.arange(lo[0], hi[0], size_top), np.arange(lo[1], hi[1], size_top),
+                         indexing="ij")
+    cur = np.column_stack([gx.ravel(), gy.ravel()])
     cos_lim = np.cos(half_angle)
-    while todo:
-        x0, y0, lev = todo.pop()
+    # corners and centre of a unit patch: the view-wedge test
+    probe = np.array([[0, 0], [1, 0], [0, 1], [1, 1], [0.5, 0.5]])
+    out = []
+    for lev in range(top, -1, -1):
+        if len(cur) == 0:
+            break
         size = LEVEL_CELLS[lev] * PATCH
-        # distance from the camera to the patch rectangle
-        dx = max(x0 - cam_xy[0], 0.0, cam_xy[0] - (x0 + size))
-        dy = max(y0 - cam_xy[1], 0.0, cam_xy[1] - (y0 + size))
-        dist = np.hypot(dx, dy)
-        if dist > limit:
-            continue
-        if fwd_xy is not None and dist > radius_all:
-            # keep the patch if any corner or the centre is inside the view wedge
-            pts = np.array([[x0, y0], [x0 + size, y0], [x0, y0 + size],
-                            [x0 + size, y0 + size], [x0 + size / 2, y0 + size / 2]]) - cam_xy
-            nrm = np.linalg.norm(pts, axis=1) + 1e-9
-            inside = (pts @ fwd_xy) / nrm > cos_lim
+        # distance from the camera to each patch rectangle
+        d = np.maximum(np.maximum(cur - cam_xy, cam_xy - (cur + size)), 0.0)
+        dist = np.hypot(d[:, 0], d[:, 1])
+        keep = dist <= limit
+        if fwd_xy is not None:
+            pts = cur[:, None, :] + probe[None] * size - cam_xy
+            nrm = np.linalg.norm(pts, axis=2) + 1e-9
+            inside = ((pts @ fwd_xy) / nrm > cos_lim).any(axis=1)
             # a big patch may straddle the wedge with all corners outside it
-            if not inside.any() and size < dist:
-                continue
-        if lev > min_level and np.hypot(dist, cam_height) < SPLIT_FACTOR * size:
-            s2 = LEVEL_CELLS[lev - 1] * PATCH
-            todo += [(x0 + i * s2, y0 + j * s2, lev - 1) for i in range(2) for j in range(2)]
-        else:
-            out.append((x0, y0, LEVEL_CELLS[lev]))
-    arr = np.array(out, dtype=np.float32).reshape(-1, 3)
+            keep &= (dist <= radius_all) | inside | (size >= dist)
+        cur, dist = cur[keep], dist[keep]
+        split = (np.hypot(dist, cam_height) < SPLIT_FACTOR * size) if lev > min_level \
+            else np.zeros(len(cur), bool)
+        leaves = cur[~split]
+        out.append(np.column_stack([leaves, np.full(len(leaves), LEVEL_CELLS[lev])]))
+        s2 = LEVEL_CELLS[lev - 1] * PATCH if lev > 0 else 0.0
+        kids = np.array([[0, 0], [0, 1], [1, 0], [1, 1]]) * s2
+        cur = (cur[split][:, None, :] + kids[None]).reshape(-1, 2)
+    arr = np.concatenate(out).astype(np.float32).reshape(-1, 3)
     centre = arr[:, :2] + arr[:, 2:3] * (PATCH / 2)
     return arr[np.argsort(np.hypot(*(centre - cam_xy).T), kind="stable")]
 
@@ -407,16 +414,19 @@ class SceneRenderer:
         for major, templates in ((True, rocks.templates), (False, rocks.templates_low)):
             self.rock_vaos[major] = []
             for t in templates:
-                vbo = ctx.buffer(np.hstack([t.positions, t.normals]).astype("f4").tobytes())
+                # the triangle soup as an indexed mesh (shared corners shaded once)
+                verts, index = np.unique(t.positions, axis=0, return_inverse=True)
+                vbo = ctx.buffer(verts.astype("f4").tobytes())
+                ibo = ctx.buffer(index.astype("u4").ravel().tobytes())
                 inst = ctx.buffer(reserve=44 * 1024, dynamic=True)
-                self.rock_vaos[major].append((vbo, inst, self._rock_vaos(vbo, inst),
-                                              len(t.positions)))
+                self.rock_vaos[major].append((vbo, inst, self._rock_vaos(vbo, inst, ibo),
+                                              len(index.ravel())))
         # outcrops: one static mesh drawn through the rock program as a single instance
         # per outcrop (identity transform, own colour and label)
         self.outcrop_vaos = []
         orng = np.random.default_rng(0)  # colours only; positions come from the world
         for oc, oid in zip(rocks.outcrops, rocks.outcrop_ids, strict=True):
-            vbo = ctx.buffer(np.hstack([oc.positions, oc.normals]).astype("f4").tobytes())
+            vbo = ctx.buffer(oc.positions.astype("f4").tobytes())
             v = orng.uniform(0.45, 0.62)
             inst = np.array([0, 0, 0, 1, 1, 1, 0, v * 1.04, v, v * 0.9, oid], "f4")
             ib = ctx.buffer(inst.tobytes())
@@ -429,6 +439,22 @@ class SceneRenderer:
         allinst = np.vstack([rocks.majors, rocks.clutter]) if len(rocks.clutter) else \
             rocks.majors
         self.inst = allinst.astype("f4")
+        # square buckets of minor instances (row-major over x then y) for range queries;
+        # the few major ROIs are always candidates
+        self.bucket_m = 10.0
+        is_major = self.inst[:, INST["label"]] > 0
+        self.major_rows = np.flatnonzero(is_major)
+        minor = np.flatnonzero(~is_major)
+        cell = np.floor(self.inst[minor, :2] / self.bucket_m).astype(np.int64)
+        self.bucket_lo = cell.min(axis=0) if len(cell) else np.zeros(2, np.int64)
+        self.bucket_n = (cell.max(axis=0) - self.bucket_lo + 1) if len(cell) else \
+            np.ones(2, np.int64)
+        key = (cell[:, 0] - self.bucket_lo[0]) * self.bucket_n[1] + (cell[:, 1] -
+                                                                      self.bucket_lo[1])
+        order = np.argsort(key, kind="stable")
+        self.bucket_rows = minor[order]
+        self.bucket_start = np.searchsorted(key[order],
+                                            np.arange(int(np.prod(self.bucket_n)) + 1))
         # -- framebuffers
         self._make_fbo(size)
         self.shadow_px = shadow_px
@@ -439,17 +465,19 @@ class SceneRenderer:
         self._shadow_key: np.ndarray | None = None
         self._light_vp = np.eye(4)
 
-    def _rock_vaos(self, vbo, inst) -> dict:
-        """Colour and depth-only vertex arrays of a rock mesh + its instance buffer (the
-        depth-only program has no normal/colour/label inputs: those bytes are skipped)."""
+    def _rock_vaos(self, vbo, inst, ibo=None) -> dict:
+        """Colour and depth-only vertex arrays of a rock mesh (positions, indexed if
+        ``ibo``) + its instance buffer (the depth-only program has no colour/label
+        inputs: those bytes are skipped)."""
         return {
             "c": self.ctx.vertex_array(
-                self.p_rock, [(vbo, "3f 3f", "a_pos", "a_nrm"),
+                self.p_rock, [(vbo, "3f", "a_pos"),
                               (inst, "3f 3f 1f 3f 1f/i", "i_pos", "i_scale", "i_yaw",
-                               "i_col", "i_label")]),
+                               "i_col", "i_label")], index_buffer=ibo, index_element_size=4),
             "d": self.ctx.vertex_array(
-                self.p_rock_d, [(vbo, "3f 12x", "a_pos"),
-                                (inst, "3f 3f 1f 16x/i", "i_pos", "i_scale", "i_yaw")]),
+                self.p_rock_d, [(vbo, "3f", "a_pos"),
+                                (inst, "3f 3f 1f 16x/i", "i_pos", "i_scale", "i_yaw")],
+                index_buffer=ibo, index_element_size=4),
         }
 
     @staticmethod
@@ -463,9 +491,13 @@ class SceneRenderer:
         self.size = size
         self.c_rad = ctx.texture(size, 4, dtype="f2")
         self.c_z = ctx.texture(size, 1, dtype="f4")
-        self.c_lab = ctx.texture(size, 1, dtype="f4")
         self.c_depth = ctx.depth_renderbuffer(size)
-        self.fbo = ctx.framebuffer([self.c_rad, self.c_z, self.c_lab], self.c_depth)
+        # the label id travels in the alpha of c_rad; optical depth only when asked for
+        # (every extra float target costs llvmpipe time per fragment)
+        self.fbo = ctx.framebuffer([self.c_rad], self.c_depth)
+        # with the optical depth, every target the shaders write (tests, diagnostics)
+        self.c_lab = ctx.texture(size, 1, dtype="f4")
+        self.fbo_z = ctx.framebuffer([self.c_rad, self.c_z, self.c_lab], self.c_depth)
 
     def _bind_textures(self) -> None:
         for unit, t in enumerate((self.t_h, self.t_r, self.t_m, self.t_da, self.t_db,
@@ -474,15 +506,28 @@ class SceneRenderer:
 
     def _instances_near(self, xy: np.ndarray, radius: float, major_radius: float,
                         fwd: np.ndarray | None, half_angle: float) -> np.ndarray:
-        d = self.inst[:, :2] - xy
+        """Instances within ``radius`` (majors: ``major_radius``) of ``xy``, those off
+        the view wedge around ``fwd`` dropped; rows in catalogue order."""
+        c = self.bucket_m
+        lo = np.floor((np.asarray(xy) - radius) / c).astype(np.int64) - self.bucket_lo
+        hi = np.floor((np.asarray(xy) + radius) / c).astype(np.int64) - self.bucket_lo
+        lo, hi = np.maximum(lo, 0), np.minimum(hi, self.bucket_n - 1)
+        parts = [self.major_rows]
+        for bx in range(lo[0], hi[0] + 1):
+            a = self.bucket_start[bx * self.bucket_n[1] + lo[1]]
+            b = self.bucket_start[bx * self.bucket_n[1] + hi[1] + 1] if hi[1] >= lo[1] else a
+            parts.append(self.bucket_rows[a:b])
+        rows = np.unique(np.concatenate(parts))
+        inst = self.inst[rows]
+        d = inst[:, :2] - xy
         dist = np.hypot(d[:, 0], d[:, 1])
-        major = self.inst[:, INST["label"]] > 0
+        major = inst[:, INST["label"]] > 0
         keep = (dist < radius) | (major & (dist < major_radius))
         if fwd is not None:
             cosang = (d @ fwd) / np.maximum(dist, 1e-6)
-            reach = np.maximum(self.inst[:, INST["sx"]], self.inst[:, INST["sy"]]) * 2
+            reach = np.maximum(inst[:, INST["sx"]], inst[:, INST["sy"]]) * 2
             keep &= (cosang > np.cos(half_angle)) | (dist < 4.0 + reach)
-        return self.inst[keep]
+        return inst[keep]
 
     def _patch_vertices(self, patches: np.ndarray) -> np.ndarray:
         """(N * V, 5) float32 vertices (x, y, z, dz/dx, dz/dy) of patches (x0, y0, cell)."""
@@ -557,14 +602,15 @@ class SceneRenderer:
 
     def render_views(self, rig: StereoRig, poses: list[tuple[np.ndarray, np.ndarray]],
                      sun_cfg: SunConfig, near: float, far: float, haze: float,
-                     want_label: bool = False,
-                     want_depth: bool = False) -> list[dict[str, np.ndarray]]:
+                     want_label: bool = False, want_depth: bool = False,
+                     half: bool = False) -> list[dict[str, np.ndarray]]:
         """Render camera views sharing one shadow map (e.g. a stereo pair).
 
         Args:
             poses: (R_wc, centre_w) per view, optical frame in the map frame.
         Returns:
-            per view: ``rad`` (H, W, 3) float32 linear radiance; the first view also
+            per view: ``rad`` (H, W, 3) linear radiance, float32 (float16 as rendered
+            if ``half``); the first view also
             has, if asked, ``label`` (H, W) int32 (truth id of the major ROI drawn, else 0)
             and ``z`` (H, W) float32 optical depth in metres (0 = sky).
         """
@@ -604,30 +650,35 @@ class SceneRenderer:
             view[:3, :3] = r_wc.T
             view[:3, 3] = -r_wc.T @ c_w
             vp = proj @ view
-            self.fbo.use()
+            fbo = self.fbo_z if want_depth and not out else self.fbo
+            fbo.use()
             self.ctx.viewport = (0, 0, *self.size)
-            self.fbo.clear(0, 0, 0, 0, depth=1.0)
+            fbo.clear(0, 0, 0, 0, depth=1.0)
             self._bind_textures()
-            self.ctx.disable(moderngl.DEPTH_TEST)
-            self._set(self.p_sky, u_rwc=tuple(r_wc.T.astype("f4").ravel()),
-                      u_k=(rig.fx, rig.fy, rig.cx, rig.cy), u_h=float(self.size[1]),
-                      u_sky_h=tuple(sky_h), u_sky_z=tuple(sky_z))
-            self.vao_sky.render(vertices=3)
             self.ctx.enable(moderngl.DEPTH_TEST)
+            self.ctx.depth_func = "<"
             self._light_uniforms(sun, sun_cfg, light_vp, c_w, haze, sky_h, self.SHADOW_DEPTH)
             for p in (self.p_ter, self.p_rock):
                 self._set(p, u_vp=tuple(vp.T.astype("f4").ravel()),
                           u_view=tuple(view.T.astype("f4").ravel()))
             self._draw("c", patches, inst, cam_xy, 450.0)
+            # the sky last, on the far plane: shaded only where no geometry was drawn
+            self.ctx.depth_func = "<="
+            self._set(self.p_sky, u_rwc=tuple(r_wc.T.astype("f4").ravel()),
+                      u_k=(rig.fx, rig.fy, rig.cx, rig.cy), u_h=float(self.size[1]),
+                      u_sky_h=tuple(sky_h), u_sky_z=tuple(sky_z))
+            self.vao_sky.render(vertices=3)
+            self.ctx.depth_func = "<"
             first = not out
-            out.append(self._read(want_label and first, want_depth and first))
+            out.append(self._read(want_label and first, want_depth and first, half))
         return out
 
-    def _read(self, want_label: bool, want_depth: bool = False) -> dict[str, np.ndarray]:
+    def _read(self, want_label: bool, want_depth: bool = False,
+              half: bool = False) -> dict[str, np.ndarray]:
         w, h = self.size
         # RGBA16F: linear radiance + the label id in alpha (exact up to 2048)
         rgba = np.frombuffer(self.c_rad.read(), "f2").reshape(h, w, 4)[::-1]
-        res = {"rad": rgba[:, :, :3].astype(np.float32)}
+        res = {"rad": rgba[:, :, :3].astype(np.float16 if half else np.float32)}
         if want_label:
             res["label"] = np.rint(rgba[:, :, 3].astype(np.float32)).astype(np.int32)
         if want_depth:
@@ -674,7 +725,9 @@ class SceneRenderer:
         self.fbo.clear(0, 0, 0, 0, depth=1.0)
         self._bind_textures()
         self.ctx.enable(moderngl.DEPTH_TEST)
-        self._light_uniforms(sun, sun_cfg, light_vp, np.zeros(3), 0.0, np.zeros(3), 600.0)
+        # the viewer is overhead (facing test of the rock normals; no haze)
+        self._light_uniforms(sun, sun_cfg, light_vp, np.array([cx, cy, 1e5]), 0.0,
+                             np.zeros(3), 600.0)
         for p in (self.p_ter, self.p_rock):
             self._set(p, u_vp=tuple(proj.T.astype("f4").ravel()),
                       u_view=tuple(view.T.astype("f4").ravel()))

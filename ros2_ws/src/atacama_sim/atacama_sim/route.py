@@ -1,9 +1,12 @@
 """Traverse: route planning (paper Sec. 7.2 statistics) and the rover's motion on it.
 
-Planning: random candidate routes (a heading-biased random walk whose waypoints detour to
-pass beside major ROIs), smoothed by Chaikin corner cutting, scored against the targets
-(path length, net displacement / length, number of major ROIs within ``roi_range_m``),
-and rejected if they drive over a major ROI. Motion: trapezoidal speed profiles between
+Planning: random candidate routes of two kinds, alternating: a heading-biased random walk
+whose waypoints detour to pass beside major ROIs, and a detour from a start to a goal
+placed at the target net displacement, visiting ROIs on the way within the length budget
+(the walk alone rarely combines a paper-like net displacement with enough ROIs). Both are
+smoothed by Chaikin corner cutting and scored against the targets (path length, net
+displacement / length, number of major ROIs within ``roi_range_m``); driving over a major
+ROI is penalised. Motion: trapezoidal speed profiles between
 stops; the body rides on the terrain (plane through the wheel contacts gives pitch and
 roll), low-passed like a suspension. Everything is sampled on one time grid at the IMU
 rate, so IMU, cameras and ground truth are consistent by construction.
@@ -51,6 +54,104 @@ class Route:
     rois_passed: np.ndarray  # catalogue indices within roi_range of the path
 
 
+def _beside(rng: np.random.Generator, xy: np.ndarray, radius: np.ndarray, j: int,
+            frm: np.ndarray) -> np.ndarray:
+    """A waypoint passing beside major ROI ``j`` (2.5-6 m clear of it), seen from ``frm``."""
+    side = rng.choice([-1, 1])
+    off = radius[j] + rng.uniform(2.5, 6.0)
+    dj = xy[j] - frm
+    perp = np.array([-dj[1], dj[0]]) / (np.hypot(*dj) + 1e-9) * side
+    return xy[j] + perp * off
+
+
+def _walk_waypoints(rng: np.random.Generator, xy: np.ndarray, radius: np.ndarray, tree,
+                    density: np.ndarray, half: float, target: float) -> list[np.ndarray]:
+    """Heading-biased random walk that heads for ROIs roughly ahead."""
+    start = rng.uniform(-half, half, 2)
+    theta = rng.uniform(-np.pi, np.pi)
+    sigma = rng.uniform(0.3, 1.2)
+    pts = [start]
+    length = 0.0
+    tries = 0
+    while length < target * 1.08 and tries < 400:
+        tries += 1
+        step = target * rng.uniform(0.04, 0.12)
+        head = theta + rng.normal(0, sigma)
+        p = pts[-1] + step * np.array([np.cos(head), np.sin(head)])
+        if tree is not None and rng.uniform() < 0.85:
+            # Head for a major ROI roughly ahead, preferring dense rock fields (rovers
+            # visit rocks), and pass beside it.
+            near = np.array(tree.query_ball_point(pts[-1], 1.6 * step), dtype=int)
+            if len(near):
+                d = xy[near] - pts[-1]
+                dist = np.hypot(d[:, 0], d[:, 1])
+                ang = np.abs((np.arctan2(d[:, 1], d[:, 0]) - theta + np.pi)
+                             % (2 * np.pi) - np.pi)
+                ok = (dist > 0.4 * step) & (ang < np.radians(75))
+                if ok.any():
+                    cand = near[ok]
+                    j = cand[rng.choice(len(cand), p=density[cand] / density[cand].sum())]
+                    p = _beside(rng, xy, radius, j, pts[-1])
+        if np.any(np.abs(p) > half):
+            theta += np.pi / 2 * rng.choice([-1, 1])
+            continue
+        length += float(np.hypot(*(p - pts[-1])))
+        pts.append(p)
+    return pts
+
+
+def _detour_waypoints(rng: np.random.Generator, xy: np.ndarray, radius: np.ndarray, tree,
+                      density: np.ndarray, half: float, target: float,
+                      net_fraction: float) -> list[np.ndarray] | None:
+    """From a start to a goal ``net_fraction * target`` away, visiting ROIs (or wandering
+    where there are none) while the length budget still allows reaching the goal."""
+    net = net_fraction * target
+    inside = np.all(np.abs(xy) <= half, axis=1) if len(xy) else np.zeros(0, bool)
+    if inside.sum() >= 2 and rng.uniform() < 0.7:
+        # both ends in rock fields: start at a major ROI (dense fields preferred), goal
+        # at one about the net displacement away
+        idx = np.flatnonzero(inside)
+        i = idx[rng.choice(len(idx), p=density[idx] / density[idx].sum())]
+        d = np.hypot(*(xy[idx] - xy[i]).T)
+        far = idx[np.abs(d - net) < 0.05 * net]
+        if len(far) == 0:
+            return None
+        g = far[rng.choice(len(far), p=density[far] / density[far].sum())]
+        start = _beside(rng, xy, radius, i, xy[g])
+        goal = _beside(rng, xy, radius, g, xy[i])
+    else:
+        start = rng.uniform(-half, half, 2)
+        theta = rng.uniform(-np.pi, np.pi)
+        goal = start + net * np.array([np.cos(theta), np.sin(theta)])
+    if np.any(np.abs(start) > half) or np.any(np.abs(goal) > half):
+        return None
+    budget = target * 1.08  # corner cutting shortens the polyline a little
+    pts, length, used = [start], 0.0, set()
+    for _ in range(400):
+        cur = pts[-1]
+        step = target * rng.uniform(0.02, 0.07)
+        cands = []
+        if tree is not None:
+            near = [j for j in tree.query_ball_point(cur, 2.0 * step) if j not in used]
+            cands = [(j, _beside(rng, xy, radius, j, cur)) for j in near]
+        if not cands:
+            head = rng.uniform(-np.pi, np.pi)
+            cands = [(-1, cur + step * np.array([np.cos(head), np.sin(head)]))]
+        ok = [(j, p) for j, p in cands if np.all(np.abs(p) <= half) and
+              length + np.hypot(*(p - cur)) + np.hypot(*(goal - p)) <= budget]
+        if not ok:
+            break
+        # dense rock fields first, near ones first (weaving through a field is cheap)
+        w = np.array([density[j] * np.exp(-np.hypot(*(p - cur)) / 30.0) if j >= 0 else 1.0
+                      for j, p in ok]) + 1e-12
+        j, p = ok[rng.choice(len(ok), p=w / w.sum())]
+        used.add(j)
+        length += float(np.hypot(*(p - cur)))
+        pts.append(p)
+    pts.append(goal)
+    return pts
+
+
 def plan_route(cfg: RouteConfig, catalogue: np.ndarray, extent: float,
                seed: int) -> Route:
     """Best of ``cfg.candidates`` random routes against the paper's statistics."""
@@ -66,41 +167,14 @@ def plan_route(cfg: RouteConfig, catalogue: np.ndarray, extent: float,
     target = cfg.length_m
     lo, hi = cfg.rois_target
     best, best_score = None, np.inf
-    for _ in range(cfg.candidates):
-        start = rng.uniform(-half, half, 2)
-        theta = rng.uniform(-np.pi, np.pi)
-        sigma = rng.uniform(0.3, 1.2)
-        pts = [start]
-        length = 0.0
-        tries = 0
-        while length < target * 1.08 and tries < 400:
-            tries += 1
-            step = target * rng.uniform(0.04, 0.12)
-            head = theta + rng.normal(0, sigma)
-            p = pts[-1] + step * np.array([np.cos(head), np.sin(head)])
-            if tree is not None and rng.uniform() < 0.85:
-                # Head for a major ROI roughly ahead, preferring dense rock fields (rovers
-                # visit rocks), and pass beside it.
-                near = np.array(tree.query_ball_point(pts[-1], 1.6 * step), dtype=int)
-                if len(near):
-                    d = xy[near] - pts[-1]
-                    dist = np.hypot(d[:, 0], d[:, 1])
-                    ang = np.abs((np.arctan2(d[:, 1], d[:, 0]) - theta + np.pi)
-                                 % (2 * np.pi) - np.pi)
-                    ok = (dist > 0.4 * step) & (ang < np.radians(75))
-                    if ok.any():
-                        cand = near[ok]
-                        j = cand[rng.choice(len(cand), p=density[cand] / density[cand].sum())]
-                        side = rng.choice([-1, 1])
-                        off = radius[j] + rng.uniform(2.5, 6.0)
-                        dj = xy[j] - pts[-1]
-                        perp = np.array([-dj[1], dj[0]]) / (np.hypot(*dj) + 1e-9) * side
-                        p = xy[j] + perp * off
-            if np.any(np.abs(p) > half):
-                theta += np.pi / 2 * rng.choice([-1, 1])
+    for c in range(cfg.candidates):
+        if c % 2:
+            pts = _detour_waypoints(rng, xy, radius, tree, density, half, target,
+                                    cfg.net_fraction)
+            if pts is None:
                 continue
-            length += float(np.hypot(*(p - pts[-1])))
-            pts.append(p)
+        else:
+            pts = _walk_waypoints(rng, xy, radius, tree, density, half, target)
         path = chaikin(np.array(pts))
         dense, s = resample(path, 0.05)
         if s[-1] < target * 0.9:
@@ -115,6 +189,7 @@ def plan_route(cfg: RouteConfig, catalogue: np.ndarray, extent: float,
             passed, collide = np.zeros(0, int), 0
         n = len(passed)
         score = abs(net / s[-1] - cfg.net_fraction) * 15 + 10 * collide
+        score += 5 * (1 - s[-1] / target)  # short of the length target
         score += 0 if lo <= n <= hi else min(abs(n - lo), abs(n - hi)) * 1.0
         score += 0.02 * abs(n - (lo + hi) / 2)  # prefer the middle of the range
         if score < best_score:

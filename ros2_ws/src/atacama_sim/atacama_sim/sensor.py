@@ -45,3 +45,58 @@ class CameraSensor:
         if not ok:
             raise RuntimeError("JPEG encoding failed")
         return buf.tobytes()
+
+
+class StereoDeveloper:
+    """Image formation of the stereo pairs in frame order: exposure (stateful, smoothed),
+    sensor noise from the frame's own random stream, JPEG encoding.
+
+    Runs in a worker process during generation (see :func:`developer_pool`), so that it
+    overlaps the rendering of the next pair; a single worker keeps frames in order, which
+    the smoothed exposure needs.
+    """
+
+    def __init__(self, cfg: CameraConfig, fx: float, seed: int) -> None:
+        self.sensor = CameraSensor(cfg, fx)
+        self.seed = seed
+
+    def __call__(self, i: int, rad_left: np.ndarray, rad_right: np.ndarray,
+                 keep_left: bool) -> tuple[bytes, bytes, np.ndarray | None]:
+        """JPEG bytes of frame ``i`` (left, right) and, if asked, the 8-bit left image."""
+        from atacama_sim.config import rng_for
+
+        left = rad_left.astype(np.float32)
+        self.sensor.expose(left)
+        rng = rng_for(self.seed, f"frame{i}")
+        imgs = [self.sensor.image(left, rng),
+                self.sensor.image(rad_right.astype(np.float32), rng)]
+        return (self.sensor.jpeg(imgs[0]), self.sensor.jpeg(imgs[1]),
+                imgs[0] if keep_left else None)
+
+
+_DEVELOPER: StereoDeveloper | None = None
+
+
+def _init_worker(cfg: CameraConfig, fx: float, seed: int) -> None:
+    global _DEVELOPER
+    _DEVELOPER = StereoDeveloper(cfg, fx, seed)
+
+
+def _develop(*args):
+    assert _DEVELOPER is not None
+    return _DEVELOPER(*args)
+
+
+def developer_pool(cfg: CameraConfig, fx: float, seed: int):
+    """A one-process pool running :class:`StereoDeveloper` (``pool.submit(develop, ...)``).
+
+    The worker is spawned, not forked: the parent holds an EGL context and a large world.
+    """
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    return ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"),
+                               initializer=_init_worker, initargs=(cfg, fx, seed))
+
+
+develop = _develop
