@@ -17,7 +17,6 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
@@ -27,6 +26,7 @@ from darces_matcher.matcher import MatchConfig, Matcher, MatchResult
 from roi_network.geojson import read_geojson
 from roi_network.pointcloud import PointCloudFormatError, from_pointcloud2
 from roi_network.records import xy
+from roi_network.spin import spin_until_shutdown
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -194,8 +194,8 @@ def main(args: list[str] | None = None) -> int:
     node = None
     try:
         node = MatcherNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
+        spin_until_shutdown(node)
+    except KeyboardInterrupt:
         pass
     except (OSError, ValueError) as exc:
         print(f"darces_matcher: error: {exc}", file=sys.stderr)

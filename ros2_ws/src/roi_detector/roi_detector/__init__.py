@@ -1,1 +1,1 @@
-"""ROI detection and classification (orbital and rover imagery), roi_detector and ln_builder nodes."""
+"""ROI detection and classification (orbital and rover imagery): roi_detector, ln_builder."""

@@ -46,8 +46,7 @@ def record(options: RecordOptions) -> int:
     if options.out.exists():
         raise GloblocError(f'output bag {options.out} exists already')
 
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-
+    from roi_network.spin import spin_until_shutdown
     from rover_bringup.recorder_node import OutputRecorder
     from rover_bringup.ros import ros_args, ros_session
 
@@ -55,14 +54,11 @@ def record(options: RecordOptions) -> int:
     try:
         with ros_session(ros_args('globloc_record', options.ros_args)):
             recorder = OutputRecorder(out, topics)
-            executor = SingleThreadedExecutor()
-            executor.add_node(recorder)
             try:
-                executor.spin()
+                spin_until_shutdown(recorder)
             finally:
-                executor.shutdown()
                 recorder.destroy_node()
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except KeyboardInterrupt:
         pass
     finally:
         out.close()

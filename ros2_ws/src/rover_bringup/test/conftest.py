@@ -7,6 +7,7 @@ Fast DDS shared-memory files behind.
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import itertools
 import os
@@ -128,23 +129,39 @@ def _mapped_shm_files() -> set[str]:
     return names
 
 
+def _describe(proc: psutil.Process) -> str:
+    """pid and command line of a process that may have exited (or be a zombie) meanwhile."""
+    try:
+        return f'{proc.pid}: {" ".join(proc.cmdline())}'
+    except psutil.Error as exc:
+        return f'{proc.pid}: ({type(exc).__name__})'
+
+
 @pytest.fixture(autouse=True)
 def no_leftovers() -> Iterator[None]:
     """Fail a test that leaves child processes or Fast DDS shared-memory files behind.
 
-    Leftover children are stopped with SIGTERM (SIGKILL would itself leak SHM files). A SHM
-    file counts as leaked when it appeared during the test and no live process uses it
-    (other ROS processes on the machine may create their own meanwhile).
+    Only children that appeared during the test count: helpers started earlier in the session
+    (such as the multiprocessing resource tracker a spawn-context pool leaves for the life of
+    the interpreter) are not this test's leftovers. Leftover children are stopped with SIGTERM
+    (SIGKILL would itself leak SHM files). A SHM file counts as leaked when it appeared during
+    the test and no live process uses it (other ROS processes on the machine may create their
+    own meanwhile).
     """
+    me = psutil.Process()
+    before_children = {c.pid for c in me.children(recursive=True)}
     before = _fastrtps_files()
     yield
-    me = psutil.Process()
-    children = [c for c in me.children(recursive=True) if c.is_running()]
+    children = [c for c in me.children(recursive=True)
+                if c.pid not in before_children and c.is_running()]
+    described = [_describe(c) for c in children]
     for child in children:
-        child.send_signal(signal.SIGTERM)
+        with contextlib.suppress(psutil.NoSuchProcess):
+            child.send_signal(signal.SIGTERM)
     _, alive = psutil.wait_procs(children, timeout=10)
     for child in alive:
-        child.kill()
+        with contextlib.suppress(psutil.NoSuchProcess):
+            child.kill()
     leaked: set[str] = set()
     deadline = time.monotonic() + 3.0
     while time.monotonic() < deadline:  # Fast DDS removes its files while exiting
@@ -152,5 +169,5 @@ def no_leftovers() -> Iterator[None]:
         if not leaked:
             break
         time.sleep(0.2)
-    assert not children, f'processes left running: {[c.cmdline() for c in children]}'
+    assert not children, f'processes left running: {described}'
     assert not leaked, f'Fast DDS shared-memory files left behind: {sorted(leaked)}'

@@ -16,10 +16,11 @@ import sys
 import rclpy
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Imu, PointCloud2
+
+from roi_network.spin import spin_until_shutdown
 
 CRASH_STATUS = 3
 
@@ -74,8 +75,8 @@ def main() -> int:
     """Spin until SIGTERM."""
     rclpy.init()
     try:
-        rclpy.spin(FakePipeline())
-    except (KeyboardInterrupt, ExternalShutdownException):
+        spin_until_shutdown(FakePipeline())
+    except KeyboardInterrupt:
         pass
     finally:
         rclpy.try_shutdown()
