@@ -179,6 +179,15 @@ def auto_max_side(pts: np.ndarray, tree: cKDTree, neighbours: int) -> float:
     return float(np.median(dist[:, -1]))
 
 
+#: Class separation of the class-lifted KD-tree, metres: far beyond any query radius.
+_CLASS_SEPARATION_M = 1.0e7
+
+
+def _lift(labels: np.ndarray) -> np.ndarray:
+    """Lifted z of nodes of the given classes (see :attr:`GnIndex.lifted_tree`)."""
+    return np.asarray(labels, dtype=float) * _CLASS_SEPARATION_M
+
+
 class GnIndex:
     """KD-trees and the triangle index of one Global Network (``map`` frame).
 
@@ -232,6 +241,10 @@ class GnIndex:
             if len(members):
                 self.label_trees[label] = (cKDTree(self.pts[members]), members)
         self._all_ext = np.append(np.arange(len(self.pts)), -1)
+        # One KD-tree for every class at once: each node lifted to z = class x
+        # _CLASS_SEPARATION_M, so that a query within a smaller radius only ever reaches
+        # nodes of its own class (one query per LN instead of one per class present).
+        self.lifted_tree = cKDTree(np.column_stack([self.pts, _lift(self.labels)]))
         if max_side_m is None:
             max_side_m = auto_max_side(self.pts, self.tree, neighbours)
         self.max_side_m = float(max_side_m)
@@ -248,6 +261,8 @@ class GnIndex:
         memory = self.keys.nbytes + self.tri.nbytes + self.pts.nbytes
         # cKDTree keeps a copy of the data plus ~2 index arrays: approximate it.
         memory += 2 * (self.pts.nbytes + 8 * len(self.pts))
+        # The class-lifted tree: (x, y, z) copy plus its index arrays.
+        memory += 2 * (24 * len(self.pts) + 8 * len(self.pts))
         self.stats = IndexStats(
             n_nodes=len(gn),
             n_triangles=len(self.tri),
@@ -319,28 +334,36 @@ class GnIndex:
         ok = np.all(diff <= tol[query], axis=1)
         return rows[ok], query[ok]
 
-    def any_label_groups(self, n: int) -> list[tuple[cKDTree, np.ndarray, np.ndarray]]:
+    def any_label_groups(self, n: int) -> list[tuple]:
         """Query plan of N LN nodes against the whole GN, whatever their classes."""
-        return [(self.tree, self._all_ext, np.arange(n))]
+        return [(self.tree, self._all_ext, np.arange(n), None)]
 
-    def label_groups(self, labels: np.ndarray) -> list[tuple[cKDTree, np.ndarray, np.ndarray]]:
+    def label_groups(self, labels: np.ndarray) -> list[tuple]:
         """Per-class query plan for LN nodes, computed once per LN.
 
         Args:
             labels: (N,) class labels of the LN nodes.
 
         Returns:
-            (KD-tree, GN index of each tree point with a trailing -1 for "none", LN
-            nodes of that class) per class present in both networks; with
-            ``use_labels`` False, one group of all nodes against the whole GN.
+            Groups of (KD-tree, GN index of each tree point with a trailing -1 for
+            "none", LN nodes of the group, lifted z of those nodes or None): one group
+            of all nodes against the class-lifted tree (with ``use_labels`` False,
+            against the plain tree); :meth:`nearest_same_label` falls back to the
+            per-class trees for radii that the lift cannot separate.
         """
         if not self.use_labels:
             return self.any_label_groups(len(labels))
+        labels = np.asarray(labels, dtype=np.int64)
+        return [(self.lifted_tree, self._all_ext, np.arange(len(labels)), _lift(labels),
+                 labels)]
+
+    def _per_class_groups(self, labels: np.ndarray) -> list[tuple]:
+        """One group per class present in both networks, against the per-class trees."""
         groups = []
         for label, (tree, members) in self.label_trees.items():
             sel = np.flatnonzero(labels == label)
             if len(sel):
-                groups.append((tree, np.append(members, -1), sel))
+                groups.append((tree, np.append(members, -1), sel, None))
         return groups
 
     def nearest_same_label(
@@ -363,9 +386,19 @@ class GnIndex:
             (..., N) distances (``inf`` when none) and GN indices (-1 when none).
         """
         shape = pts.shape[:-1] + ((k,) if k > 1 else ())
+        if len(groups) == 1 and groups[0][3] is not None:
+            tree, members, _, z, labels = groups[0]
+            if radius < 0.5 * _CLASS_SEPARATION_M:
+                # The common case: one query of the class-lifted points.
+                lifted = np.empty((*pts.shape[:-1], 3))
+                lifted[..., :2] = pts
+                lifted[..., 2] = z
+                d, i = tree.query(lifted, k=k, distance_upper_bound=radius)
+                return d, members[i]
+            groups = self._per_class_groups(labels)
         dist = np.full(shape, np.inf)
         idx = np.full(shape, -1, dtype=np.int64)
-        for tree, members, sel in groups:
+        for tree, members, sel, _ in groups:
             d, i = tree.query(pts[..., sel, :], k=k, distance_upper_bound=radius)
             if k > 1:
                 dist[..., sel, :], idx[..., sel, :] = d, members[i]

@@ -25,6 +25,16 @@ def _combinations3(n: int) -> np.ndarray:
     return out
 
 
+@lru_cache(maxsize=64)
+def _flat_edges(n: int) -> np.ndarray:
+    """Flat (row-major n x n) indices of the edges (i, j), (j, k), (k, i) of every
+    triple of :func:`_combinations3`, (3, C(n, 3)), cached per n."""
+    c = _combinations3(n)
+    out = np.stack([c[:, 0] * n + c[:, 1], c[:, 1] * n + c[:, 2], c[:, 2] * n + c[:, 0]])
+    out.flags.writeable = False
+    return out
+
+
 def control_triplets(
     pts: np.ndarray,
     tol: np.ndarray,
@@ -67,50 +77,61 @@ def control_triplets(
     if n < 3 or n_triplets <= 0:
         return np.zeros((0, 3), dtype=np.int64)
     candidates = np.sort(np.argsort(tol, kind="stable")[:max_nodes])
-    combos = candidates[_combinations3(len(candidates))]
-    a, b, c = pts[combos[:, 0]], pts[combos[:, 1]], pts[combos[:, 2]]
-    cross = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-    sides = np.stack(
-        [np.linalg.norm(b - a, axis=1), np.linalg.norm(c - b, axis=1),
-         np.linalg.norm(a - c, axis=1)], axis=1)
-    tol_sum = tol[combos].sum(axis=1)
-    min_height = np.abs(cross) / np.maximum(sides.max(axis=1), 1e-9)
+    m = len(candidates)
+    local = _combinations3(m)
+    edges = _flat_edges(m)
+    p, t = pts[candidates], tol[candidates]
+    # Pairwise side lengths and cross products once (m x m), then gathered per triple:
+    # cross(a, b, c) = a x b + b x c + c x a, the doubled signed area.
+    dist = np.sqrt(((p[:, None, :] - p[None, :, :]) ** 2).sum(axis=2)).ravel()
+    wedge = (np.multiply.outer(p[:, 0], p[:, 1]) - np.multiply.outer(p[:, 1], p[:, 0])).ravel()
+    # Column-wise (3 separate vectors): numpy reductions over a length-3 axis are slow.
+    s0, s1, s2 = dist[edges[0]], dist[edges[1]], dist[edges[2]]
+    w = wedge[edges]
+    cross = w[0] + w[1] + w[2]
+    t0, t1, t2 = t[local[:, 0]], t[local[:, 1]], t[local[:, 2]]
+    tol_sum = t0 + t1 + t2
+    longest = np.maximum(np.maximum(s0, s1), s2)
+    min_height = np.abs(cross) / np.maximum(longest, 1e-9)
     ok = (
-        (sides.min(axis=1) >= min_side_m)
-        # A GN counterpart may be up to the edge tolerance (~1.4 node tolerances) longer.
-        & (sides.max(axis=1) + 1.5 * tol[combos].max(axis=1) <= max_side_m)
+        (np.minimum(np.minimum(s0, s1), s2) >= min_side_m)
         & (min_height >= min_height_ratio * tol_sum)
     )
-    combos, cross, min_height, tol_sum = combos[ok], cross[ok], min_height[ok], tol_sum[ok]
+    if np.isfinite(max_side_m):
+        # A GN counterpart may be up to the edge tolerance (~1.4 node tolerances) longer.
+        ok &= longest + 1.5 * np.maximum(np.maximum(t0, t1), t2) <= max_side_m
+    keep = np.flatnonzero(ok)
+    combos = candidates[local[keep]]
+    cross, min_height, tol_sum = cross[keep], min_height[keep], tol_sum[keep]
+    tol_prod = t0[keep] * t1[keep] * t2[keep]
     # Counter-clockwise vertex order.
     cw = cross < 0
     combos[cw, 1], combos[cw, 2] = combos[cw, 2], combos[cw, 1].copy()
     # Selectivity: the number of random GN triangles within tolerance grows with the
     # product of the three tolerances, so precise triplets come first; ties (equal
     # precision) go to the better conditioned one.
-    tol_prod = np.prod(tol[combos], axis=1)
     order = np.lexsort((-min_height / np.maximum(tol_sum, 1e-6), np.round(tol_prod, 6)))
-    # Greedy spread: plain Python lists, the loop is short and numpy calls would dominate.
+    # Greedy spread in plain Python (a short loop; numpy calls per row would dominate).
     # With a cost, pick a few spares: some will be dropped.
     limit = n_triplets if cost is None else spare_factor * n_triplets
-    uses = np.zeros(n, dtype=np.int64)
+    uses = [0] * n
     chosen: list[int] = []
-    ordered = combos[order]
-    # In blocks: rows holding an already saturated node are dropped with one numpy test
-    # per block, the short greedy loop sees only the others.
-    for start in range(0, len(order), 128):
+    # In blocks: only as many rows are converted to Python as the greedy loop reads.
+    for start in range(0, len(order), 64):
         if len(chosen) >= limit:
             break
-        block = ordered[start : start + 128]
-        live = np.flatnonzero((uses[block] < max_uses_per_node).all(axis=1))
-        for r in live.tolist():
+        block = order[start : start + 64]
+        for r, (i, j, k) in zip(block.tolist(), combos[block].tolist(), strict=True):
+            if uses[i] >= max_uses_per_node or uses[j] >= max_uses_per_node or (
+                uses[k] >= max_uses_per_node
+            ):
+                continue
+            chosen.append(r)
+            uses[i] += 1
+            uses[j] += 1
+            uses[k] += 1
             if len(chosen) >= limit:
                 break
-            row = block[r]
-            if (uses[row] >= max_uses_per_node).any():
-                continue
-            chosen.append(int(order[start + r]))
-            uses[row] += 1
     if cost is not None and chosen:
         # The GN index tells the actual number of candidates: none at all means a vertex
         # has no counterpart (outlier, wrong class, GN miss), too many is too costly to

@@ -7,11 +7,12 @@ nodes that land within their tolerance of a GN node of the same class.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from darces_matcher.gn_index import GnIndex
-from darces_matcher.hypotheses import apply_batch, fit_rigid_batch
 
 #: Candidates per LN node in the one-to-one assignment.
 _K = 3
@@ -64,7 +65,7 @@ def associate(
     valid = dist <= node_tol[:, None]
     ln = np.flatnonzero(valid[:, 0])
     first = gn[ln, 0]
-    if len(np.unique(first)) == len(first):
+    if len(set(first.tolist())) == len(first):
         # No competition (the common case): every node keeps its nearest GN node.
         return ln, first, dist[ln, 0]
     rows = np.flatnonzero(valid.any(axis=1))
@@ -94,6 +95,7 @@ def refine(
     n_sigma: float,
     max_gate: float,
     max_drops: int = 3,
+    readmit: bool = True,
 ) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
     """Iterate association and weighted least-squares refit on all inliers.
 
@@ -114,19 +116,24 @@ def refine(
         n_sigma: gate width in standard deviations.
         max_gate: widest gate, metres.
         max_drops: most inliers excluded by the leave-one-out leverage check.
+        readmit: try left-out nodes back in the end (:func:`_readmit`).
 
     Returns:
         Refined yaw (rad), translation (m), and the LN and GN indices of the inliers.
     """
-    yaw_arr, t_arr = np.array([yaw]), np.asarray(t, dtype=float)[None, :]
+    yaw, t = float(yaw), np.asarray(t, dtype=float)
     ln_in = gn_in = np.zeros(0, dtype=np.int64)
     excluded = np.zeros(len(ln_pts), dtype=bool)
+    ln_var = 1.0 / weights
+    gn_pts = index.pts
     for _ in range(1 + max_drops):
         base = np.where(excluded, 0.0, gate)
+        # At most twice the base gate: wider would let false associations in.
+        widest = np.minimum(2 * base, max_gate)
         node_gate = base
         ln_in = gn_in = np.zeros(0, dtype=np.int64)
         for _ in range(iterations):
-            mapped = apply_batch(yaw_arr, t_arr, ln_pts)[0]
+            mapped = transform_points(yaw, t, ln_pts)
             new_ln, new_gn, _ = associate(index, mapped, groups, node_gate)
             if np.array_equal(new_ln, ln_in) and np.array_equal(new_gn, gn_in):
                 # Converged: the inliers of the current fit are the ones it was fitted on.
@@ -134,28 +141,131 @@ def refine(
             if len(new_ln) < 3:
                 break
             ln_in, gn_in = new_ln, new_gn
-            yaw_arr, t_arr = fit_rigid_batch(
-                ln_pts[ln_in][None], index.pts[gn_in][None], weights[ln_in][None]
-            )
-            cov = pose_covariance(ln_pts[ln_in], float(yaw_arr[0]), weights[ln_in])
-            fit_var = predicted_variance(ln_pts, float(yaw_arr[0]), cov)
-            # At most twice the base gate: wider would let false associations in.
-            widest = np.minimum(2 * base, max_gate)
-            node_gate = np.clip(n_sigma * np.sqrt(1.0 / weights + fit_var), base, widest)
+            yaw, t = fit_rigid(ln_pts[ln_in], gn_pts[gn_in], weights[ln_in])
+            cov = pose_covariance(ln_pts[ln_in], yaw, weights[ln_in])
+            fit_var = predicted_variance(ln_pts, yaw, cov)
+            node_gate = np.clip(n_sigma * np.sqrt(ln_var + fit_var), base, widest)
         if len(ln_in) < 5:
             break
         # Leverage check: a wrong association on a precise node can hold the whole fit.
         # Refit without each inlier in turn; the one the others place furthest outside
         # its gate is excluded, and the fit redone.
-        miss = leave_one_out_residual(ln_pts[ln_in], index.pts[gn_in], weights[ln_in])
-        worst = int(np.argmax(miss / gate[ln_in]))
-        if miss[worst] <= gate[ln_in[worst]]:
+        miss = leave_one_out_residual(ln_pts[ln_in], gn_pts[gn_in], weights[ln_in])
+        ratio = miss / gate[ln_in]
+        worst = int(np.argmax(ratio))
+        if ratio[worst] <= 1.0:
             break
         excluded[ln_in[worst]] = True
     # Support is counted with the base gate, the same for every hypothesis.
-    mapped = apply_batch(yaw_arr, t_arr, ln_pts)[0]
+    mapped = transform_points(yaw, t, ln_pts)
     ln_in, gn_in, _ = associate(index, mapped, groups, np.where(excluded, 0.0, gate))
-    return float(yaw_arr[0]), t_arr[0], ln_in, gn_in
+    if readmit and 3 <= len(ln_in) < len(ln_pts):
+        yaw, t, ln_in, gn_in = _readmit(index, ln_pts, groups, gate, weights, max_gate,
+                                        yaw, t, ln_in, gn_in, mapped)
+    return yaw, t, ln_in, gn_in
+
+
+def _readmit(
+    index: GnIndex,
+    ln_pts: np.ndarray,
+    groups: list,
+    gate: np.ndarray,
+    weights: np.ndarray,
+    max_gate: float,
+    yaw: float,
+    t: np.ndarray,
+    ln_in: np.ndarray,
+    gn_in: np.ndarray,
+    mapped: np.ndarray,
+    max_tries: int = 2,
+) -> tuple[float, np.ndarray, np.ndarray, np.ndarray]:
+    """Try left-out nodes back into a refined fit; keep a refit with more inliers.
+
+    The refit path can leave out a right pair, typically the first, precise node when
+    the fit rests on far, drifted nodes (or a wrong pair among them pulled it away):
+    it then lies just outside its small gate. Only when at most ``max_tries`` nodes are
+    left out and every one of them has a GN node of its class within twice its gate (an
+    LN with a node near no GN node holds outliers, and a near one may be an outlier too:
+    its readmission would pull a right fit away): each (most precise first) is added to
+    the inliers, the fit redone and the whole LN re-associated with the base gates; that
+    fit replaces the current one when it has more inliers (the criterion that ranks
+    candidates).
+    """
+    out = np.ones(len(ln_pts), dtype=bool)
+    out[ln_in] = False
+    nodes = np.flatnonzero(out)
+    if len(nodes) > max_tries:
+        return yaw, t, ln_in, gn_in
+    wide = np.minimum(2 * gate[nodes], max_gate)
+    dist, gn = index.nearest_same_label(mapped[nodes], _subset(groups, nodes),
+                                        float(wide.max()))
+    near = dist <= wide
+    if not near.all():
+        # A left-out node with no GN node near it is an outlier (false detection, GN
+        # miss): this LN has some, and a near node may then be one too. Readmit only
+        # into fits that explain every other node.
+        return yaw, t, ln_in, gn_in
+    taken = set(gn_in.tolist())
+    tries = [(nodes[i], gn[i]) for i in np.argsort(gate[nodes], kind="stable")
+             if near[i] and int(gn[i]) not in taken][:max_tries]
+    for node, partner in tries:
+        src = np.append(ln_in, node)
+        dst = np.append(gn_in, partner)
+        y2, t2 = fit_rigid(ln_pts[src], index.pts[dst], weights[src])
+        for _ in range(2):
+            ln2, gn2, _ = associate(index, transform_points(y2, t2, ln_pts), groups, gate)
+            if len(ln2) < 3:
+                break
+            y2, t2 = fit_rigid(ln_pts[ln2], index.pts[gn2], weights[ln2])
+        ln2, gn2, _ = associate(index, transform_points(y2, t2, ln_pts), groups, gate)
+        if len(ln2) > len(ln_in):
+            yaw, t, ln_in, gn_in = y2, t2, ln2, gn2
+            break
+    return yaw, t, ln_in, gn_in
+
+
+def _subset(groups: list, nodes: np.ndarray) -> list:
+    """:meth:`GnIndex.label_groups` of a subset of the LN nodes (in ``nodes`` order)."""
+    out = []
+    for group in groups:
+        tree, members, sel, z = group[:4]
+        if z is None:
+            out.append((tree, members, np.arange(len(nodes)), None))
+        else:
+            pos = np.full(int(sel.max(initial=-1)) + 1, -1)
+            pos[sel] = np.arange(len(sel))
+            keep = pos[nodes]
+            out.append((tree, members, np.arange(len(nodes)), z[keep], group[4][keep]))
+    return out
+
+
+def transform_points(yaw: float, t: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """(N, 2) points mapped by one rigid transform (yaw rad, translation t m)."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return pts @ np.array([[c, s], [-s, c]]) + t
+
+
+def fit_rigid(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> tuple[float, np.ndarray]:
+    """Weighted least-squares proper rigid transform of one correspondence set.
+
+    The single-set form of :func:`~darces_matcher.hypotheses.fit_rigid_batch` (same
+    closed-form 2D Kabsch, never a reflection), without the batch overhead.
+
+    Args:
+        src: (K, 2) ``odom`` points; dst: (K, 2) ``map`` points, metres;
+        weights: (K,) non-negative weights.
+
+    Returns:
+        yaw (rad) and (2,) translation (m) of ``map_T_odom``.
+    """
+    w = weights / max(float(weights.sum()), 1e-300)
+    ca, cb = w @ src, w @ dst
+    a0, b0 = src - ca, dst - cb
+    cos = float(w @ (a0[:, 0] * b0[:, 0] + a0[:, 1] * b0[:, 1]))
+    sin = float(w @ (a0[:, 0] * b0[:, 1] - a0[:, 1] * b0[:, 0]))
+    yaw = math.atan2(sin, cos)
+    c, s = math.cos(yaw), math.sin(yaw)
+    return yaw, cb - np.array([c * ca[0] - s * ca[1], s * ca[0] + c * ca[1]])
 
 
 def leave_one_out_residual(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -165,23 +275,41 @@ def leave_one_out_residual(src: np.ndarray, dst: np.ndarray, weights: np.ndarray
     Args:
         src: (K, 2) ``odom`` points; dst: (K, 2) ``map`` points; weights: (K,).
     """
-    k = len(src)
-    w = np.broadcast_to(weights, (k, k)).copy()
-    np.fill_diagonal(w, 0.0)
-    yaw, t = fit_rigid_batch(np.broadcast_to(src, (k, k, 2)), np.broadcast_to(dst, (k, k, 2)), w)
+    # Closed form: the weighted sums of the full fit minus each pair's own terms (the
+    # same 2D Kabsch as :func:`fit_rigid` on the other K - 1 pairs), on centred points.
+    src = src - src.mean(axis=0)
+    dst = dst - dst.mean(axis=0)
+    w = weights
+    wa, wb = w[:, None] * src, w[:, None] * dst
+    rest_w = w.sum() - w
+    rest_a = wa.sum(axis=0) - wa
+    rest_b = wb.sum(axis=0) - wb
+    dot = src[:, 0] * dst[:, 0] + src[:, 1] * dst[:, 1]
+    crs = src[:, 0] * dst[:, 1] - src[:, 1] * dst[:, 0]
+    safe_w = np.maximum(rest_w, 1e-300)
+    ca, cb = rest_a / safe_w[:, None], rest_b / safe_w[:, None]
+    cos = (w @ dot - w * dot) - rest_w * (ca[:, 0] * cb[:, 0] + ca[:, 1] * cb[:, 1])
+    sin = (w @ crs - w * crs) - rest_w * (ca[:, 0] * cb[:, 1] - ca[:, 1] * cb[:, 0])
+    yaw = np.arctan2(sin, cos)
     c, s = np.cos(yaw), np.sin(yaw)
-    pred = np.column_stack([c * src[:, 0] - s * src[:, 1], s * src[:, 0] + c * src[:, 1]]) + t
-    return np.linalg.norm(pred - dst, axis=1)
+    # The prediction R (p - ca) + cb of each left-out point, against its destination.
+    dx, dy = src[:, 0] - ca[:, 0], src[:, 1] - ca[:, 1]
+    px = c * dx - s * dy + cb[:, 0]
+    py = s * dx + c * dy + cb[:, 1]
+    return np.hypot(px - dst[:, 0], py - dst[:, 1])
 
 
 def predicted_variance(ln_pts: np.ndarray, yaw: float, cov: np.ndarray) -> np.ndarray:
     """Per-axis variance (m^2) of LN nodes mapped by a fit with (x, y, yaw) covariance."""
-    c, s = np.cos(yaw), np.sin(yaw)
+    c, s = math.cos(yaw), math.sin(yaw)
     rx = c * ln_pts[:, 0] - s * ln_pts[:, 1]
     ry = s * ln_pts[:, 0] + c * ln_pts[:, 1]
     var_x = cov[0, 0] - 2 * cov[0, 2] * ry + cov[2, 2] * ry**2
     var_y = cov[1, 1] + 2 * cov[1, 2] * rx + cov[2, 2] * rx**2
-    return np.nan_to_num(0.5 * (var_x + var_y), nan=np.inf, posinf=np.inf)
+    var = 0.5 * (var_x + var_y)
+    # A singular or numerically broken fit (NaN, negative variance) is infinitely loose.
+    var[~(var >= 0.0)] = np.inf
+    return var
 
 
 def pose_covariance(ln_pts: np.ndarray, yaw: float, weights: np.ndarray) -> np.ndarray:
@@ -199,14 +327,13 @@ def pose_covariance(ln_pts: np.ndarray, yaw: float, weights: np.ndarray) -> np.n
     Returns:
         (3, 3) covariance; ``inf`` on the diagonal if the fit is undetermined.
     """
-    c, s = np.cos(yaw), np.sin(yaw)
-    rp = ln_pts @ np.array([[c, -s], [s, c]]).T
-    # d(residual)/d(x, y, yaw) for one point: [[1, 0, -rp_y], [0, 1, rp_x]].
-    info = np.zeros((3, 3))
-    info[0, 0] = info[1, 1] = weights.sum()
-    info[0, 2] = info[2, 0] = -(weights * rp[:, 1]).sum()
-    info[1, 2] = info[2, 1] = (weights * rp[:, 0]).sum()
-    info[2, 2] = (weights * (rp**2).sum(axis=1)).sum()
+    c, s = math.cos(yaw), math.sin(yaw)
+    x, y = ln_pts[:, 0], ln_pts[:, 1]
+    rx, ry = c * x - s * y, s * x + c * y
+    # d(residual)/d(x, y, yaw) for one point: [[1, 0, -ry], [0, 1, rx]].
+    sw, swx, swy = float(weights.sum()), float(weights @ rx), float(weights @ ry)
+    sww = float(weights @ (rx * rx + ry * ry))
+    info = np.array([[sw, 0.0, -swy], [0.0, sw, swx], [-swy, swx, sww]])
     try:
         cov = np.linalg.inv(info)
     except np.linalg.LinAlgError:

@@ -70,3 +70,17 @@ def test_bad_options(tmp_path: Path) -> None:
     out = str(tmp_path / "o.json")
     assert main(["--synthetic", "60", "--methods", "nope", "--json", out]) == 2
     assert main(["--synthetic", "60", "--outliers", "1.5", "--json", out]) == 2
+
+
+def test_baseline_subset_and_separate_pass(gn_file: Path, tmp_path: Path) -> None:
+    """Baselines see the first N LNs; a threaded baseline (its own pass) sees the same."""
+    pytest.importorskip("kiss_matcher")
+    out = tmp_path / "out.json"
+    assert main(["--gn", str(gn_file), "--max-lns", "6", "--baseline-max-lns", "3",
+                 "--methods", "darces,darces_original,kiss_matcher", "--json", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert "separate pass" in report["timing"]
+    assert report["methods"]["darces"]["lns"] == 6
+    assert report["methods"]["darces"]["same_subset_as_baselines"]["lns"] == 3
+    assert report["methods"]["darces_original"]["lns"] == 3
+    assert report["methods"]["kiss_matcher"]["lns"] == 3

@@ -20,7 +20,14 @@ from darces_matcher.simulate import (
     start_end_pairs,
 )
 from darces_matcher.triplets import control_triplets
-from roi_network.records import xy
+from darces_matcher.vote import (
+    _readmit,
+    fit_rigid,
+    leave_one_out_residual,
+    transform_points,
+)
+from roi_network.network import RoiNetwork
+from roi_network.records import ROCK, empty_records, xy
 from roi_network.transform import Rigid2D
 
 
@@ -158,3 +165,91 @@ def test_generator_size_and_labels(n: int) -> None:
     assert set(np.unique(gn.records["label"])) <= {1, 2}
     w, h = GnSpec(n_rois=n).extent_m
     assert xy(gn.records).min() >= 0 and gn.records["x"].max() <= w and gn.records["y"].max() <= h
+
+
+def test_class_lifted_queries_match_per_class_trees() -> None:
+    """The single class-lifted KD-tree answers exactly like one tree per class."""
+    gn = generate_gn(GnSpec(n_rois=150), seed=4)
+    index = GnIndex(gn)
+    rng = np.random.default_rng(0)
+    labels = rng.choice(np.array(sorted(index.label_trees)), size=40)
+    pts = index.pts[rng.integers(0, len(index.pts), 40)] + rng.normal(0, 6, (40, 2))
+    batch = np.stack([pts, pts + 3.0])
+    lifted = index.label_groups(labels)
+    per_class = index._per_class_groups(labels)
+    for k in (1, 3):
+        for radius in (5.0, 40.0):
+            d1, i1 = index.nearest_same_label(batch, lifted, radius, k=k)
+            d2, i2 = index.nearest_same_label(batch, per_class, radius, k=k)
+            np.testing.assert_allclose(d1, d2)
+            np.testing.assert_array_equal(i1, i2)
+            found = i1 >= 0
+            lab = np.broadcast_to(labels[:, None] if k > 1 else labels, i1.shape)
+            assert np.all(index.labels[i1[found]] == lab[found])
+    # A radius the lift cannot separate falls back to the per-class trees.
+    d3, i3 = index.nearest_same_label(pts, lifted, 1e9)
+    d4, i4 = index.nearest_same_label(pts, per_class, 1e9)
+    np.testing.assert_array_equal(i3, i4)
+    np.testing.assert_allclose(d3, d4)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(-math.pi, math.pi), st.integers(3, 25), st.integers(0, 10_000))
+def test_single_fit_and_leave_one_out_match_the_batched_fit(yaw: float, k: int,
+                                                            seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    src = rng.uniform(-400, 400, (k, 2))
+    dst = transform_points(yaw, np.array([1500.0, -300.0]), src) + rng.normal(0, 2, (k, 2))
+    w = rng.uniform(0.05, 5.0, k)
+    yaw_b, t_b = fit_rigid_batch(src[None], dst[None], w[None])
+    yaw_1, t_1 = fit_rigid(src, dst, w)
+    assert abs(math.remainder(yaw_1 - yaw_b[0], 2 * math.pi)) < 1e-9
+    np.testing.assert_allclose(t_1, t_b[0], atol=1e-6)
+    # Leave-one-out residuals: the fit of the other pairs, done one by one.
+    miss = leave_one_out_residual(src, dst, w)
+    for i in range(k):
+        rest = np.arange(k) != i
+        y_i, t_i = fit_rigid(src[rest], dst[rest], w[rest])
+        expected = np.linalg.norm(transform_points(y_i, t_i, src[i:i + 1])[0] - dst[i])
+        assert abs(miss[i] - expected) < 1e-6
+
+
+def _readmit_case() -> tuple[GnIndex, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A GN grid, an LN of its nodes, a precise first node and drifted others."""
+    g = np.array([(x, y) for x in range(0, 400, 40) for y in range(0, 160, 40)], float)
+    records = empty_records(len(g))
+    records["x"], records["y"], records["label"] = g[:, 0], g[:, 1], ROCK
+    index = GnIndex(RoiNetwork(records, "map"))
+    ln = g[[0, 5, 10, 15, 20, 25, 30, 35]].copy()
+    gate = np.array([2.5] + [12.0] * 7)
+    weights = 1.0 / np.array([0.13] + [16.0] * 7)
+    return index, ln, gate, weights, np.array([0, 5, 10, 15, 20, 25, 30, 35])
+
+
+def test_readmit_takes_back_a_precise_node_just_outside_its_gate() -> None:
+    index, ln, gate, weights, truth = _readmit_case()
+    groups = index.label_groups(np.full(len(ln), ROCK))
+    # A fit 3.5 m off at the precise first node (gate 2.5 m), within the others' gates.
+    yaw, t = 0.0, np.array([3.5, 0.0])
+    mapped = transform_points(yaw, t, ln)
+    ln_in, gn_in = np.arange(1, len(ln)), truth[1:]
+    _, t2, ln2, gn2 = _readmit(index, ln, groups, gate, weights, 30.0, yaw, t, ln_in,
+                               gn_in, mapped)
+    assert len(ln2) == len(ln)
+    np.testing.assert_array_equal(gn2, truth)
+    assert np.linalg.norm(t2) < 0.5
+
+
+def test_readmit_leaves_fits_with_outliers_alone() -> None:
+    index, ln, gate, weights, truth = _readmit_case()
+    # One more LN node far from every GN node: an outlier; then nothing is readmitted.
+    ln = np.vstack([ln, [20.0, 20.0]])
+    gate = np.append(gate, 2.5)
+    weights = np.append(weights, 1.0 / 0.13)
+    groups = index.label_groups(np.full(len(ln), ROCK))
+    yaw, t = 0.0, np.array([3.5, 0.0])
+    ln_in, gn_in = np.arange(1, len(ln) - 1), truth[1:]
+    out = _readmit(index, ln, groups, gate, weights, 30.0, yaw, t, ln_in, gn_in,
+                   transform_points(yaw, t, ln))
+    np.testing.assert_array_equal(out[2], ln_in)
+    np.testing.assert_array_equal(out[1], t)
