@@ -1,0 +1,85 @@
+"""The probabilistic (EM) refit: annealing, recovery from a misplaced start, outliers."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from darces_matcher.em_refit import EmModel, anneal_schedule, em_refit, gn_density
+from darces_matcher.gn_generator import GnSpec, generate_gn
+from darces_matcher.matcher import MatchConfig
+from roi_network.records import xy
+from roi_network.transform import Rigid2D
+
+
+def test_anneal_schedule_halves_down_to_half_a_metre_then_zero() -> None:
+    assert anneal_schedule(4.0) == [4.0, 2.0, 1.0, 0.5, 0.0]
+    assert anneal_schedule(0.0) == [0.0]
+
+
+def test_gn_density_is_count_over_hull_area() -> None:
+    square = np.array([[0.0, 0.0], [100.0, 0.0], [100.0, 100.0], [0.0, 100.0], [50.0, 50.0]])
+    assert math.isclose(gn_density(square), 5 / 1e4)
+    # A collinear GN has no hull: the bounding box (at least 1 m wide) stands in.
+    line = np.column_stack([np.linspace(0, 100, 5), np.zeros(5)])
+    assert math.isclose(gn_density(line), 5 / 100.0)
+
+
+def _scene(outliers: int = 0):
+    gn = generate_gn(GnSpec(n_rois=120), seed=3)
+    pts, labels = xy(gn.records), gn.records["label"].astype(np.int64)
+    tree = cKDTree(pts)
+    # An LN of 14 GN nodes along x, the first one precise, the others drifted (sigma 2 m),
+    # seen in an odom frame; positions noiseless so the true fit is exact.
+    nodes = np.argsort(pts[:, 0])[::8][:14]
+    map_T_odom = Rigid2D(0.7, -250.0, 40.0)
+    ln = map_T_odom.inverse().apply(pts[nodes])
+    ln_labels = labels[nodes]
+    sigma = np.full(len(nodes), 2.0)
+    sigma[0] = 0.2
+    if outliers:
+        rng = np.random.default_rng(1)
+        fake = ln[rng.integers(1, len(nodes), outliers)] + rng.uniform(-20, 20, (outliers, 2))
+        ln = np.vstack([ln, fake])
+        ln_labels = np.concatenate([ln_labels, np.ones(outliers, dtype=np.int64)])
+        sigma = np.concatenate([sigma, np.full(outliers, 2.0)])
+    var = sigma**2 + 0.3**2
+    model = EmModel(tree, labels, ln, ln_labels, var, 0.3 / 0.7 * gn_density(pts), 0.1)
+    return model, nodes, map_T_odom
+
+
+def test_em_recovers_the_fit_from_a_start_metres_off() -> None:
+    model, nodes, truth = _scene()
+    # Start 6 m and 1.5 deg off: the precise node is far outside a 2.5 m gate, and the
+    # plain EM (no annealing) stays where it starts.
+    start_yaw, start_t = truth.yaw + math.radians(1.5), np.array([truth.tx + 6.0, truth.ty])
+    _, plain_t = model.run(start_yaw, start_t, [0.0], 8)
+    assert np.linalg.norm(plain_t - [truth.tx, truth.ty]) > 5.0
+    fit = em_refit(model, start_yaw, start_t, anneal_start_m=4.0, iterations=4)
+    assert abs(fit.yaw - truth.yaw) < 1e-6
+    assert np.allclose(fit.t, [truth.tx, truth.ty], atol=1e-4)
+    # Every LN node paired with its own GN node, one to one.
+    assert np.array_equal(fit.ln, np.arange(len(nodes)))
+    assert np.array_equal(fit.gn, nodes)
+    _, _, start_loglik = model.hard_pairs(start_yaw, start_t)
+    assert fit.log_likelihood > start_loglik
+
+
+def test_em_keeps_false_detections_from_moving_an_exact_fit() -> None:
+    model, nodes, truth = _scene(outliers=5)
+    fit = em_refit(model, truth.yaw, np.array([truth.tx, truth.ty]),
+                   anneal_start_m=4.0, iterations=4)
+    # The true pairs are all kept; a false detection is paired only when it happens to
+    # land near an unclaimed GN node, and then it barely moves the fit.
+    true = fit.ln < len(nodes)
+    assert np.array_equal(fit.gn[true], nodes[fit.ln[true]])
+    assert true.sum() == len(nodes)
+    mapped = Rigid2D(fit.yaw, *fit.t).apply(model.pts[: len(nodes)])
+    assert np.abs(mapped - model.gn_pts[nodes]).max() < 0.5
+
+
+def test_original_darces_has_no_probabilistic_refit() -> None:
+    assert MatchConfig().probabilistic_refit
+    assert not MatchConfig.original().probabilistic_refit
