@@ -88,7 +88,8 @@ class EmFit:
         t: (2,) translation of ``map_T_odom``, metres.
         ln: LN indices of the hard pairs (responsibility >= 0.5, one-to-one).
         gn: GN indices of those pairs.
-        log_likelihood: log-likelihood of the LN under the mixture at (yaw, t).
+        log_likelihood: log-likelihood of the LN under the mixture where EM converged
+            (before the final fit on the hard pairs).
     """
 
     yaw: float

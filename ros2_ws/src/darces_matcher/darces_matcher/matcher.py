@@ -227,11 +227,18 @@ class Matcher:
         config: matcher settings; defaults to the improved DARCES.
 
     Raises:
-        ValueError: if the GN has fewer than 3 ROIs or non-finite positions.
+        ValueError: if the GN has fewer than 3 ROIs or non-finite positions, or an EM
+            prior (outlier_prior, label_confusion) is out of range.
     """
 
     def __init__(self, gn: RoiNetwork, config: MatchConfig | None = None) -> None:
         self.config = config or MatchConfig()
+        if not 0.0 <= self.config.outlier_prior < 1.0:
+            raise ValueError(f"MatchConfig.outlier_prior must be in [0, 1), got "
+                             f"{self.config.outlier_prior}")
+        if not 0.0 <= self.config.label_confusion <= 0.5:
+            raise ValueError(f"MatchConfig.label_confusion must be in [0, 0.5], got "
+                             f"{self.config.label_confusion}")
         self.index = GnIndex(
             gn,
             use_labels=self.config.use_labels,

@@ -5,11 +5,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from scipy.spatial import cKDTree
 
 from darces_matcher.em_refit import EmModel, anneal_schedule, em_refit, gn_density
 from darces_matcher.gn_generator import GnSpec, generate_gn
-from darces_matcher.matcher import MatchConfig
+from darces_matcher.matcher import MatchConfig, Matcher
 from roi_network.records import xy
 from roi_network.transform import Rigid2D
 
@@ -83,3 +84,11 @@ def test_em_keeps_false_detections_from_moving_an_exact_fit() -> None:
 def test_original_darces_has_no_probabilistic_refit() -> None:
     assert MatchConfig().probabilistic_refit
     assert not MatchConfig.original().probabilistic_refit
+
+
+def test_em_priors_out_of_range_are_named() -> None:
+    gn = generate_gn(GnSpec(n_rois=30), seed=0)
+    with pytest.raises(ValueError, match="outlier_prior"):
+        Matcher(gn, MatchConfig(outlier_prior=1.0))
+    with pytest.raises(ValueError, match="label_confusion"):
+        Matcher(gn, MatchConfig(label_confusion=0.7))
