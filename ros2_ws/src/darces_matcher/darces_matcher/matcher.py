@@ -290,11 +290,10 @@ class Matcher:
         """
         result = self._match_semantic(ln, ln_sigma)
         if result.is_fix and self.config.probabilistic_refit:
-            result = self._em_refit(result, ln, ln_sigma)
+            result = self._em_refit(result)
         return result
 
-    def _em_refit(self, result: MatchResult, ln: np.ndarray | RoiNetwork,
-                  ln_sigma: np.ndarray | None) -> MatchResult:
+    def _em_refit(self, result: MatchResult) -> MatchResult:
         """Maximum-likelihood refit of a fix (EM, :mod:`~darces_matcher.em_refit`).
 
         The decision (support, margin, votes) stands; the transform, its inlier pairs
@@ -303,11 +302,10 @@ class Matcher:
         """
         cfg = self.config
         t0 = time.perf_counter()
-        records = as_records(ln.records if isinstance(ln, RoiNetwork) else ln)
-        kept = np.flatnonzero(np.isfinite(xy(records)).all(axis=1))
-        sigma = self.node_sigma(records, ln_sigma)[kept]
-        pts, labels = xy(records[kept]), records["label"][kept].astype(np.int64)
-        var = sigma**2 + cfg.gn_sigma_m**2
+        # The LN as the labelled search prepared it (it always runs first; the
+        # label-blind fallback prepares the same nodes, positions and weights).
+        kept, pts, labels, _, weights = self._last
+        var = 1.0 / weights
         confusion = cfg.label_confusion if cfg.use_labels else 0.5
         w = cfg.outlier_prior
         model = EmModel(self.index.tree, self._gn_labels, pts, labels, var,
