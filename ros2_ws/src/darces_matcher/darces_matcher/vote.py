@@ -333,9 +333,13 @@ def pose_covariance(ln_pts: np.ndarray, yaw: float, weights: np.ndarray) -> np.n
     # d(residual)/d(x, y, yaw) for one point: [[1, 0, -ry], [0, 1, rx]].
     sw, swx, swy = float(weights.sum()), float(weights @ rx), float(weights @ ry)
     sww = float(weights @ (rx * rx + ry * ry))
-    info = np.array([[sw, 0.0, -swy], [0.0, sw, swx], [-swy, swx, sww]])
-    try:
-        cov = np.linalg.inv(info)
-    except np.linalg.LinAlgError:
+    # The inverse of [[sw, 0, -swy], [0, sw, swx], [-swy, swx, sww]] in closed form
+    # (cofactors over the determinant sw (sw sww - swx^2 - swy^2)).
+    schur = sw * sww - swx * swx - swy * swy
+    det = sw * schur
+    if not (sw > 0.0 and schur > 1e-12 * sw * sww and math.isfinite(det)):
         return np.diag([np.inf, np.inf, np.inf])
-    return 0.5 * (cov + cov.T)
+    return np.array([
+        [(sw * sww - swx * swx) / det, -swx * swy / det, swy / schur],
+        [-swx * swy / det, (sw * sww - swy * swy) / det, -swx / schur],
+        [swy / schur, -swx / schur, sw * sw / det]])

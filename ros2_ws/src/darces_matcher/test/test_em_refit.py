@@ -56,7 +56,7 @@ def test_em_recovers_the_fit_from_a_start_metres_off() -> None:
     # Start 6 m and 1.5 deg off: the precise node is far outside a 2.5 m gate, and the
     # plain EM (no annealing) stays where it starts.
     start_yaw, start_t = truth.yaw + math.radians(1.5), np.array([truth.tx + 6.0, truth.ty])
-    _, plain_t = model.run(start_yaw, start_t, [0.0], 8)
+    _, plain_t, _ = model.run(start_yaw, start_t, [0.0], 8)
     assert np.linalg.norm(plain_t - [truth.tx, truth.ty]) > 5.0
     fit = em_refit(model, start_yaw, start_t, anneal_start_m=4.0, iterations=4)
     assert abs(fit.yaw - truth.yaw) < 1e-6

@@ -84,15 +84,28 @@ def _flip_fifth(records: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_misclassified_nodes_join_the_fix(gn: RoiNetwork, matcher: Matcher) -> None:
-    # Label-blind polish: the labelled fix is refitted with the misclassified nodes.
-    strict = Matcher(gn, MatchConfig(label_fallback=False))
+    # The EM refit's class prior lets the misclassified nodes join the labelled fix.
+    strict = Matcher(gn, MatchConfig(label_fallback=False, probabilistic_refit=False))
     for sim in _lns(gn, 6, noise_fraction=0.0):
         flipped, nodes = _flip_fifth(sim.records)
         result = matcher.match(flipped)
         assert result.status == "fix", result.reason
+        assert result.support == len(flipped) - len(nodes)
+        assert len(result.inliers) == len(flipped)
+        assert np.array_equal(sim.truth_gn[result.inliers[:, 0]], result.inliers[:, 1])
+        assert len(strict.match(flipped).inliers) == len(flipped) - len(nodes)
+
+
+def test_label_blind_polish_without_em(gn: RoiNetwork) -> None:
+    # Without the EM, the label-blind polish refits the labelled fix with the
+    # misclassified nodes, and they count as support.
+    polish = Matcher(gn, MatchConfig(probabilistic_refit=False))
+    for sim in _lns(gn, 6, noise_fraction=0.0):
+        flipped, _ = _flip_fifth(sim.records)
+        result = polish.match(flipped)
+        assert result.status == "fix", result.reason
         assert result.support == len(flipped)
         assert np.array_equal(sim.truth_gn[result.inliers[:, 0]], result.inliers[:, 1])
-        assert strict.match(flipped).support == len(flipped) - len(nodes)
 
 
 def test_label_blind_fallback(gn: RoiNetwork) -> None:
