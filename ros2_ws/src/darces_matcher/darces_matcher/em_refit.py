@@ -51,9 +51,10 @@ _MARGIN_M = 1.0
 class _Candidates:
     """Candidate pairs, flat, with the per-pair moments the E- and M-steps need.
 
-    Positions are centred (LN nodes on their centroid ``src0``, GN candidates on the
-    fix's image of it ``dst0``, the same for every query of one EM run), so a transform (yaw, t) in the original frames is (yaw, t') here,
-    t' = t + R src0 - dst0, and every step is a few dot products over the pairs:
+    Positions are centred: LN nodes on their centroid ``src0``, GN candidates on the
+    fix's image of it ``dst0`` (the same for every query of one EM run). A transform
+    (yaw, t) in the original frames is (yaw, t') here, t' = t + R src0 - dst0, and every
+    step is a few dot products over the pairs:
 
     * E-step: the log of each pair's weighted Gaussian is linear in
       coef(yaw, t') = (|t'|^2, 2(c tx + s ty), 2(c ty - s tx), -2 tx, -2 ty, -2c, -2s)
