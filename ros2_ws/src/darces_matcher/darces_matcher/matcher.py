@@ -317,7 +317,8 @@ class Matcher:
         fit = em_refit(model, T.yaw, np.array([T.tx, T.ty]),
                        anneal_start_m=cfg.anneal_start_m, iterations=cfg.em_iterations)
         if len(fit.ln) >= 3:
-            covariance = pose_covariance(pts[fit.ln], fit.yaw, 1.0 / var[fit.ln])
+            # Each node informs the fit by its probability of having a counterpart.
+            covariance = pose_covariance(pts, fit.yaw, fit.matched / var)
             spread = float(np.sqrt(predicted_variance(pts, fit.yaw, covariance).max()))
             if spread <= cfg.max_position_sigma_m:
                 result.map_T_odom = Rigid2D(fit.yaw, fit.t[0], fit.t[1])
