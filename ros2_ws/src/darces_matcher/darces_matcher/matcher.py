@@ -299,9 +299,11 @@ class Matcher:
     def _em_refit(self, result: MatchResult) -> MatchResult:
         """Maximum-likelihood refit of a fix (EM, :mod:`~darces_matcher.em_refit`).
 
-        The decision (support, margin, votes) stands; the transform, its inlier pairs
-        and covariance become the EM's. Kept only if it has at least 3 pairs and its
-        predicted spread passes ``max_position_sigma_m``.
+        The decision (support, margin, votes) stands, except that the EM's hard pairs
+        must pass the same support test (else no fix: the hard refit's support rested
+        on pairs the mixture does not believe); the transform, its inlier pairs and
+        covariance become the EM's if its predicted spread passes
+        ``max_position_sigma_m``.
         """
         cfg = self.config
         t0 = time.perf_counter()
@@ -316,7 +318,9 @@ class Matcher:
         T = result.map_T_odom
         fit = em_refit(model, T.yaw, np.array([T.tx, T.ty]),
                        anneal_start_m=cfg.anneal_start_m, iterations=cfg.em_iterations)
-        if len(fit.ln) >= 3:
+        if len(fit.ln) < max(cfg.min_inliers, cfg.min_inlier_fraction * len(pts)):
+            result.status, result.reason = "no_fix", "insufficient_support"
+        else:
             # Each node informs the fit by its probability of having a counterpart.
             covariance = pose_covariance(pts, fit.yaw, fit.matched / var)
             spread = float(np.sqrt(predicted_variance(pts, fit.yaw, covariance).max()))
