@@ -79,11 +79,13 @@ class _Candidates:
         self.rows, self.gn, self.prior, self.var0 = rows, gn, prior, var
         self.src0, self.dst0 = src0, dst0
         s, d = src - src0, dst - dst0
-        self.moments = np.column_stack([
-            np.ones(len(rows)), s, d,
-            s[:, 0] * d[:, 0] + s[:, 1] * d[:, 1],
-            s[:, 0] * d[:, 1] - s[:, 1] * d[:, 0]])
-        self.norms = np.einsum("ij,ij->i", s, s) + np.einsum("ij,ij->i", d, d)
+        sx, sy, dx, dy = s[:, 0], s[:, 1], d[:, 0], d[:, 1]
+        self.moments = m = np.empty((len(rows), 7))
+        m[:, 0] = 1.0
+        m[:, 1:3], m[:, 3:5] = s, d
+        m[:, 5] = sx * dx + sy * dy
+        m[:, 6] = sx * dy - sy * dx
+        self.norms = sx * sx + sy * sy + dx * dx + dy * dy
         self.tau: float | None = None
 
     def set_tau(self, tau: float) -> None:
@@ -254,6 +256,7 @@ class EmModel:
         the difference of the two reaches, else they are queried again. Returns the fit
         and candidates valid at tau = 0 there (None if EM stopped early).
         """
+        n = len(self.pts)
         # Centred frames: the LN on its centroid, the GN on where the fix maps it.
         self.dst0 = transform_points(yaw, t, self.centroid[None, :])[0]
         cand = self.candidates(yaw, t, taus[0])
@@ -263,16 +266,25 @@ class EmModel:
             state = self._covering(state, a, tx, ty, tau)
             cand = state.cand
             cand.set_tau(tau)
+            converged = _ANNEAL_CONVERGED if tau else _CONVERGED
+            # The E- and M-steps of :meth:`responsibilities` and :meth:`_Candidates.fit`,
+            # inlined: this loop is most of the refit's cost.
+            rows, exponent, log_base, inv_var = cand.rows, cand.exponent, cand.log_base, \
+                cand.inv_var
             for _ in range(iterations):
-                resp, _ = self.responsibilities(a, tx, ty, cand)
+                c, s = math.cos(a), math.sin(a)
+                lik = np.exp(exponent @ np.array([
+                    tx * tx + ty * ty, 2.0 * (c * tx + s * ty), 2.0 * (c * ty - s * tx),
+                    -2.0 * tx, -2.0 * ty, -2.0 * c, -2.0 * s]) + log_base)
+                resp = lik / (np.bincount(rows, lik, minlength=n) + self.outlier)[rows]
                 # M-step: weighted rigid fit of every candidate pair, weight =
                 # responsibility over variance; stop if fewer than 3 nodes are matched.
                 if np.count_nonzero(resp > 0.5) < 3:
                     return a, cand.uncentred(a, tx, ty), None
-                b, ux, uy = cand.fit(resp * cand.inv_var)
+                b, ux, uy = cand.fit(resp * inv_var)
                 moved = abs(b - a) * 1e3 + max(abs(ux - tx), abs(uy - ty))
                 a, tx, ty = b, ux, uy
-                if moved < (_ANNEAL_CONVERGED if tau else _CONVERGED):
+                if moved < converged:
                     break
         # The final hard pairs are read at tau = 0.
         cand = self._covering(state, a, tx, ty, 0.0).cand
