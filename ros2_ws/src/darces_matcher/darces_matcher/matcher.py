@@ -118,7 +118,9 @@ class MatchConfig:
             benchmark outcome and cost 0.7 ms per LN under label flips).
         probabilistic_refit: refit every fix by EM over soft associations with an
             outlier class (:mod:`~darces_matcher.em_refit`): false detections and
-            ambiguous far nodes pull the fit by how likely they are, not fully.
+            ambiguous far nodes pull the fit by how likely they are, not fully. The
+            fix's transform becomes the mixture's maximum-likelihood one, its inliers
+            the EM's hard pairs, which must pass the support test again.
         outlier_prior: share of LN nodes expected to have no GN counterpart (false
             detections, orbital misses), in the EM's mixture.
         label_confusion: prior probability that an LN node's class differs from its
