@@ -258,6 +258,10 @@ class Matcher:
         #: GN ROIs per square metre: the EM's outlier density (a node with no
         #: counterpart is as likely anywhere).
         self.gn_density = gn_density(self.index.pts)
+        if self.config.use_labels and self.config.label_fallback and self.index.exhaustive:
+            # The label-blind fallback's index, built now rather than at the first
+            # fallback: a running matcher never stalls for it.
+            self._blind_matcher()
 
     @property
     def max_candidates(self) -> int:
