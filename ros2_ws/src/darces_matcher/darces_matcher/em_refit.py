@@ -256,7 +256,6 @@ class EmModel:
         the difference of the two reaches, else they are queried again. Returns the fit
         and candidates valid at tau = 0 there (None if EM stopped early).
         """
-        n = len(self.pts)
         # Centred frames: the LN on its centroid, the GN on where the fix maps it.
         self.dst0 = transform_points(yaw, t, self.centroid[None, :])[0]
         cand = self.candidates(yaw, t, taus[0])
@@ -267,21 +266,13 @@ class EmModel:
             cand = state.cand
             cand.set_tau(tau)
             converged = _ANNEAL_CONVERGED if tau else _CONVERGED
-            # The E- and M-steps of :meth:`responsibilities` and :meth:`_Candidates.fit`,
-            # inlined: this loop is most of the refit's cost.
-            rows, exponent, log_base, inv_var = cand.rows, cand.exponent, cand.log_base, \
-                cand.inv_var
             for _ in range(iterations):
-                c, s = math.cos(a), math.sin(a)
-                lik = np.exp(exponent @ np.array([
-                    tx * tx + ty * ty, 2.0 * (c * tx + s * ty), 2.0 * (c * ty - s * tx),
-                    -2.0 * tx, -2.0 * ty, -2.0 * c, -2.0 * s]) + log_base)
-                resp = lik / (np.bincount(rows, lik, minlength=n) + self.outlier)[rows]
+                resp, _ = self.responsibilities(a, tx, ty, cand)
                 # M-step: weighted rigid fit of every candidate pair, weight =
                 # responsibility over variance; stop if fewer than 3 nodes are matched.
                 if np.count_nonzero(resp > 0.5) < 3:
                     return a, cand.uncentred(a, tx, ty), None
-                b, ux, uy = cand.fit(resp * inv_var)
+                b, ux, uy = cand.fit(resp * cand.inv_var)
                 moved = abs(b - a) * 1e3 + max(abs(ux - tx), abs(uy - ty))
                 a, tx, ty = b, ux, uy
                 if moved < converged:
