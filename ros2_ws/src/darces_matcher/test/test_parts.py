@@ -24,6 +24,7 @@ from darces_matcher.vote import (
     _readmit,
     fit_rigid,
     leave_one_out_residual,
+    pose_covariance,
     transform_points,
 )
 from roi_network.network import RoiNetwork
@@ -253,3 +254,20 @@ def test_readmit_leaves_fits_with_outliers_alone() -> None:
                    transform_points(yaw, t, ln))
     np.testing.assert_array_equal(out[2], ln_in)
     np.testing.assert_array_equal(out[1], t)
+
+
+def test_pose_covariance_is_the_inverse_information() -> None:
+    # The closed-form inverse against numpy's, on random weighted point sets.
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        pts = rng.normal(size=(7, 2)) * 300 + rng.normal(size=2) * 500
+        w, yaw = rng.uniform(0.01, 10, 7), rng.uniform(-3, 3)
+        c, s = math.cos(yaw), math.sin(yaw)
+        rx, ry = c * pts[:, 0] - s * pts[:, 1], s * pts[:, 0] + c * pts[:, 1]
+        sw, swx, swy, sww = w.sum(), w @ rx, w @ ry, w @ (rx * rx + ry * ry)
+        info = np.array([[sw, 0, -swy], [0, sw, swx], [-swy, swx, sww]])
+        np.testing.assert_allclose(pose_covariance(pts, yaw, w), np.linalg.inv(info),
+                                   rtol=1e-6, atol=1e-15)
+    # One repeated point: rotation undetermined, infinitely loose.
+    cov = pose_covariance(np.array([[1.0, 2.0]] * 3), 0.3, np.ones(3))
+    assert np.all(np.isinf(np.diag(cov)))
