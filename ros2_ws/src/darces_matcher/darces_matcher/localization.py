@@ -1,32 +1,54 @@
-"""Incremental global localization from successive matches of a growing LN (no rclpy).
+"""Localization while driving: a filter over the map -> odom alignment (no rclpy).
 
-The matcher node re-matches the LN each time it grows. :class:`AlignmentTracker` decides
-what each new match does to the published alignment ``map_T_odom``:
+The matcher re-matches the LN each time it grows; each fix is a measurement of the
+alignment ``map_T_odom`` (x, y, yaw) with a covariance. :class:`MapOdomFilter` keeps one
+estimate of that alignment and its covariance:
 
-- no alignment yet: a fix becomes the alignment (``first_fix``);
-- a fix consistent with the alignment (every LN node lands within ``consistency_m`` of
-  where the alignment puts it) refines it (``refined``);
-- a fix that contradicts it replaces it only if it is at least as well supported as the
-  alignment was (``switched``); a weaker contradicting fix is reported (``conflict``) and
-  the alignment is kept;
-- no fix keeps the alignment (``kept``), or leaves the rover unlocalized (``none``).
+- **Prediction (drift).** ``map_T_odom`` is, by definition, what makes the odometry pose
+  land on the true pose: as visual odometry drifts, the true alignment drifts with it. Each
+  odometry pose grows the covariance by process noise proportional to the distance driven
+  since the previous one (a random walk of the VO error): ``drift_xy_m2_per_m`` on the
+  position, ``drift_yaw_rad2_per_m`` on the heading, the heading error rotating the
+  alignment about the rover's current position (the lever arm of the whole route behind
+  it does not matter, only where the rover is now).
+- **Update (a fix).** A fix of the whole LN is most accurate where the LN is, not where the
+  rover is now: the measurement covariance is inflated by the drift accumulated between
+  the point of the route nearest the LN's centroid and the rover. Successive fixes of a
+  growing LN share most of their nodes, so their errors are strongly correlated and a
+  Kalman update (which assumes independent measurements) would shrink the covariance too
+  fast. They are fused by *covariance intersection* (Julier and Uhlmann 1997), consistent
+  whatever the correlation: ``P^-1 = w P0^-1 + (1 - w) R^-1`` with ``w`` minimising
+  ``det P``. A bigger LN gives a tighter fix, which the fusion then follows, so the
+  estimate refines as the LN grows.
+- **Gate and switch.** A fix whose Mahalanobis distance to the estimate (``P + R``) exceeds
+  ``gate_chi2`` contradicts it: it is *held* (event ``held``), not fused. When
+  ``confirm_matches`` consecutive contradicting fixes agree with each other (each within the
+  gate of the previous one, drift between them included), the LN has confirmed them: the
+  estimate is replaced by the latest (``switched``). A consistent fix in between discards
+  the held ones.
 
-:func:`compose_pose` then maps each odometry pose into ``map`` with the alignment and
-propagates both covariances.
+:func:`global_pose` maps an odometry pose into ``map`` with the estimate. Its horizontal
+and heading covariance is the alignment's (propagated through the lever arm): the
+alignment's covariance already holds the drift since the last fix, and the VO's own
+covariance (the drift since the start of the drive) would count the same error twice.
+Height, roll and pitch keep the odometry's covariance.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from darces_matcher.matcher import MatchResult
-from roi_network.transform import Rigid2D
+from roi_network.transform import Rigid2D, wrap_angle
 
-Event = Literal["first_fix", "refined", "switched", "conflict", "kept", "none"]
+Event = Literal["first_fix", "refined", "held", "switched", "kept", "none"]
+
+#: Events after which the published alignment changed.
+ALIGNMENT_EVENTS = ("first_fix", "refined", "switched")
 
 
 @dataclass(frozen=True)
@@ -36,7 +58,7 @@ class Alignment:
     Attributes:
         map_T_odom: pose of ``odom`` in ``map``.
         covariance: (3, 3) covariance of (x, y, yaw), m^2 / rad^2.
-        support: LN nodes matched when it was fitted.
+        support: LN nodes matched by the last fix fused.
         ln_size: LN nodes at that time.
     """
 
@@ -46,38 +68,336 @@ class Alignment:
     ln_size: int
 
 
-class AlignmentTracker:
-    """Keeps the current alignment across re-matches of a growing LN.
+@dataclass(frozen=True)
+class FilterConfig:
+    """Parameters of :class:`MapOdomFilter`.
 
-    Args:
-        consistency_m: two fixes agree when they place every LN node within this
-            distance of each other, metres.
+    Attributes:
+        drift_xy_m2_per_m: growth of the alignment's position variance per metre driven,
+            m^2/m (0.01: 1 m one-sigma after 100 m, i.e. 1 % drift over 100 m).
+        drift_yaw_rad2_per_m: growth of its heading variance per metre driven, rad^2/m
+            (3e-6: 1 deg one-sigma after 100 m).
+        gate_chi2: Mahalanobis gate (squared, 3 degrees of freedom) beyond which a fix
+            contradicts the estimate (16.27: 99.9 %).
+        confirm_matches: consecutive, mutually consistent contradicting fixes needed to
+            switch (1: switch at once).
+        confirm_first: consecutive, mutually consistent fixes needed for the first fix
+            (1: the matcher's own ambiguity tests are trusted).
+        match_cov_scale: factor on the matcher's covariance (>= 1 if it is optimistic).
+        min_match_sigma_m: floor of a fix's one-sigma position error, metres.
+        min_match_sigma_yaw_rad: floor of a fix's one-sigma heading error, radians.
+        path_step_m: spacing of the stored odometry path samples (for the LN's lag), m.
+        local_route_m: a fix is refitted on its inlier pairs whose LN node lies within
+            ``local_radius_m`` of the last ``local_route_m`` metres of the route (0: use
+            the whole-LN fit as is), metres.
+        local_radius_m: see ``local_route_m``, metres.
+        local_min_pairs: fewest pairs for that local refit (else the whole-LN fit).
+        local_sigma_floor_m: floor of the per-node one-sigma residual the local refit's
+            covariance assumes, metres.
     """
 
-    def __init__(self, consistency_m: float = 5.0) -> None:
-        self.consistency_m = consistency_m
-        self.alignment: Alignment | None = None
-        self.switches = 0
+    drift_xy_m2_per_m: float = 0.01
+    drift_yaw_rad2_per_m: float = 3e-6
+    gate_chi2: float = 16.27
+    confirm_matches: int = 3
+    confirm_first: int = 1
+    match_cov_scale: float = 1.0
+    min_match_sigma_m: float = 0.1
+    min_match_sigma_yaw_rad: float = 1e-3
+    path_step_m: float = 1.0
+    local_route_m: float = 150.0
+    local_radius_m: float = 20.0
+    local_min_pairs: int = 6
+    local_sigma_floor_m: float = 0.3
 
-    def update(self, result: MatchResult, ln_xy: np.ndarray) -> Event:
-        """Fold one match result of the LN whose node positions (odom) are ``ln_xy``."""
+    def __post_init__(self) -> None:
+        for name in ("drift_xy_m2_per_m", "drift_yaw_rad2_per_m", "min_match_sigma_m",
+                     "min_match_sigma_yaw_rad"):
+            if not getattr(self, name) >= 0.0:
+                raise ValueError(f"FilterConfig.{name} must be >= 0, got {getattr(self, name)}")
+        for name in ("local_route_m", "local_radius_m", "local_sigma_floor_m"):
+            if not getattr(self, name) >= 0.0:
+                raise ValueError(f"FilterConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if self.local_min_pairs < 3:
+            raise ValueError(
+                f"FilterConfig.local_min_pairs must be >= 3, got {self.local_min_pairs}")
+        for name in ("gate_chi2", "match_cov_scale", "path_step_m"):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f"FilterConfig.{name} must be > 0, got {getattr(self, name)}")
+        for name in ("confirm_matches", "confirm_first"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"FilterConfig.{name} must be >= 1, got {getattr(self, name)}")
+
+
+def _vector(t: Rigid2D) -> np.ndarray:
+    return np.array([t.tx, t.ty, t.yaw])
+
+
+def _rigid(x: np.ndarray) -> Rigid2D:
+    return Rigid2D(float(x[2]), float(x[0]), float(x[1]))
+
+
+def _difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    d = a - b
+    d[2] = wrap_angle(d[2])
+    return d
+
+
+def _symmetric(m: np.ndarray) -> np.ndarray:
+    return 0.5 * (m + m.T)
+
+
+def covariance_intersection(
+    x0: np.ndarray, p0: np.ndarray, x1: np.ndarray, p1: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Fuse two estimates of (x, y, yaw) with unknown correlation.
+
+    Args:
+        x0, x1: (3,) estimates (x, y in metres, yaw in radians).
+        p0, p1: (3, 3) their covariances.
+
+    Returns:
+        The fused estimate and covariance; the weight minimises the fused determinant
+        (unit-free, unlike the trace, which would mix m^2 and rad^2).
+    """
+    i0, i1 = np.linalg.inv(p0), np.linalg.inv(p1)
+    d = _difference(x1, x0)  # fuse around x0 so the yaw never wraps mid-sum
+    best = None
+    for w in np.linspace(0.0, 1.0, 101):
+        info = w * i0 + (1.0 - w) * i1
+        sign, logdet = np.linalg.slogdet(info)
+        if sign > 0 and (best is None or logdet > best[0]):
+            best = (logdet, w, info)
+    _, w, info = best
+    p = np.linalg.inv(info)
+    x = x0 + p @ ((1.0 - w) * i1 @ d)
+    x[2] = wrap_angle(x[2])
+    return x, _symmetric(p)
+
+
+def fit_with_covariance(
+    src: np.ndarray, dst: np.ndarray, sigma_floor_m: float = 0.0
+) -> tuple[Rigid2D, np.ndarray]:
+    """Least-squares rigid fit ``dst ~ T(src)`` and the covariance of T's (tx, ty, yaw).
+
+    Args:
+        src: (N, 2) points in ``odom``, metres, N >= 3.
+        dst: (N, 2) corresponding points in ``map``, metres.
+        sigma_floor_m: lower bound of the per-point one-sigma residual, metres.
+
+    Returns:
+        The transform and its (3, 3) covariance ``sigma^2 (J^T J)^-1``, with ``sigma^2``
+        the residual variance (2N - 3 degrees of freedom), at least ``sigma_floor_m^2``.
+    """
+    t = Rigid2D.fit(src, dst)
+    res = t.apply(src) - dst
+    sigma2 = max(float((res**2).sum()) / max(2 * len(src) - 3, 1), sigma_floor_m**2)
+    c, s = np.cos(t.yaw), np.sin(t.yaw)
+    # d(R p + t)/d(tx, ty, yaw) = [I, dR/dyaw p] for every point.
+    lever = np.c_[-s * src[:, 0] - c * src[:, 1], c * src[:, 0] - s * src[:, 1]]
+    info = np.zeros((3, 3))
+    info[:2, :2] = len(src) * np.eye(2)
+    info[:2, 2] = info[2, :2] = lever.sum(axis=0)
+    info[2, 2] = float((lever**2).sum())
+    return t, sigma2 * np.linalg.inv(info)
+
+
+@dataclass
+class _Held:
+    x: np.ndarray
+    r: np.ndarray
+    distance_m: float
+    result: MatchResult
+    ln_size: int
+
+
+@dataclass
+class MapOdomFilter:
+    """Estimate of map -> odom fused from successive fixes and the odometry's drift.
+
+    Call :meth:`predict` with every odometry pose and :meth:`update` with every match
+    result; read :attr:`alignment` (None until the first fix).
+
+    Attributes:
+        config: the parameters.
+        x: (3,) estimate (tx, ty, yaw) of map_T_odom, None before the first fix.
+        p: (3, 3) its covariance.
+        distance_m: odometry distance driven so far, metres.
+        switches: times the estimate was replaced by confirmed contradicting fixes.
+        held: contradicting fixes waiting for confirmation (oldest first).
+    """
+
+    config: FilterConfig = field(default_factory=FilterConfig)
+    x: np.ndarray | None = None
+    p: np.ndarray | None = None
+    distance_m: float = 0.0
+    switches: int = 0
+    held: list[_Held] = field(default_factory=list)
+    _support: int = 0
+    _ln_size: int = 0
+    _last_xy: np.ndarray | None = None
+    _path_d: list[float] = field(default_factory=list)
+    _path_xy: list[np.ndarray] = field(default_factory=list)
+
+    @property
+    def localized(self) -> bool:
+        """True after the first fix."""
+        return self.x is not None
+
+    @property
+    def alignment(self) -> Alignment | None:
+        """The current estimate, or None before the first fix."""
+        if self.x is None:
+            return None
+        return Alignment(_rigid(self.x), self.p.copy(), self._support, self._ln_size)
+
+    def drift_noise(self, x: np.ndarray, rover_xy: np.ndarray, d_m: float) -> np.ndarray:
+        """Process noise of the alignment ``x`` over ``d_m`` metres driven at ``rover_xy``.
+
+        Args:
+            x: (3,) alignment (tx, ty, yaw).
+            rover_xy: (2,) the rover's position in ``odom``, metres.
+            d_m: distance driven, metres.
+
+        Returns:
+            (3, 3) covariance increment: the VO's position and heading random walk, the
+            heading error rotating the alignment about the rover's position in ``map``.
+        """
+        c = self.config
+        q = np.diag([c.drift_xy_m2_per_m, c.drift_xy_m2_per_m, c.drift_yaw_rad2_per_m]) * d_m
+        rover_map = _rigid(x).apply(np.asarray(rover_xy, dtype=float))
+        lever = x[:2] - rover_map
+        g = np.array([[1.0, 0.0, -lever[1]], [0.0, 1.0, lever[0]], [0.0, 0.0, 1.0]])
+        return g @ q @ g.T
+
+    def predict(self, odom_xy: np.ndarray) -> None:
+        """Account for the drive from the previous odometry pose to ``odom_xy`` (odom, m)."""
+        xy = np.asarray(odom_xy, dtype=float)[:2]
+        if self._last_xy is None:
+            self._last_xy = xy
+            self._path_d.append(0.0)
+            self._path_xy.append(xy)
+            return
+        step = float(np.linalg.norm(xy - self._last_xy))
+        self._last_xy = xy
+        if step == 0.0:
+            return
+        self.distance_m += step
+        if self.x is not None:
+            self.p = _symmetric(self.p + self.drift_noise(self.x, xy, step))
+        if self.distance_m - self._path_d[-1] >= self.config.path_step_m:
+            self._path_d.append(self.distance_m)
+            self._path_xy.append(xy)
+
+    def lag_m(self, ln_xy: np.ndarray) -> float:
+        """Distance driven since the point of the route nearest the LN's centroid, m."""
+        if len(ln_xy) == 0 or not self._path_xy:
+            return 0.0
+        centroid = np.asarray(ln_xy, dtype=float).mean(axis=0)
+        path = np.asarray(self._path_xy)
+        k = int(np.argmin(np.linalg.norm(path - centroid, axis=1)))
+        return max(self.distance_m - self._path_d[k], 0.0)
+
+    def local_fit(
+        self, result: MatchResult, ln_xy: np.ndarray, gn_xy: np.ndarray
+    ) -> tuple[Rigid2D, np.ndarray, np.ndarray] | None:
+        """Refit a fix on its inlier pairs near the recent route.
+
+        A fit of the whole LN spreads the VO's drift over the whole route; the pairs the
+        rover saw recently say where it is now. Returns (transform, covariance, the LN
+        nodes used) or None when fewer than ``local_min_pairs`` qualify or they are
+        degenerate.
+        """
+        c = self.config
+        if c.local_route_m <= 0.0 or len(result.inliers) < c.local_min_pairs or not self._path_xy:
+            return None
+        path_d = np.asarray(self._path_d)
+        recent = np.asarray(self._path_xy)[path_d >= self.distance_m - c.local_route_m]
+        if self._last_xy is not None:
+            recent = np.vstack([recent, self._last_xy])
+        pairs = np.asarray(result.inliers, dtype=np.int64).reshape(-1, 2)
+        src, dst = ln_xy[pairs[:, 0]], gn_xy[pairs[:, 1]]
+        near = np.min(np.linalg.norm(src[:, None] - recent[None], axis=2), axis=1)
+        keep = near <= c.local_radius_m
+        if keep.sum() < c.local_min_pairs:
+            return None
+        try:
+            t, cov = fit_with_covariance(src[keep], dst[keep], c.local_sigma_floor_m)
+        except (ValueError, np.linalg.LinAlgError):
+            return None
+        if not np.all(np.isfinite(cov)):
+            return None
+        return t, cov, src[keep]
+
+    def measurement(
+        self, result: MatchResult, ln_xy: np.ndarray, gn_xy: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """A fix as a measurement of the current alignment: (3,) value, (3, 3) covariance.
+
+        With the GN's positions ``gn_xy`` (map, m), the fix is refitted on its recent
+        pairs (:meth:`local_fit`) when there are enough of them.
+        """
+        c = self.config
+        local = self.local_fit(result, ln_xy, gn_xy) if gn_xy is not None else None
+        if local is not None:
+            t, cov, used = local
+        else:
+            t, cov, used = result.map_T_odom, result.covariance, ln_xy
+            if cov is None or np.shape(cov) != (3, 3) or not np.all(np.isfinite(cov)):
+                raise ValueError("MatchResult.covariance must be a finite (3, 3) matrix on a fix")
+        z = _vector(t)
+        r = c.match_cov_scale * _symmetric(np.asarray(cov, dtype=float))
+        r += np.diag([c.min_match_sigma_m**2, c.min_match_sigma_m**2,
+                      c.min_match_sigma_yaw_rad**2])
+        rover = self._last_xy if self._last_xy is not None else np.zeros(2)
+        r += self.drift_noise(z, rover, self.lag_m(used))
+        return z, _symmetric(r)
+
+    def update(
+        self, result: MatchResult, ln_xy: np.ndarray, gn_xy: np.ndarray | None = None
+    ) -> Event:
+        """Fold one match result of the LN whose node positions (odom, m) are ``ln_xy``.
+
+        ``gn_xy`` (the GN's node positions, map, m, indexed like ``result.inliers``)
+        enables the local refit of :meth:`measurement`.
+
+        Returns:
+            ``first_fix``, ``refined`` (fused), ``held`` (contradicting, waiting for
+            confirmation), ``switched`` (confirmed contradiction replaced the estimate),
+            ``kept`` (no fix, estimate unchanged) or ``none`` (no fix, not localized).
+        """
         if not result.is_fix or result.map_T_odom is None:
-            return "kept" if self.alignment else "none"
-        new = Alignment(result.map_T_odom, result.covariance, result.support, len(ln_xy))
-        if self.alignment is None:
-            self.alignment = new
+            return "kept" if self.localized else "none"
+        ln_xy = np.asarray(ln_xy, dtype=float).reshape(-1, 2)
+        z, r = self.measurement(result, ln_xy, gn_xy)
+        n = len(ln_xy)
+        if self.x is not None:
+            d = _difference(z, self.x)
+            if d @ np.linalg.solve(self.p + r, d) <= self.config.gate_chi2:
+                self.x, self.p = covariance_intersection(self.x, self.p, z, r)
+                self._support, self._ln_size = result.support, n
+                self.held.clear()
+                return "refined"
+        if self.held:
+            last = self.held[-1]
+            # The held fix's covariance grew by the drift driven since it was made.
+            rover = self._last_xy if self._last_xy is not None else np.zeros(2)
+            grown = last.r + self.drift_noise(last.x, rover, self.distance_m - last.distance_m)
+            d = _difference(z, last.x)
+            if d @ np.linalg.solve(grown + r, d) > self.config.gate_chi2:
+                self.held.clear()  # contradicts the held ones too: start over
+        self.held.append(_Held(z, r, self.distance_m, result, n))
+        first = self.x is None
+        needed = self.config.confirm_first if first else self.config.confirm_matches
+        if len(self.held) < needed:
+            return "held"
+        self.x, self.p = z, r
+        self._support, self._ln_size = result.support, n
+        self.held.clear()
+        if first:
             return "first_fix"
-        gap = np.linalg.norm(
-            new.map_T_odom.apply(ln_xy) - self.alignment.map_T_odom.apply(ln_xy), axis=1
-        )
-        if gap.max(initial=0.0) <= self.consistency_m:
-            self.alignment = new
-            return "refined"
-        if new.support >= self.alignment.support:
-            self.alignment = new
-            self.switches += 1
-            return "switched"
-        return "conflict"
+        self.switches += 1
+        return "switched"
 
 
 def yaw_quaternion(yaw: float) -> np.ndarray:
@@ -122,3 +442,33 @@ def compose_pose(
     jac[5, 2] = 1.0  # map yaw = alignment yaw + odom yaw
     cov += jac @ alignment.covariance @ jac.T
     return pos, rot.as_quat(), cov
+
+
+#: Indices of x, y and yaw in a ROS (x, y, z, roll, pitch, yaw) covariance.
+_PLANAR = [0, 1, 5]
+
+
+def global_pose(
+    alignment: Alignment,
+    position: np.ndarray,
+    quaternion: np.ndarray,
+    odom_covariance: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The rover's pose in ``map`` from an odometry pose and the filtered alignment.
+
+    Args:
+        alignment: the filter's estimate (its covariance includes the drift since the
+            last fix).
+        position: (3,) base_link position in ``odom``, metres.
+        quaternion: (4,) orientation (x, y, z, w) in ``odom``.
+        odom_covariance: (6, 6) odometry covariance (x, y, z, roll, pitch, yaw).
+
+    Returns:
+        Position (3,), quaternion (4,), (6, 6) covariance in ``map``: x, y, yaw from the
+        alignment through the lever arm (the odometry's own x, y, yaw covariance, drift
+        since the start, is already in the alignment's), z, roll, pitch from the odometry.
+    """
+    cov = np.array(odom_covariance, dtype=float).reshape(6, 6)
+    cov[_PLANAR, :] = 0.0
+    cov[:, _PLANAR] = 0.0
+    return compose_pose(alignment, position, quaternion, cov)

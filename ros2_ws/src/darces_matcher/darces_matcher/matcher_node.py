@@ -1,8 +1,9 @@
 """The darces_matcher node: fits the growing LN onto the GN and publishes /global_pose.
 
 Thin ROS wrapper around :class:`~darces_matcher.matcher.Matcher` (matching) and
-:class:`~darces_matcher.localization.AlignmentTracker` (what each match does to the
-published alignment). Topics and QoS follow docs/architecture.md.
+:class:`~darces_matcher.localization.MapOdomFilter` (the map -> odom estimate fused from
+successive matches and the odometry's drift). Once localized, /global_pose follows every
+/vo/odometry message. Topics and QoS follow docs/architecture.md.
 """
 
 from __future__ import annotations
@@ -21,7 +22,13 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
-from darces_matcher.localization import AlignmentTracker, compose_pose, yaw_quaternion
+from darces_matcher.localization import (
+    ALIGNMENT_EVENTS,
+    FilterConfig,
+    MapOdomFilter,
+    global_pose,
+    yaw_quaternion,
+)
 from darces_matcher.matcher import MatchConfig, Matcher, MatchResult
 from roi_network.geojson import read_geojson
 from roi_network.pointcloud import PointCloudFormatError, from_pointcloud2
@@ -59,11 +66,13 @@ class MatcherNode(Node):
             ParameterDescriptor(description="re-match an LN that changed but did not grow "
                                 "after this long (node positions refined), seconds"),
         ).value
-        consistency_m = self.declare_parameter(
-            "consistency_m", 5.0,
-            ParameterDescriptor(description="two fixes agree when they place every LN "
-                                "node within this distance, metres"),
-        ).value
+        filter_overrides = {
+            f.name: self.declare_parameter(
+                f"localization.{f.name}", f.default,
+                ParameterDescriptor(description=f"FilterConfig.{f.name} (docs/e2e.md)"),
+            ).value
+            for f in dataclasses.fields(FilterConfig)
+        }
         overrides = {}
         for f in dataclasses.fields(MatchConfig):
             value = self.declare_parameter(
@@ -80,7 +89,8 @@ class MatcherNode(Node):
             f"GN {gn_path}: {len(gn)} ROIs, index built in "
             f"{1e3 * (time.perf_counter() - t0):.0f} ms"
         )
-        self.tracker = AlignmentTracker(consistency_m)
+        self.filter = MapOdomFilter(FilterConfig(**filter_overrides))
+        self.gn_xy = xy(gn.records)
         self.last_matched_size = 0
         self.last_match_time: float | None = None
         self.last_result: MatchResult | None = None
@@ -116,10 +126,16 @@ class MatcherNode(Node):
         result = self.matcher.match(records)
         self.last_matched_size, self.last_match_time = len(records), now
         self.last_result = result
-        self.last_event = self.tracker.update(result, xy(records))
-        if self.last_event in ("first_fix", "refined", "switched"):
+        try:
+            self.last_event = self.filter.update(result, xy(records), self.gn_xy)
+        except (ValueError, IndexError) as exc:
+            # A fix the filter cannot use (no covariance, inliers out of range): logged,
+            # the estimate kept; never a dead node.
+            self.get_logger().error(f"/local_network: match not usable: {exc}")
+            self.last_event = "kept" if self.filter.localized else "none"
+        if self.last_event in ALIGNMENT_EVENTS:
             self.publish_alignment(msg.header.stamp)
-        if self.last_event in ("first_fix", "switched", "conflict"):
+        if self.last_event in ("first_fix", "switched", "held"):
             self.get_logger().info(
                 f"{self.last_event}: LN {len(records)} nodes, support {result.support}, "
                 f"margin {result.margin}, {result.timings_ms.get('total', 0.0):.1f} ms"
@@ -128,7 +144,7 @@ class MatcherNode(Node):
 
     def publish_alignment(self, stamp) -> None:
         """Publish map -> odom on /global_alignment (latched)."""
-        t = self.tracker.alignment.map_T_odom
+        t = self.filter.alignment.map_T_odom
         msg = TransformStamped()
         msg.header.stamp = stamp
         msg.header.frame_id = "map"
@@ -140,14 +156,21 @@ class MatcherNode(Node):
         self.alignment_pub.publish(msg)
 
     def on_odometry(self, msg: Odometry) -> None:
-        """Once localized, publish each odometry pose composed with the alignment."""
-        alignment = self.tracker.alignment
+        """Feed the drive to the filter; once localized, publish the pose in ``map``."""
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        position = np.array([p.x, p.y, p.z])
+        quaternion = np.array([q.x, q.y, q.z, q.w])
+        if not (np.all(np.isfinite(position)) and np.all(np.isfinite(quaternion))
+                and np.linalg.norm(quaternion) > 1e-6):
+            self.get_logger().error(
+                "/vo/odometry: non-finite position or invalid orientation: message ignored")
+            return
+        self.filter.predict(position[:2])
+        alignment = self.filter.alignment
         if alignment is None:
             return
-        p, q = msg.pose.pose.position, msg.pose.pose.orientation
-        pos, quat, cov = compose_pose(
-            alignment, np.array([p.x, p.y, p.z]), np.array([q.x, q.y, q.z, q.w]),
-            np.array(msg.pose.covariance),
+        pos, quat, cov = global_pose(
+            alignment, position, quaternion, np.array(msg.pose.covariance),
         )
         out = PoseWithCovarianceStamped()
         out.header.stamp = msg.header.stamp
@@ -161,7 +184,7 @@ class MatcherNode(Node):
     def publish_status(self, stamp, ln_size: int) -> None:
         """Publish the matcher state on /matcher/status."""
         r = self.last_result
-        localized = self.tracker.alignment is not None
+        localized = self.filter.localized
         status = DiagnosticStatus()
         status.name = "darces_matcher"
         status.hardware_id = "global_localization"
@@ -178,7 +201,11 @@ class MatcherNode(Node):
             "runner_up": r.runner_up,
             "margin": r.margin,
             "hypotheses": r.n_hypotheses,
-            "switches": self.tracker.switches,
+            "switches": self.filter.switches,
+            "held": len(self.filter.held),
+            "distance_m": f"{self.filter.distance_m:.1f}",
+            "sigma_xy_m": (f"{np.sqrt(np.linalg.eigvalsh(self.filter.p[:2, :2]).max()):.2f}"
+                           if localized else "inf"),
             "time_ms": f"{r.timings_ms.get('total', 0.0):.2f}",
         }
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]

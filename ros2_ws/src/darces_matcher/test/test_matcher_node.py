@@ -15,8 +15,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from scipy.spatial.transform import Rotation
 
 from darces_matcher.gn_generator import generate_gn
-from darces_matcher.localization import Alignment, AlignmentTracker, compose_pose
-from darces_matcher.matcher import MatchResult
+from darces_matcher.localization import Alignment, compose_pose
 from roi_network.geojson import write_geojson
 from roi_network.pointcloud import to_pointcloud2
 from roi_network.records import xy
@@ -144,23 +143,6 @@ def test_bad_gn_file_is_a_one_line_error(tmp_path):
     assert result.returncode == 1
     lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and str(missing) in lines[0], result.stderr
-
-
-def _fix(t: Rigid2D, support: int) -> MatchResult:
-    return MatchResult("fix", "ok", map_T_odom=t, covariance=np.eye(3) * 0.01, support=support)
-
-
-def test_tracker_refines_switches_and_keeps():
-    ln = np.array([[0.0, 0.0], [100.0, 0.0], [50.0, 80.0]])
-    tracker = AlignmentTracker(consistency_m=5.0)
-    assert tracker.update(MatchResult("no_fix", "ambiguous"), ln) == "none"
-    assert tracker.update(_fix(Rigid2D(0.1, 10, 0), 8), ln) == "first_fix"
-    assert tracker.update(_fix(Rigid2D(0.1, 11, 0), 9), ln) == "refined"
-    assert tracker.update(MatchResult("no_fix", "ambiguous"), ln) == "kept"
-    assert tracker.update(_fix(Rigid2D(2.0, 500, 0), 5), ln) == "conflict"
-    assert tracker.alignment.map_T_odom.tx == 11
-    assert tracker.update(_fix(Rigid2D(2.0, 500, 0), 12), ln) == "switched"
-    assert tracker.alignment.map_T_odom.tx == 500 and tracker.switches == 1
 
 
 def test_compose_pose_propagates_alignment_uncertainty():
