@@ -1,4 +1,5 @@
-"""The ``globloc`` command: ``play`` a bag, ``run`` the node graph on a bag, ``record`` outputs.
+"""The ``globloc`` command: ``play`` a bag, ``run`` the node graph on a bag, ``record`` outputs,
+``eval`` a run.
 
 Only argument mapping lives here; each subcommand is a function taking an options object.
 User errors (``GloblocError``) become one ``globloc: error: ...`` line on stderr and exit
@@ -122,6 +123,22 @@ def _add_record(sub: argparse._SubParsersAction) -> None:
                    help='topics to record (default: every output topic of the design)')
 
 
+def _add_eval(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        'eval',
+        help='judge a run against the bag\'s ground truth: report.json, report.md, plots',
+        description='Evaluate out/<bag>/<run>/: /global_pose against BAG/truth/trajectory.tum '
+        '(unaligned horizontal error, final error, RMSE after the first fix, distance before '
+        'the first fix, false fixes, 3-sigma consistency). Writes report.json, report.md, '
+        'route.png and error.png into the run directory.',
+    )
+    p.add_argument('run_dir', type=Path, metavar='RUN_DIR', help='run directory of globloc run')
+    p.add_argument('--bag', type=Path, metavar='BAG_DIR',
+                   help='bag directory holding truth/ (default: the one in RUN_DIR/run.yaml)')
+    p.add_argument('--json', action='store_true', help='print report.json to stdout')
+    p.add_argument('--no-plots', action='store_true', help='skip the plots')
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``globloc`` argument parser."""
     parser = argparse.ArgumentParser(
@@ -131,6 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_play(sub)
     _add_run(sub)
     _add_record(sub)
+    _add_eval(sub)
     return parser
 
 
@@ -158,6 +176,11 @@ def _dispatch(args: argparse.Namespace, ros: list[str]) -> int:
         from rover_bringup.record import RecordOptions, record
 
         return record(RecordOptions(out=args.out, topics=args.topics, ros_args=ros))
+    if args.command == 'eval':
+        from rover_bringup.report import EvalOptions, evaluate_run
+
+        return evaluate_run(EvalOptions(run_dir=args.run_dir, bag=args.bag, json=args.json,
+                                        plots=not args.no_plots))
     from rover_bringup.run import RunOptions, run
 
     return run(

@@ -1,0 +1,424 @@
+"""``globloc eval``: a run's /global_pose judged against the bag's ground truth. No rclpy.
+
+Metrics (DESIGN.md, "Global pose"; docs/e2e.md says how to read them), all on the
+*unaligned* horizontal error ``|p_est - p_true|`` in the ``map`` frame, each /global_pose
+associated with the truth pose of the nearest stamp (evo's ``associate_trajectories``):
+
+- ``distance_before_first_fix_m``: distance driven (along the true route) before the
+  first /global_pose;
+- ``final_error_m``: error of the last /global_pose (``final_pose_gap_m`` says how much of
+  the route was left after it);
+- ``rmse_after_first_fix_m``: RMSE over every /global_pose (they start at the first fix);
+- ``false_fixes``: fixes (first fix, refinement, switch on /matcher/status) after which the
+  published pose is more than 10 m off; without matcher events, the number of episodes
+  of /global_pose more than 10 m off;
+- ``consistency_3sigma``: fraction of poses whose truth lies inside the published 3-sigma
+  ellipse (horizontal covariance, squared Mahalanobis distance <= 9). A Gaussian that is
+  exactly right gives 98.9 % (chi-square, 2 degrees of freedom); the target >= 99 % asks
+  for a covariance that errs, if at all, on the large side.
+
+Also reported: evo's unaligned 3D APE of /global_pose and, when the run has ``vo.tum``,
+evo's SE(3)-aligned APE of the visual odometry (the drift the localization corrects).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from rover_bringup.errors import GloblocError
+from rover_bringup.run_outputs import (
+    ALIGNMENT,
+    EVENTS,
+    GLOBAL_POSE_COV,
+    GLOBAL_POSE_TUM,
+    OUTPUTS,
+    VO_TUM,
+    export_outputs,
+)
+
+#: A /global_pose more than this far from the truth is a false fix (DESIGN.md), metres.
+FALSE_FIX_M = 10.0
+#: The paper's end-of-route error on its 1 km traverse, metres.
+PAPER_FINAL_ERROR_M = 13.34
+#: Squared Mahalanobis radius of the 3-sigma ellipse.
+THREE_SIGMA_CHI2 = 9.0
+#: Largest stamp difference for associating a pose with the truth, seconds.
+MAX_STAMP_DIFF_S = 0.06
+#: Matcher events after which the published alignment changed.
+FIX_EVENTS = ('first_fix', 'refined', 'switched')
+#: Issue 14's targets.
+TARGETS = {
+    'final_error_m': 1.0,
+    'rmse_after_first_fix_m': 1.0,
+    'false_fixes': 0,
+    'distance_before_first_fix_m': 200.0,
+    'consistency_3sigma': 0.99,
+}
+
+
+def read_tum(path: Path) -> np.ndarray:
+    """A TUM file as an (N, 8) array (t x y z qx qy qz qw); (0, 8) when it has no rows.
+
+    Raises:
+        GloblocError: Unreadable, or a row that is not 8 numbers (the message names the
+            file and the line).
+    """
+    return _read_table(path, 8)
+
+
+def _read_table(path: Path, columns: int) -> np.ndarray:
+    rows = []
+    try:
+        lines = path.read_text().splitlines()
+    except OSError as exc:
+        raise GloblocError(f'cannot read {path}: {exc.strerror or exc}') from None
+    for n, line in enumerate(lines, 1):
+        line = line.strip()
+        if not line or line.startswith('#'):
+            continue
+        parts = line.replace(',', ' ').split()
+        try:
+            values = [float(v) for v in parts]
+        except ValueError:
+            values = []
+        if len(values) != columns or not all(math.isfinite(v) for v in values):
+            raise GloblocError(f'{path}, line {n}: expected {columns} finite numbers, got '
+                               f'{line[:80]!r}')
+        rows.append(values)
+    return np.array(rows, dtype=float).reshape(-1, columns)
+
+
+def read_events(path: Path) -> list[tuple[float, str]]:
+    """``matcher_events.tsv`` as (stamp s, event) pairs; [] when the file is absent."""
+    if not path.is_file():
+        return []
+    events = []
+    for line in path.read_text().splitlines():
+        if line.startswith('#') or not line.strip():
+            continue
+        parts = line.split('\t')
+        try:
+            events.append((float(parts[0]), parts[1] if len(parts) > 1 else ''))
+        except ValueError:
+            continue  # one bad row does not hide the others
+    return events
+
+
+@dataclass
+class RunData:
+    """What a run produced and what it is judged against.
+
+    Attributes:
+        run_dir: The run directory.
+        bag_dir: The bag directory (holds ``truth/``, ``orbital.tif``, ``gn.geojson``).
+        estimate: (N, 8) /global_pose, TUM rows (map).
+        covariance: (N, 2, 2) horizontal covariance per pose, or None (not recorded).
+        truth: (M, 8) ground-truth base_link poses, TUM rows (map).
+        vo: (K, 8) /vo/odometry, TUM rows (odom), or None.
+        events: (stamp s, event) from /matcher/status.
+        alignment: (J, 4) /global_alignment rows t tx ty yaw (map -> odom).
+    """
+
+    run_dir: Path
+    bag_dir: Path
+    estimate: np.ndarray
+    covariance: np.ndarray | None
+    truth: np.ndarray
+    vo: np.ndarray | None = None
+    events: list[tuple[float, str]] = field(default_factory=list)
+    alignment: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+
+
+def bag_dir_of(run_dir: Path) -> Path:
+    """The bag directory a run was made from (``bag.dir`` of its ``run.yaml``)."""
+    path = run_dir / 'run.yaml'
+    try:
+        run = yaml.safe_load(path.read_text())
+        bag = Path(run['bag']['dir'])
+    except OSError:
+        raise GloblocError(f'{run_dir} is not a run directory: no run.yaml '
+                           '(give the bag with --bag)') from None
+    except (yaml.YAMLError, KeyError, TypeError) as exc:
+        raise GloblocError(f'{path}: no bag.dir ({exc})') from None
+    return bag
+
+
+def load_run(run_dir: Path, bag_dir: Path | None = None) -> RunData:
+    """Read a run directory (exporting ``outputs/`` to TUM files first if needed).
+
+    Args:
+        run_dir: ``out/<bag>/<run>/``.
+        bag_dir: The bag directory; default: the one ``run.yaml`` records.
+
+    Raises:
+        GloblocError: No such run directory, no /global_pose file and no outputs bag to
+            make it from, no truth trajectory, or an unreadable file (named).
+    """
+    if not run_dir.is_dir():
+        raise GloblocError(f'run directory not found: {run_dir}')
+    bag_dir = bag_dir if bag_dir is not None else bag_dir_of(run_dir)
+    if not (run_dir / GLOBAL_POSE_TUM).is_file():
+        if not (run_dir / OUTPUTS).is_dir():
+            raise GloblocError(f'{run_dir}: neither {GLOBAL_POSE_TUM} nor {OUTPUTS}/')
+        export_outputs(run_dir)
+    truth_path = bag_dir / 'truth' / 'trajectory.tum'
+    if not truth_path.is_file():
+        raise GloblocError(f'no ground truth for this run: {truth_path} not found')
+    truth = read_tum(truth_path)
+    if len(truth) < 2:
+        raise GloblocError(f'{truth_path}: fewer than 2 poses')
+    estimate = read_tum(run_dir / GLOBAL_POSE_TUM)
+    covariance = None
+    if (cov_path := run_dir / GLOBAL_POSE_COV).is_file():
+        cov = _read_table(cov_path, 4)
+        if len(cov) == len(estimate) and np.allclose(cov[:, 0], estimate[:, 0], atol=1e-6):
+            covariance = np.stack([np.c_[cov[:, 1], cov[:, 2]], np.c_[cov[:, 2], cov[:, 3]]],
+                                  axis=1)
+        elif len(estimate):
+            raise GloblocError(f'{cov_path}: stamps do not match {GLOBAL_POSE_TUM}')
+    vo = read_tum(run_dir / VO_TUM) if (run_dir / VO_TUM).is_file() else None
+    alignment = (_read_table(run_dir / ALIGNMENT, 4) if (run_dir / ALIGNMENT).is_file()
+                 else np.zeros((0, 4)))
+    return RunData(run_dir, bag_dir, estimate, covariance, truth, vo,
+                   read_events(run_dir / EVENTS), alignment)
+
+
+def _trajectory(rows: np.ndarray):
+    from evo.core.trajectory import PoseTrajectory3D
+
+    # TUM stores qx qy qz qw; evo wants qw qx qy qz.
+    return PoseTrajectory3D(positions_xyz=rows[:, 1:4],
+                            orientations_quat_wxyz=rows[:, [7, 4, 5, 6]], timestamps=rows[:, 0])
+
+
+@dataclass
+class Evaluation:
+    """Per-pose series (for plots) and the summary (for report.json).
+
+    Attributes:
+        summary: the metrics (module docstring), JSON-serialisable.
+        t: (N,) stamps of the associated /global_pose, s.
+        distance_m: (N,) distance driven at each, along the true route, m.
+        error_m: (N,) horizontal error, m.
+        sigma3_m: (N,) 3-sigma bound (3 x the largest horizontal standard deviation), m;
+            NaN without covariance.
+        estimate_xy: (N, 2) estimated positions (map).
+        truth_xy: (N, 2) the associated true positions (map).
+        truth_route: (M, 2) the whole true route (map).
+        fixes: (stamp, distance driven, event) of each fix event.
+    """
+
+    summary: dict[str, Any]
+    t: np.ndarray
+    distance_m: np.ndarray
+    error_m: np.ndarray
+    sigma3_m: np.ndarray
+    estimate_xy: np.ndarray
+    truth_xy: np.ndarray
+    truth_route: np.ndarray
+    fixes: list[tuple[float, float, str]]
+
+
+def _cumulative_distance(xy: np.ndarray) -> np.ndarray:
+    return np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))]
+
+
+def _vo_summary(vo: np.ndarray | None, truth: np.ndarray) -> dict[str, Any] | None:
+    """evo's SE(3)-aligned APE of the odometry against the truth (its drift)."""
+    if vo is None or len(vo) < 3:
+        return None
+    from evo.core import metrics, sync
+
+    try:
+        ref, est = sync.associate_trajectories(_trajectory(truth), _trajectory(vo),
+                                               max_diff=MAX_STAMP_DIFF_S)
+        est.align(ref, correct_scale=False)  # Umeyama, SE(3), in place
+        ape = metrics.APE(metrics.PoseRelation.translation_part)
+        ape.process_data((ref, est))
+    except Exception as exc:  # evo raises its own errors on degenerate input
+        return {'error': f'evo could not align the odometry: {exc}'}
+    stats = ape.get_all_statistics()
+    return {'poses': int(len(vo)), 'ape_aligned_rmse_m': float(stats['rmse']),
+            'ape_aligned_max_m': float(stats['max'])}
+
+
+def evaluate(data: RunData) -> Evaluation:
+    """Compute the metrics of the module docstring.
+
+    A run with no /global_pose (nothing localized) gets ``localized: false`` and null
+    metrics, not an error.
+    """
+    truth = data.truth
+    route_xy = truth[:, 1:3]
+    route_d = _cumulative_distance(route_xy)
+    counts: dict[str, int] = {}
+    for _, event in data.events:
+        counts[event] = counts.get(event, 0) + 1
+    summary: dict[str, Any] = {
+        'run_dir': str(data.run_dir),
+        'bag_dir': str(data.bag_dir),
+        'route_length_m': float(route_d[-1]),
+        'route_duration_s': float(truth[-1, 0] - truth[0, 0]),
+        'global_poses': int(len(data.estimate)),
+        'matcher_events': counts,
+        'paper_final_error_m': PAPER_FINAL_ERROR_M,
+        'targets': TARGETS,
+        'vo': _vo_summary(data.vo, truth),
+    }
+    empty = np.zeros(0)
+    nothing = Evaluation(summary, empty, empty, empty, empty, np.zeros((0, 2)),
+                         np.zeros((0, 2)), route_xy, [])
+    keys = ('distance_before_first_fix_m', 'first_fix_t', 'final_error_m', 'final_pose_gap_m',
+            'rmse_after_first_fix_m', 'median_error_m', 'max_error_m', 'false_fixes',
+            'poses_over_10m', 'consistency_3sigma', 'ape_unaligned_rmse_m')
+    summary.update(dict.fromkeys(keys))
+    if len(data.estimate) == 0:
+        summary['localized'] = False
+        summary['message'] = ('not localized: the run published no /global_pose '
+                              f'(route {route_d[-1]:.0f} m)')
+        return nothing
+
+    from evo.core import metrics, sync
+
+    try:
+        ref, est = sync.associate_trajectories(_trajectory(truth), _trajectory(data.estimate),
+                                               max_diff=MAX_STAMP_DIFF_S)
+    except Exception as exc:  # evo.core.sync.SyncException: no common stamps
+        summary['localized'] = True
+        summary['message'] = (f'{len(data.estimate)} /global_pose but none at a truth stamp '
+                              f'(within {MAX_STAMP_DIFF_S} s): {exc}')
+        return nothing
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((ref, est))
+    est_i = np.searchsorted(data.estimate[:, 0], est.timestamps)
+    ref_i = np.clip(np.searchsorted(truth[:, 0], ref.timestamps), 0, len(truth) - 1)
+    t = est.timestamps
+    est_xy, true_xy = est.positions_xyz[:, :2], ref.positions_xyz[:, :2]
+    error = np.linalg.norm(est_xy - true_xy, axis=1)
+    distance = route_d[ref_i]
+
+    sigma3 = np.full(len(t), np.nan)
+    consistency = None
+    if data.covariance is not None:
+        cov = data.covariance[est_i]
+        eig = np.linalg.eigvalsh(cov)
+        valid = (eig[:, 0] > 0) & np.all(np.isfinite(cov.reshape(-1, 4)), axis=1)
+        sigma3[valid] = 3.0 * np.sqrt(eig[valid, 1])
+        d = (est_xy - true_xy)[valid]
+        m2 = np.einsum('ni,nij,nj->n', d, np.linalg.inv(cov[valid]), d)
+        consistency = float(np.mean(m2 <= THREE_SIGMA_CHI2)) if valid.any() else None
+        summary['poses_with_covariance'] = int(valid.sum())
+
+    fixes: list[tuple[float, float, str]] = []
+    false_fixes = 0
+    for te, event in data.events:
+        if event not in FIX_EVENTS:
+            continue
+        k = int(np.searchsorted(t, te))
+        d_at = float(np.interp(te, truth[:, 0], route_d))
+        fixes.append((te, d_at, event))
+        if k < len(t) and error[k] > FALSE_FIX_M:
+            false_fixes += 1
+    over = error > FALSE_FIX_M
+    if not fixes:  # no matcher events recorded: count episodes of large error
+        false_fixes = int(over[0]) + int(np.sum(over[1:] & ~over[:-1]))
+    first_t = float(data.estimate[0, 0])
+    summary.update(
+        localized=True,
+        message=f'localized after {float(np.interp(first_t, truth[:, 0], route_d)):.1f} m',
+        first_fix_t=first_t,
+        distance_before_first_fix_m=float(np.interp(first_t, truth[:, 0], route_d)),
+        final_error_m=float(error[-1]),
+        final_pose_gap_m=float(route_d[-1] - distance[-1]),
+        rmse_after_first_fix_m=float(np.sqrt(np.mean(error**2))),
+        median_error_m=float(np.median(error)),
+        max_error_m=float(error.max()),
+        false_fixes=int(false_fixes),
+        false_fix_rule=('fix events followed by a pose > 10 m off' if fixes
+                        else 'episodes of poses > 10 m off (no matcher events recorded)'),
+        poses_over_10m=int(over.sum()),
+        associated_poses=int(len(t)),
+        consistency_3sigma=consistency,
+        ape_unaligned_rmse_m=float(ape.get_statistic(metrics.StatisticsType.rmse)),
+    )
+    summary['meets_targets'] = {
+        'final_error_m': summary['final_error_m'] <= TARGETS['final_error_m'],
+        'rmse_after_first_fix_m':
+            summary['rmse_after_first_fix_m'] <= TARGETS['rmse_after_first_fix_m'],
+        'false_fixes': false_fixes == 0,
+        'distance_before_first_fix_m': summary['distance_before_first_fix_m']
+        <= TARGETS['distance_before_first_fix_m'],
+        'consistency_3sigma': consistency is not None
+        and consistency >= TARGETS['consistency_3sigma'],
+    }
+    return Evaluation(summary, t, distance, error, sigma3, est_xy, true_xy, route_xy, fixes)
+
+
+def _fmt(value: Any, unit: str = '', digits: int = 2) -> str:
+    if value is None:
+        return 'n/a'
+    if isinstance(value, float):
+        return f'{value:.{digits}f}{unit}'
+    return f'{value}{unit}'
+
+
+def summary_lines(s: dict[str, Any]) -> list[str]:
+    """The few lines ``globloc eval`` (and ``make demo``) print."""
+    if not s.get('localized'):
+        return [s['message']]
+    cons = s['consistency_3sigma']
+    return [
+        f"first fix after {_fmt(s['distance_before_first_fix_m'], ' m', 1)} of "
+        f"{_fmt(s['route_length_m'], ' m', 0)}",
+        f"final error {_fmt(s['final_error_m'], ' m')} (paper: {PAPER_FINAL_ERROR_M} m at "
+        'the end of its 1 km route)',
+        f"RMSE after first fix {_fmt(s['rmse_after_first_fix_m'], ' m')}, "
+        f"max {_fmt(s['max_error_m'], ' m')}",
+        f"false fixes (> 10 m) {s['false_fixes']}",
+        f"3-sigma consistency {_fmt(None if cons is None else 100 * cons, ' %', 1)}",
+    ]
+
+
+def report_markdown(s: dict[str, Any], plots: list[str]) -> str:
+    """``report.md``: the summary table, targets and the plots."""
+    out = [f"# Run {Path(s['run_dir']).name} on {Path(s['bag_dir']).name}", '',
+           f"**{s['message']}**", '']
+    if s.get('localized') and s.get('final_error_m') is not None:
+        meets = s['meets_targets']
+        cons = s['consistency_3sigma']
+        rows = [
+            ('distance driven before the first fix', _fmt(s['distance_before_first_fix_m'],
+                                                          ' m', 1),
+             '<= 200 m', meets['distance_before_first_fix_m']),
+            ('final horizontal error', _fmt(s['final_error_m'], ' m'),
+             f'<= 1 m (paper {PAPER_FINAL_ERROR_M} m)', meets['final_error_m']),
+            ('RMSE after the first fix', _fmt(s['rmse_after_first_fix_m'], ' m'), '<= 1 m',
+             meets['rmse_after_first_fix_m']),
+            ('false fixes (> 10 m)', str(s['false_fixes']), '0', meets['false_fixes']),
+            ('3-sigma consistency', _fmt(None if cons is None else 100 * cons, ' %', 1),
+             '>= 99 %', meets['consistency_3sigma']),
+        ]
+        out += ['| metric | value | target | met |', '|---|---|---|---|']
+        out += [f'| {a} | {b} | {c} | {"yes" if d else "no"} |' for a, b, c, d in rows]
+        out += ['', f"Route {_fmt(s['route_length_m'], ' m', 0)}; "
+                f"{s['global_poses']} /global_pose; the last one "
+                f"{_fmt(s['final_pose_gap_m'], ' m', 1)} before the end of the route; "
+                f"median error {_fmt(s['median_error_m'], ' m')}, max "
+                f"{_fmt(s['max_error_m'], ' m')}; evo unaligned APE (3D) RMSE "
+                f"{_fmt(s['ape_unaligned_rmse_m'], ' m')}. False fixes counted as: "
+                f"{s['false_fix_rule']}."]
+    if s.get('matcher_events'):
+        out += ['', 'Matcher events: ' + ', '.join(f'{k} {v}' for k, v in
+                                                   sorted(s['matcher_events'].items()))]
+    if s.get('vo') and 'ape_aligned_rmse_m' in s['vo']:
+        out += ['', f"Visual odometry: {s['vo']['poses']} poses, evo SE(3)-aligned APE RMSE "
+                f"{_fmt(s['vo']['ape_aligned_rmse_m'], ' m')}."]
+    out += ['']
+    out += [f'![{p}]({p})' for p in plots]
+    return '\n'.join(out) + '\n'

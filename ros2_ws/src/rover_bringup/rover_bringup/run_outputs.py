@@ -1,0 +1,149 @@
+"""A run's recorded outputs as plain files for evaluation and other tools. No rclpy.
+
+``globloc run`` (and ``globloc eval`` on a run directory that lacks them) turns
+``<run>/outputs/`` (the rosbag2 bag of every output topic) into:
+
+=========================  ================================================================
+``global_pose.tum``        /global_pose, TUM (t x y z qx qy qz qw, base_link in ``map``)
+``global_pose_cov.tsv``    its horizontal covariance per pose: t cov_xx cov_xy cov_yy (m^2)
+``vo.tum``                 /vo/odometry, TUM (base_link in ``odom``)
+``alignment.tsv``          /global_alignment: t tx ty yaw (map -> odom; m, rad)
+``matcher_events.tsv``     /matcher/status: t event reason ln_size inliers
+``local_network.geojson``  the last /local_network (``odom`` frame), when there is one
+=========================  ================================================================
+
+Times are the messages' header stamps (bag time, seconds). Every file is written
+atomically (a temporary file renamed), so a reader never sees half a file.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from collections.abc import Iterable
+from pathlib import Path
+
+from rover_bringup.errors import GloblocError
+
+OUTPUTS = 'outputs'
+GLOBAL_POSE_TUM = 'global_pose.tum'
+GLOBAL_POSE_COV = 'global_pose_cov.tsv'
+VO_TUM = 'vo.tum'
+ALIGNMENT = 'alignment.tsv'
+EVENTS = 'matcher_events.tsv'
+LOCAL_NETWORK = 'local_network.geojson'
+_TOPICS = ('/global_pose', '/vo/odometry', '/global_alignment', '/matcher/status',
+           '/local_network')
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same directory."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.')
+    try:
+        with os.fdopen(fd, 'w') as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _stamp(header) -> float:
+    return header.stamp.sec + 1e-9 * header.stamp.nanosec
+
+
+def _tum_line(t: float, p, q) -> str:
+    return (f'{t:.9f} {p.x:.6f} {p.y:.6f} {p.z:.6f} '
+            f'{q.x:.9f} {q.y:.9f} {q.z:.9f} {q.w:.9f}\n')
+
+
+def _lines(header: str, rows: Iterable[str]) -> str:
+    return header + ''.join(rows)
+
+
+def export_outputs(run_dir: Path) -> dict[str, int]:
+    """Write the files of the module docstring from ``<run_dir>/outputs/``.
+
+    Args:
+        run_dir: A run directory of ``globloc run``.
+
+    Returns:
+        Rows written per file name.
+
+    Raises:
+        GloblocError: The outputs bag is missing or unreadable (the message names it); a
+            message that cannot be decoded is skipped and counted in ``'undecodable'``.
+    """
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    bag = run_dir / OUTPUTS
+    if not (bag / 'metadata.yaml').is_file():
+        raise GloblocError(f'no outputs bag in {run_dir} (expected {bag}/metadata.yaml)')
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    poses, covs, vo, alignment, events = [], [], [], [], []
+    last_ln = None
+    undecodable = 0
+    try:
+        with Reader(bag) as reader:
+            conns = [c for c in reader.connections if c.topic in _TOPICS]
+            for conn, _, raw in reader.messages(connections=conns):
+                try:
+                    msg = typestore.deserialize_cdr(raw, conn.msgtype)
+                except Exception:  # a corrupt message must not lose the others
+                    undecodable += 1
+                    continue
+                if conn.topic == '/global_pose':
+                    t = _stamp(msg.header)
+                    poses.append(_tum_line(t, msg.pose.pose.position, msg.pose.pose.orientation))
+                    c = msg.pose.covariance
+                    covs.append(f'{t:.9f} {c[0]:.9g} {c[1]:.9g} {c[7]:.9g}\n')
+                elif conn.topic == '/vo/odometry':
+                    vo.append(_tum_line(_stamp(msg.header), msg.pose.pose.position,
+                                        msg.pose.pose.orientation))
+                elif conn.topic == '/global_alignment':
+                    r, tr = msg.transform.rotation, msg.transform.translation
+                    yaw = 2.0 * math.atan2(r.z, r.w)
+                    alignment.append(f'{_stamp(msg.header):.9f} {tr.x:.6f} {tr.y:.6f} '
+                                     f'{yaw:.9f}\n')
+                elif conn.topic == '/matcher/status':
+                    for status in msg.status:
+                        kv = {v.key: v.value for v in status.values}
+                        events.append(
+                            f'{_stamp(msg.header):.9f}\t{kv.get("event", "")}\t'
+                            f'{kv.get("reason", "")}\t{kv.get("ln_size", "")}\t'
+                            f'{kv.get("inliers", "")}\n')
+                elif conn.topic == '/local_network':
+                    last_ln = msg
+    except GloblocError:
+        raise
+    except Exception as exc:  # rosbags ReaderError, truncated MCAP, ...
+        raise GloblocError(f'cannot read outputs bag {bag}: {exc}') from None
+
+    write_atomic(run_dir / GLOBAL_POSE_TUM,
+                 _lines('# t x y z qx qy qz qw (/global_pose, map frame, base_link)\n', poses))
+    write_atomic(run_dir / GLOBAL_POSE_COV,
+                 _lines('# t cov_xx cov_xy cov_yy (/global_pose horizontal covariance, m^2)\n',
+                        covs))
+    write_atomic(run_dir / VO_TUM,
+                 _lines('# t x y z qx qy qz qw (/vo/odometry, odom frame, base_link)\n', vo))
+    write_atomic(run_dir / ALIGNMENT,
+                 _lines('# t tx ty yaw (/global_alignment, map -> odom; m, rad)\n', alignment))
+    write_atomic(run_dir / EVENTS,
+                 _lines('# t\tevent\treason\tln_size\tinliers (/matcher/status)\n', events))
+    written = {GLOBAL_POSE_TUM: len(poses), GLOBAL_POSE_COV: len(covs), VO_TUM: len(vo),
+               ALIGNMENT: len(alignment), EVENTS: len(events), 'undecodable': undecodable}
+    if last_ln is not None:
+        try:
+            from roi_network.geojson import to_geojson_dict
+            from roi_network.network import RoiNetwork
+            from roi_network.pointcloud import from_pointcloud2
+
+            net = RoiNetwork(from_pointcloud2(last_ln), last_ln.header.frame_id or 'odom')
+            write_atomic(run_dir / LOCAL_NETWORK, json.dumps(to_geojson_dict(net)))
+            written[LOCAL_NETWORK] = len(net)
+        except Exception:  # a malformed LN: the other files stand
+            written['undecodable'] += 1
+    return written

@@ -1,0 +1,254 @@
+"""``globloc eval``: metrics on synthetic run directories made here, with known answers."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from rover_bringup.errors import GloblocError
+from rover_bringup.evaluation import evaluate, load_run
+from rover_bringup.report import EvalOptions, evaluate_run
+from rover_bringup.run_outputs import export_outputs
+
+T0 = 1_700_000_000.0
+ORIGIN = (403446.0, 7334375.0)
+
+
+def _tum(path: Path, t: np.ndarray, xy: np.ndarray, header: str = '# t x y z qx qy qz qw\n'):
+    rows = [f'{ti:.9f} {x:.6f} {y:.6f} 0.0 0 0 0 1\n' for ti, (x, y) in zip(t, xy, strict=True)]
+    path.write_text(header + ''.join(rows))
+
+
+def _bag(tmp_path: Path) -> tuple[Path, np.ndarray, np.ndarray]:
+    """A bag directory with a 300 m straight truth route at 1 m/s, 10 Hz, an orbital image
+    and a GN (map origin ORIGIN)."""
+    bag = tmp_path / 'bags' / 'synthetic'
+    (bag / 'truth').mkdir(parents=True)
+    t = T0 + np.arange(0, 300.0, 0.1)
+    xy = np.c_[np.arange(len(t)) * 0.1 - 150.0, np.full(len(t), 20.0)]
+    _tum(bag / 'truth' / 'trajectory.tum', t, xy)
+    import rasterio
+    from rasterio.transform import from_origin
+
+    img = np.random.default_rng(0).integers(0, 255, (3, 200, 200), dtype=np.uint8)
+    with rasterio.open(bag / 'orbital.tif', 'w', driver='GTiff', width=200, height=200,
+                       count=3, dtype='uint8', crs='EPSG:32719',
+                       transform=from_origin(ORIGIN[0] - 200, ORIGIN[1] + 200, 2.0, 2.0),
+                       ) as d:
+        d.write(img)
+    from roi_network.geojson import write_geojson
+    from roi_network.network import MapFrame, RoiNetwork
+    from roi_network.records import empty_records
+
+    gn = empty_records(30)
+    gn['x'], gn['y'], gn['id'], gn['label'] = np.linspace(-150, 150, 30), 25.0, range(30), 1
+    write_geojson(RoiNetwork(gn, 'map', MapFrame('EPSG:32719', ORIGIN)), bag / 'gn.geojson')
+    return bag, t, xy
+
+
+def _run_dir(tmp_path: Path, bag: Path) -> Path:
+    run = tmp_path / 'out' / 'synthetic' / 'r1'
+    run.mkdir(parents=True)
+    (run / 'run.yaml').write_text(yaml.safe_dump({'bag': {'dir': str(bag)}}))
+    return run
+
+
+def _write_estimate(run: Path, t, xy, sigma: np.ndarray):
+    _tum(run / 'global_pose.tum', t, xy)
+    rows = [f'{ti:.9f} {s**2:.9g} 0 {s**2:.9g}\n' for ti, s in zip(t, sigma, strict=True)]
+    (run / 'global_pose_cov.tsv').write_text('# t cov_xx cov_xy cov_yy\n' + ''.join(rows))
+
+
+def test_metrics_of_a_run_with_known_errors(tmp_path: Path):
+    bag, t, xy = _bag(tmp_path)
+    run = _run_dir(tmp_path, bag)
+    # First /global_pose at 50 s (50 m driven); a 0.5 m error across the track, except a
+    # 15 m jump over 2 s after a (false) refinement at 200 s. Published sigma 0.3 m:
+    # 0.5 m is inside 3 sigma, the jump is not.
+    k = t >= T0 + 50.0
+    te, est = t[k], xy[k] + [0.0, 0.5]
+    jump = (te >= T0 + 200.0) & (te < T0 + 202.0)
+    est[jump, 1] += 14.5
+    _write_estimate(run, te, est, np.full(len(te), 0.3))
+    (run / 'matcher_events.tsv').write_text(
+        '# t\tevent\treason\tln_size\tinliers\n'
+        f'{T0 + 50.0:.9f}\tfirst_fix\tok\t10\t8\n'
+        f'{T0 + 120.0:.9f}\tkept\tambiguous\t12\t0\n'
+        f'{T0 + 200.0:.9f}\trefined\tok\t15\t9\n'
+        f'{T0 + 202.0:.9f}\tswitched\tok\t16\t12\n')
+    _tum(run / 'vo.tum', t, xy * 1.01)
+
+    ev = evaluate(load_run(run))
+    s = ev.summary
+    assert s['localized'] is True
+    assert s['distance_before_first_fix_m'] == pytest.approx(50.0, abs=0.11)
+    assert s['final_error_m'] == pytest.approx(0.5, abs=1e-6)
+    n_jump = int(jump.sum())
+    expected_rmse = np.sqrt(((len(te) - n_jump) * 0.25 + n_jump * 15.0**2) / len(te))
+    assert s['rmse_after_first_fix_m'] == pytest.approx(expected_rmse, rel=1e-6)
+    assert s['false_fixes'] == 1 and s['poses_over_10m'] == n_jump
+    assert s['consistency_3sigma'] == pytest.approx(1 - n_jump / len(te))
+    assert s['route_length_m'] == pytest.approx(299.9, abs=0.01)
+    assert s['matcher_events'] == {'first_fix': 1, 'kept': 1, 'refined': 1, 'switched': 1}
+    assert [f[2] for f in ev.fixes] == ['first_fix', 'refined', 'switched']
+    # A straight route cannot anchor a 3D alignment: said, not a crash.
+    assert 'evo could not align' in s['vo']['error']
+    assert s['meets_targets'] == {'final_error_m': True, 'rmse_after_first_fix_m': False,
+                                  'false_fixes': False, 'distance_before_first_fix_m': True,
+                                  'consistency_3sigma': True}  # 20 of 2500 outside
+
+    assert evaluate_run(EvalOptions(run)) == 0
+    report = json.loads((run / 'report.json').read_text())
+    assert report['final_error_m'] == pytest.approx(0.5, abs=1e-6)
+    md = (run / 'report.md').read_text()
+    assert '| false fixes (> 10 m) | 1 | 0 | no |' in md
+    for png in ('route.png', 'error.png'):
+        assert (run / png).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+
+
+def test_vo_drift_is_measured_with_evo_alignment():
+    from rover_bringup.evaluation import _vo_summary
+
+    t = np.arange(0, 200.0, 0.1)
+    a = t / 30.0
+    truth = np.c_[t, 40 * np.cos(a), 40 * np.sin(a), np.zeros((len(t), 4)), np.ones(len(t))]
+    vo = truth.copy()
+    vo[:, 1:3] = truth[:, 1:3] @ np.array([[0, -1], [1, 0]]).T + [5.0, 7.0]  # rigid: no drift
+    assert _vo_summary(vo, truth)['ape_aligned_rmse_m'] < 1e-6
+    vo[:, 1] += 0.01 * np.arange(len(t)) * 0.1  # 1 % drift along x
+    assert 0.2 < _vo_summary(vo, truth)['ape_aligned_rmse_m'] < 2.0
+
+
+def test_false_fixes_without_events_count_episodes(tmp_path: Path):
+    bag, t, xy = _bag(tmp_path)
+    run = _run_dir(tmp_path, bag)
+    est = xy.copy()
+    est[100:120, 0] += 20.0
+    est[500:510, 0] -= 30.0
+    _tum(run / 'global_pose.tum', t, est)  # no covariance file, no events
+    s = evaluate(load_run(run)).summary
+    assert s['false_fixes'] == 2 and s['consistency_3sigma'] is None
+    assert s['distance_before_first_fix_m'] == 0.0
+
+
+def test_nothing_localized_is_reported_not_a_crash(tmp_path: Path, capsys):
+    bag, _, _ = _bag(tmp_path)
+    run = _run_dir(tmp_path, bag)
+    (run / 'global_pose.tum').write_text('# t x y z qx qy qz qw\n')
+    assert evaluate_run(EvalOptions(run)) == 0
+    out = capsys.readouterr().out
+    assert out.startswith('not localized: the run published no /global_pose')
+    report = json.loads((run / 'report.json').read_text())
+    assert report['localized'] is False and report['final_error_m'] is None
+    assert (run / 'error.png').is_file() and (run / 'route.png').is_file()
+
+
+def test_bad_inputs_are_one_line_errors(tmp_path: Path):
+    with pytest.raises(GloblocError, match='run directory not found'):
+        load_run(tmp_path / 'nope')
+    bag, t, xy = _bag(tmp_path)
+    run = _run_dir(tmp_path, bag)
+    with pytest.raises(GloblocError, match='neither global_pose.tum nor outputs/'):
+        load_run(run)
+    (run / 'global_pose.tum').write_text('1 2 3\n')
+    with pytest.raises(GloblocError, match=r'global_pose.tum, line 1: expected 8'):
+        load_run(run)
+    (bag / 'truth' / 'trajectory.tum').unlink()
+    with pytest.raises(GloblocError, match='no ground truth'):
+        load_run(run)
+
+
+def _write_outputs_bag(run: Path, t: np.ndarray, xy: np.ndarray, corrupt_one: bool = False):
+    """An outputs bag as ``globloc record`` writes it: /global_pose with covariance,
+    /vo/odometry, /matcher/status, /global_alignment."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    m = ts.types
+    header = lambda ti: m['std_msgs/msg/Header'](  # noqa: E731
+        stamp=m['builtin_interfaces/msg/Time'](sec=int(ti), nanosec=int(round(ti % 1 * 1e9))),
+        frame_id='map')
+    point = m['geometry_msgs/msg/Point']
+    quat = m['geometry_msgs/msg/Quaternion'](x=0.0, y=0.0, z=0.0, w=1.0)
+    with Writer(run / 'outputs', version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        cp = w.add_connection('/global_pose', 'geometry_msgs/msg/PoseWithCovarianceStamped',
+                              typestore=ts)
+        co = w.add_connection('/vo/odometry', 'nav_msgs/msg/Odometry', typestore=ts)
+        cs = w.add_connection('/matcher/status', 'diagnostic_msgs/msg/DiagnosticArray',
+                              typestore=ts)
+        cov = np.zeros(36)
+        cov[0], cov[1], cov[6], cov[7] = 0.04, 0.01, 0.01, 0.09
+        for i, (ti, (x, y)) in enumerate(zip(t, xy, strict=True)):
+            pose = m['geometry_msgs/msg/Pose'](position=point(x=x, y=y, z=0.0), orientation=quat)
+            pwc = m['geometry_msgs/msg/PoseWithCovariance'](pose=pose, covariance=cov)
+            msg = m['geometry_msgs/msg/PoseWithCovarianceStamped'](header=header(ti), pose=pwc)
+            raw = ts.serialize_cdr(msg, 'geometry_msgs/msg/PoseWithCovarianceStamped')
+            if corrupt_one and i == 3:
+                raw = raw[:10]  # truncated CDR: cannot be decoded
+            w.write(cp, int(ti * 1e9), raw)
+            twist = m['geometry_msgs/msg/TwistWithCovariance'](
+                twist=m['geometry_msgs/msg/Twist'](
+                    linear=m['geometry_msgs/msg/Vector3'](x=0.0, y=0.0, z=0.0),
+                    angular=m['geometry_msgs/msg/Vector3'](x=0.0, y=0.0, z=0.0)),
+                covariance=np.zeros(36))
+            odom = m['nav_msgs/msg/Odometry'](header=header(ti), child_frame_id='base_link',
+                                               pose=pwc, twist=twist)
+            w.write(co, int(ti * 1e9), ts.serialize_cdr(odom, 'nav_msgs/msg/Odometry'))
+        kv = m['diagnostic_msgs/msg/KeyValue']
+        status = m['diagnostic_msgs/msg/DiagnosticStatus'](
+            level=0, name='darces_matcher', message='localized', hardware_id='x',
+            values=[kv(key='event', value='first_fix'), kv(key='reason', value='ok'),
+                    kv(key='ln_size', value='12'), kv(key='inliers', value='9')])
+        arr = m['diagnostic_msgs/msg/DiagnosticArray'](header=header(t[0]), status=[status])
+        w.write(cs, int(t[0] * 1e9), ts.serialize_cdr(arr, 'diagnostic_msgs/msg/DiagnosticArray'))
+
+
+def test_run_outputs_bag_is_exported_and_evaluated(tmp_path: Path):
+    bag, t, xy = _bag(tmp_path)
+    run = _run_dir(tmp_path, bag)
+    k = slice(600, 1200)
+    _write_outputs_bag(run, t[k], xy[k] + [0.3, 0.0], corrupt_one=True)
+    ev = evaluate(load_run(run))  # no global_pose.tum yet: exported from outputs/
+    assert (run / 'global_pose.tum').is_file() and (run / 'vo.tum').is_file()
+    s = ev.summary
+    assert s['global_poses'] == 599  # the corrupt message skipped, the others kept
+    assert s['final_error_m'] == pytest.approx(0.3, abs=1e-5)
+    assert s['distance_before_first_fix_m'] == pytest.approx(60.0, abs=0.11)
+    assert s['matcher_events'] == {'first_fix': 1}
+    cov = load_run(run).covariance
+    np.testing.assert_allclose(cov[0], [[0.04, 0.01], [0.01, 0.09]])
+    written = export_outputs(run)
+    assert written['undecodable'] == 1 and written['vo.tum'] == 600
+
+
+def test_cli_eval_json_and_errors(tmp_path: Path, globloc):
+    bag, t, xy = _bag(tmp_path)
+    run = _run_dir(tmp_path, bag)
+    _write_estimate(run, t[::10], xy[::10] + [1.0, 0.0], np.full(len(t[::10]), 0.5))
+    result = globloc(['eval', str(run), '--json', '--no-plots'])
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)['final_error_m'] == pytest.approx(1.0, abs=1e-6)
+    result = globloc(['eval', str(tmp_path / 'missing')])
+    assert result.returncode == 1 and 'Traceback' not in result.stderr
+    assert result.stderr.strip() == f'globloc: error: run directory not found: {tmp_path / "missing"}'
+
+
+def test_subprocess_free_of_display(tmp_path: Path):
+    """The plots need no display (Agg), as on CI."""
+    bag, t, xy = _bag(tmp_path)
+    run = _run_dir(tmp_path, bag)
+    _write_estimate(run, t, xy, np.full(len(t), 0.5))
+    env = {k: v for k, v in __import__('os').environ.items() if k != 'DISPLAY'}
+    env['MPLBACKEND'] = 'TkAgg'  # a GUI backend in the environment must not be used
+    code = ('from pathlib import Path; from rover_bringup.report import EvalOptions, '
+            f'evaluate_run; evaluate_run(EvalOptions(Path({str(run)!r})))')
+    result = subprocess.run([__import__('sys').executable, '-c', code], env=env,
+                            capture_output=True, text=True, timeout=120, check=False)
+    assert result.returncode == 0, result.stderr
+    assert (run / 'route.png').stat().st_size > 10_000
