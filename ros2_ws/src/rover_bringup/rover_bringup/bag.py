@@ -117,6 +117,11 @@ class Bag:
 
     def _error(self, exc: BaseException) -> BagReadError:
         reason = str(exc).strip() or type(exc).__name__
+        if 'end magic' in reason.lower():
+            # An MCAP file is closed by a footer and end magic: without them the recording
+            # was cut short (recorder killed, disk full, copy interrupted).
+            reason += (' (the MCAP file has no end marker: the recording was cut short; '
+                       'its complete chunks can be salvaged with `mcap recover`)')
         return BagReadError(f'cannot read bag {self.location.rosbag}: {reason}')
 
     def _collect_topics(self, connections: Sequence[Connection]) -> dict[str, BagTopic]:

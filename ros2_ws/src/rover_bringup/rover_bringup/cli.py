@@ -108,6 +108,9 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
                    '(default: %(default)s)')
     p.add_argument('--strict', action='store_true',
                    help='fail when a node of the graph is not built, instead of skipping it')
+    p.add_argument('--max-restarts', type=int, default=3, metavar='N',
+                   help='restart a node that exits mid-run up to N times (0: a crash ends '
+                   'the run at once) (default: %(default)s)')
 
 
 def _add_record(sub: argparse._SubParsersAction) -> None:
@@ -196,6 +199,7 @@ def _dispatch(args: argparse.Namespace, ros: list[str]) -> int:
             settle_s=args.settle,
             stop_timeout_s=args.stop_timeout,
             strict=args.strict,
+            max_restarts=max(args.max_restarts, 0),
             argv=[PROG, *sys.argv[1:]],
         )
     )

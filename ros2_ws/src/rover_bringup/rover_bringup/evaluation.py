@@ -244,7 +244,7 @@ def _vo_summary(vo: np.ndarray | None, truth: np.ndarray) -> dict[str, Any] | No
     except Exception as exc:  # evo raises its own errors on degenerate input
         return {'error': f'evo could not align the odometry: {exc}'}
     stats = ape.get_all_statistics()
-    return {'poses': int(len(vo)), 'ape_aligned_rmse_m': float(stats['rmse']),
+    return {'poses': len(vo), 'ape_aligned_rmse_m': float(stats['rmse']),
             'ape_aligned_max_m': float(stats['max'])}
 
 
@@ -265,7 +265,7 @@ def evaluate(data: RunData) -> Evaluation:
         'bag_dir': str(data.bag_dir),
         'route_length_m': float(route_d[-1]),
         'route_duration_s': float(truth[-1, 0] - truth[0, 0]),
-        'global_poses': int(len(data.estimate)),
+        'global_poses': len(data.estimate),
         'matcher_events': counts,
         'paper_final_error_m': PAPER_FINAL_ERROR_M,
         'targets': TARGETS,
@@ -343,7 +343,7 @@ def evaluate(data: RunData) -> Evaluation:
         false_fix_rule=('fix events followed by a pose > 10 m off' if fixes
                         else 'episodes of poses > 10 m off (no matcher events recorded)'),
         poses_over_10m=int(over.sum()),
-        associated_poses=int(len(t)),
+        associated_poses=len(t),
         consistency_3sigma=consistency,
         ape_unaligned_rmse_m=float(ape.get_statistic(metrics.StatisticsType.rmse)),
     )

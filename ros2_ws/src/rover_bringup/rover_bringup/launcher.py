@@ -72,7 +72,9 @@ def _copy_lines(source: IO[bytes], log: IO[bytes], console: IO[str]) -> None:
     source.close()
 
 
-def start(name: str, argv: Sequence[str], log_dir: Path, echo: bool = False) -> ManagedProcess:
+def start(
+    name: str, argv: Sequence[str], log_dir: Path, echo: bool = False, append: bool = False
+) -> ManagedProcess:
     """Start a child process with stdout+stderr going to ``<log_dir>/<name>.log``.
 
     Args:
@@ -80,12 +82,13 @@ def start(name: str, argv: Sequence[str], log_dir: Path, echo: bool = False) -> 
         argv: Command line.
         log_dir: Directory of the log files (must exist).
         echo: Also copy its output to our stderr (the player's progress lines).
+        append: Append to the log instead of replacing it (a restarted node).
 
     Returns:
         The started process.
     """
     log_path = log_dir / f'{name}.log'
-    log = log_path.open('wb')
+    log = log_path.open('ab' if append else 'wb')
     popen = subprocess.Popen(
         list(argv),
         stdin=subprocess.DEVNULL,

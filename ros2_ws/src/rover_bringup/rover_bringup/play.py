@@ -149,6 +149,11 @@ def _play(
         f'done: {progress.line(bag.end_ns)} in {time.monotonic() - t0:.2f} s '
         f'(rate {options.rate:g})'
     )
+    if player.corrupt:
+        logger.warning(
+            'corrupt messages skipped: '
+            + ', '.join(f'{t} {n}' for t, n in sorted(player.corrupt.items()))
+        )
     if unacked:
         logger.error(
             f'not acknowledged within {options.ack_timeout_s:g} s on: {", ".join(unacked)}'

@@ -10,6 +10,7 @@ from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.publisher import Publisher
+from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 
 from rover_bringup.bag import BagTopic
@@ -51,6 +52,9 @@ class BagPlayer(Node):
                 f'{topic.name}: {topic.msgtype}, {topic.count} msgs, QoS {qos.describe()} '
                 f'({"as recorded" if topic.qos_recorded else "design default: none recorded"})'
             )
+        self._classes = {t.name: classes[t.name] for t in topics}
+        #: Messages skipped because their CDR bytes do not decode, per topic.
+        self.corrupt: dict[str, int] = {}
         self._clock_pub = self.create_publisher(
             Clock, CLOCK_TOPIC, to_profile(playback_qos(design_qos(CLOCK_TOPIC)))
         )
@@ -134,9 +138,31 @@ class BagPlayer(Node):
                     self.publish_clock(min(clock.bag_time_at(now), stamp))
                     next_tick = now + clock_period_s
                 time.sleep(min(due - now, next_tick - now, _MAX_SLEEP_S))
+            if not self._decodes(topic, stamp, data):
+                continue
             self.publish_clock(stamp)
             self._topic_pubs[topic].publish(data)
             progress.sent += 1
+
+    def _decodes(self, topic: str, stamp: int, data: bytes) -> bool:
+        """Whether a message's CDR bytes decode as its type; a corrupt one is reported.
+
+        A corrupt message is not sent: a subscriber's middleware would fail to take it and
+        rclpy raises in the subscriber's executor, which kills the node. It is skipped
+        (the rest of the bag plays), warned about with its topic and bag time (the first
+        5 per topic, then every 100th) and counted in the final line.
+        """
+        try:
+            deserialize_message(data, self._classes[topic])
+            return True
+        except Exception:  # rclpy raises assorted errors on bad CDR
+            n = self.corrupt[topic] = self.corrupt.get(topic, 0) + 1
+            if n <= 5 or n % 100 == 0:
+                self.get_logger().warning(
+                    f'{topic}: corrupt message at bag time {stamp / NS_PER_S:.3f} s (its '
+                    f'bytes do not decode as {self._classes[topic].__name__}): skipped '
+                    f'({n} on this topic so far)')
+            return False
 
     def wait_for_acks(self, timeout_s: float) -> list[str]:
         """Wait until every subscriber acknowledged everything sent on reliable topics.

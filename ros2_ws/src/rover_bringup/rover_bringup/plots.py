@@ -118,7 +118,7 @@ def plot_route(ev: Evaluation, data: RunData, path: Path) -> None:
 
         try:
             ln = read_geojson(ln_path).records
-            t, tx, ty, yaw = data.alignment[-1]
+            _, tx, ty, yaw = data.alignment[-1]
             xy = Rigid2D(yaw, tx, ty).apply(np.c_[ln['x'], ln['y']])
             ax.scatter(xy[:, 0], xy[:, 1], s=16, facecolors='none', edgecolors='cyan',
                        label='LN as aligned (last alignment)')
@@ -166,6 +166,7 @@ def plot_error(ev: Evaluation, path: Path) -> None:
     ax.set_xlabel('distance driven, m')
     ax.set_ylabel('error, m')
     ax.grid(True, alpha=0.3)
-    ax.legend(loc='upper right', fontsize=8)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc='upper right', fontsize=8)
     _save(fig, path)
     plt.close(fig)

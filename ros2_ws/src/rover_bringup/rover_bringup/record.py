@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -61,6 +62,10 @@ def record(options: RecordOptions) -> int:
     except KeyboardInterrupt:
         pass
     finally:
+        # A second signal (Ctrl-C reaches the recorder, then globloc run's SIGTERM) must
+        # not cut the bag's summary and metadata short: closing is quick, let it finish.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
         out.close()
         # A plain print: after SIGTERM the context is gone and the ROS logger would complain
         # that it cannot publish to /rosout.

@@ -38,6 +38,8 @@ from rover_bringup.graph import (
 from rover_bringup.launcher import ManagedProcess, start, stop, tail
 from rover_bringup.msgtypes import message_classes
 from rover_bringup.recording import count_messages
+from rover_bringup.respawn import Respawner
+from rover_bringup.run_outputs import export_outputs
 from rover_bringup.topics import OUTPUT_TOPICS
 
 PACKAGE = 'rover_bringup'
@@ -47,6 +49,8 @@ OUTPUTS = 'outputs'
 #: Lines of a crashed node's log shown in the error.
 TAIL_LINES = 20
 _POLL_S = 0.1
+#: After an interrupt, how long children get to exit on their own SIGINT, seconds.
+_INTERRUPT_GRACE_S = 3.0
 
 
 @dataclass
@@ -67,6 +71,7 @@ class RunOptions:
             between two processes and pairs them only at its next periodic one, 3 s later).
         stop_timeout_s: Grace period between SIGTERM and SIGKILL.
         strict: Fail on nodes that are not built instead of skipping them.
+        max_restarts: Times a node that exits mid-run is restarted (0: never).
         argv: The command line, for run.yaml.
     """
 
@@ -81,6 +86,7 @@ class RunOptions:
     settle_s: float = 3.5
     stop_timeout_s: float = 10.0
     strict: bool = False
+    max_restarts: int = 3
     argv: list[str] = field(default_factory=list)
 
 
@@ -188,6 +194,7 @@ def _write_params(plan: _Plan, run_dir: Path, variables: dict[str, str]) -> list
 def _supervise(
     options: RunOptions, plan: _Plan, run_dir: Path, params_files: list[Path],
     variables: dict[str, str], processes: dict[str, ManagedProcess], errors: list[str],
+    respawn: Respawner,
 ) -> None:
     """Start recorder, nodes and player (filling ``processes``); return when the run is over.
 
@@ -221,13 +228,13 @@ def _supervise(
         echo=True,
     )
     reported: set[str] = set()
-    crash = _watch(watched, reported, until=lambda: player.returncode is not None)
+    crash = _watch(watched, reported, lambda: player.returncode is not None, respawn)
     if crash is None:
         if player.returncode != 0:
             errors.append(f'player exited with status {player.returncode} '
                           f'(log: {player.log_path})')
         end = time.monotonic() + options.drain_s
-        crash = _watch(watched, reported, until=lambda: time.monotonic() >= end)
+        crash = _watch(watched, reported, lambda: time.monotonic() >= end, respawn)
     if crash is not None:
         _warn(f'{crash.name} crashed: stopping the run')
 
@@ -259,11 +266,20 @@ def run(options: RunOptions) -> int:
     processes: dict[str, ManagedProcess] = {}
     errors: list[str] = []
     status = 0
+    respawn = Respawner(options.max_restarts, run_dir / 'logs', processes,
+                        {r.spec.name for r in plan.ready})
     try:
-        _supervise(options, plan, run_dir, params_files, variables, processes, errors)
+        _supervise(options, plan, run_dir, params_files, variables, processes, errors,
+                   respawn)
     except KeyboardInterrupt:
         errors.append('interrupted')
         status = 130
+        _info('interrupted: stopping the graph; the outputs recorded so far are kept')
+        # Ctrl-C in a terminal reaches every child too: let them finish on it (the recorder
+        # closes its bag) before SIGTERM; their exits are not crashes.
+        _wait_for_exit(list(processes.values()), _INTERRUPT_GRACE_S)
+        for proc in processes.values():
+            proc.stop_requested = True
     finally:
         nodes = [processes[r.spec.name] for r in plan.ready if r.spec.name in processes]
         # Nodes first, so that the recorder still gets what they publish while stopping.
@@ -293,7 +309,8 @@ def run(options: RunOptions) -> int:
         'params_files_used': [str(p) for p in params_files],
         'started': started,
         'finished': datetime.now().isoformat(timespec='seconds'),
-        'nodes': [_node_entry(r, processes.get(r.spec.name), run_dir) for r in plan.nodes],
+        'nodes': [_node_entry(r, processes.get(r.spec.name), run_dir)
+                  | _restarts(respawn, r.spec.name) for r in plan.nodes],
         'tools': {name: _proc_entry(processes[name], run_dir)
                   for name in (PLAYER, RECORDER) if name in processes},
         'outputs': {
@@ -304,6 +321,7 @@ def run(options: RunOptions) -> int:
         'status': 'failed' if errors else 'ok',
         'errors': errors,
     }
+    report['outputs']['files'] = _export(run_dir, counts)
     (run_dir / 'run.yaml').write_text(yaml.safe_dump(report, sort_keys=False))
     recorded = ', '.join(f'{t} {n}' for t, n in counts.items() if n) or 'nothing'
     _info(f'recorded {recorded} -> {run_dir / OUTPUTS}')
@@ -312,21 +330,55 @@ def run(options: RunOptions) -> int:
     return (status or 1) if errors else 0
 
 
+def _wait_for_exit(processes: list[ManagedProcess], timeout_s: float) -> None:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end and any(p.returncode is None for p in processes):
+        try:
+            time.sleep(_POLL_S)
+        except KeyboardInterrupt:  # a second Ctrl-C: stop waiting
+            return
+
+
+def _export(run_dir: Path, counts: dict[str, int]) -> dict[str, int]:
+    """global_pose.tum, vo.tum, ... from the outputs bag (run_outputs); {} if unreadable."""
+    if not counts:
+        return {}
+    try:
+        return export_outputs(run_dir)
+    except (GloblocError, OSError) as exc:
+        _warn(f'outputs not exported to TUM files: {exc}')
+        return {}
+
+
+def _restarts(respawn: Respawner, name: str) -> dict[str, Any]:
+    codes = respawn.exits.get(name)
+    return {'restarts': len(codes), 'restarted_after_exit_codes': codes} if codes else {}
+
+
 def _watch(
-    processes: list[ManagedProcess], reported: set[str], until: Callable[[], bool]
+    processes: list[ManagedProcess], reported: set[str], until: Callable[[], bool],
+    respawn: Callable[[ManagedProcess], ManagedProcess | None] | None = None,
 ) -> ManagedProcess | None:
     """Poll until ``until()`` or a crash.
 
     Args:
-        processes: Processes that should keep running (nodes, recorder).
+        processes: Processes that should keep running (nodes, recorder); a restarted one
+            is replaced in the list.
         reported: Names already reported as exited (updated).
         until: Condition that ends the watch.
+        respawn: Called with a process that exited on its own; returns its restarted
+            replacement, or None (then a crash ends the watch, a clean exit is reported).
 
     Returns:
-        The first process found crashed (exited non-zero on its own), else None.
+        The first process found crashed (exited non-zero on its own) and not restarted,
+        else None.
     """
     while not until():
-        for proc in processes:
+        for i, proc in enumerate(processes):
+            if (proc.returncode is not None and not proc.stop_requested
+                    and respawn is not None and (new := respawn(proc)) is not None):
+                processes[i] = new
+                continue
             if proc.crashed:
                 return proc
             if proc.name not in reported and proc.returncode is not None:

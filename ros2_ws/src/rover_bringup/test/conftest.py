@@ -137,6 +137,20 @@ def _describe(proc: psutil.Process) -> str:
         return f'{proc.pid}: ({type(exc).__name__})'
 
 
+@pytest.fixture
+def sigkill_shm_cleanup() -> Iterator[None]:
+    """For a test that SIGKILLs a ROS process on purpose: remove, at the end, the Fast DDS
+    shared-memory files that appeared during the test and that no live process uses, as
+    ``fastdds shm clean`` would (a SIGKILLed process cannot remove its own). Runs before
+    ``no_leftovers`` checks (autouse fixtures are torn down last)."""
+    before = _fastrtps_files()
+    yield
+    time.sleep(0.5)
+    for name in _fastrtps_files() - before - _mapped_shm_files():
+        with contextlib.suppress(OSError):
+            (SHM / name).unlink()
+
+
 @pytest.fixture(autouse=True)
 def no_leftovers() -> Iterator[None]:
     """Fail a test that leaves child processes or Fast DDS shared-memory files behind.

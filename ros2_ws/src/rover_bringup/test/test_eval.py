@@ -151,9 +151,9 @@ def test_nothing_localized_is_reported_not_a_crash(tmp_path: Path, capsys):
 def test_bad_inputs_are_one_line_errors(tmp_path: Path):
     with pytest.raises(GloblocError, match='run directory not found'):
         load_run(tmp_path / 'nope')
-    bag, t, xy = _bag(tmp_path)
+    bag, _, _ = _bag(tmp_path)
     run = _run_dir(tmp_path, bag)
-    with pytest.raises(GloblocError, match='neither global_pose.tum nor outputs/'):
+    with pytest.raises(GloblocError, match=r'neither global_pose\.tum nor outputs/'):
         load_run(run)
     (run / 'global_pose.tum').write_text('1 2 3\n')
     with pytest.raises(GloblocError, match=r'global_pose.tum, line 1: expected 8'):
@@ -172,7 +172,7 @@ def _write_outputs_bag(run: Path, t: np.ndarray, xy: np.ndarray, corrupt_one: bo
     ts = get_typestore(Stores.ROS2_JAZZY)
     m = ts.types
     header = lambda ti: m['std_msgs/msg/Header'](  # noqa: E731
-        stamp=m['builtin_interfaces/msg/Time'](sec=int(ti), nanosec=int(round(ti % 1 * 1e9))),
+        stamp=m['builtin_interfaces/msg/Time'](sec=int(ti), nanosec=round(ti % 1 * 1e9)),
         frame_id='map')
     point = m['geometry_msgs/msg/Point']
     quat = m['geometry_msgs/msg/Quaternion'](x=0.0, y=0.0, z=0.0, w=1.0)
@@ -230,13 +230,14 @@ def test_run_outputs_bag_is_exported_and_evaluated(tmp_path: Path):
 def test_cli_eval_json_and_errors(tmp_path: Path, globloc):
     bag, t, xy = _bag(tmp_path)
     run = _run_dir(tmp_path, bag)
-    _write_estimate(run, t[::10], xy[::10] + [1.0, 0.0], np.full(len(t[::10]), 0.5))
+    _write_estimate(run, t[::10], xy[::10] + np.array([1.0, 0.0]), np.full(len(t[::10]), 0.5))
     result = globloc(['eval', str(run), '--json', '--no-plots'])
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout)['final_error_m'] == pytest.approx(1.0, abs=1e-6)
     result = globloc(['eval', str(tmp_path / 'missing')])
     assert result.returncode == 1 and 'Traceback' not in result.stderr
-    assert result.stderr.strip() == f'globloc: error: run directory not found: {tmp_path / "missing"}'
+    missing = tmp_path / 'missing'
+    assert result.stderr.strip() == f'globloc: error: run directory not found: {missing}'
 
 
 def test_subprocess_free_of_display(tmp_path: Path):

@@ -115,7 +115,8 @@ def test_run_reports_crashed_node(
 ):
     bag_dir, _ = _setup(tmp_path, bagfactory, 'crash', 'crasher')
     # Fast DDS announcing every 0.5 s lets a 1 s settle suffice (keeps this test short).
-    result = _run(globloc_cmd, tmp_path, bag_dir, fast_discovery_env, '--settle', '1')
+    result = _run(globloc_cmd, tmp_path, bag_dir, fast_discovery_env, '--settle', '1',
+                  '--max-restarts', '0')
     assert result.returncode == 1
     assert 'Traceback' not in result.stderr
     assert 'globloc: error: node crasher crashed (exit status 3); last lines of' in result.stderr

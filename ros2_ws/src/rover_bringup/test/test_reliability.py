@@ -1,0 +1,267 @@
+"""Reliability of ``globloc run``: a node killed mid-run is restarted and the real matcher
+re-fixes; Ctrl-C leaves a readable outputs bag; a bag cut short or with corrupt data gets a
+clear message and keeps what was recorded."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import psutil
+import pytest
+import yaml
+
+pytestmark = pytest.mark.ros
+
+HERE = Path(__file__).resolve().parent
+LN_SOURCE = HERE / 'ln_source_node.py'
+FAKE = HERE / 'fake_pipeline_node.py'
+SPEED = 20.0  # m/s of the LN source's rover (a short bag covers a long route)
+
+
+def _wait_for(cond, timeout_s: float, what: str) -> None:
+    end = time.monotonic() + timeout_s
+    while not cond():
+        if time.monotonic() > end:
+            raise AssertionError(f'timed out waiting for {what}')
+        time.sleep(0.1)
+
+
+def _read(path: Path) -> str:
+    try:
+        return path.read_text(errors='replace')
+    except OSError:
+        return ''
+
+
+def _matcher_graph(tmp_path: Path, bagfactory: ModuleType, duration_s: float) -> Path:
+    """A bag dir (IMU bag, GN, truth trajectory), a graph of the LN source and the real
+    darces_matcher node, and its params file."""
+    from darces_matcher.gn_generator import generate_gn
+    from roi_network.geojson import write_geojson
+    from roi_network.records import xy
+
+    bag_dir = tmp_path / 'bags' / 'route'
+    spec = bagfactory.write_bag(bag_dir / 'rosbag', bagfactory.BagSpec(duration_s=duration_s))
+    gn = generate_gn(seed=11)
+    write_geojson(gn, bag_dir / 'gn.geojson')
+    pts = xy(gn.records)
+    start = pts[np.argmin(pts[:, 0])] + [0.0, -5.0]  # as ln_source_node.route_start
+    (bag_dir / 'truth').mkdir()
+    rows = []
+    for m in spec.expected[bagfactory.IMU_TOPIC]:
+        s = SPEED * (m['stamp'] - bagfactory.T0_NS) * 1e-9
+        rows.append(f"{m['stamp'] * 1e-9:.9f} {start[0] + s:.6f} {start[1]:.6f} 0 0 0 0 1\n")
+    (bag_dir / 'truth' / 'trajectory.tum').write_text(''.join(rows))
+    (tmp_path / 'graph.yaml').write_text(
+        'nodes:\n'
+        f'  - {{name: ln_source, command: [$PYTHON, {LN_SOURCE}]}}\n'
+        '  - {name: darces_matcher, package: darces_matcher, executable: darces_matcher,\n'
+        '     requires: [$BAG_DIR/gn.geojson]}\n')
+    (tmp_path / 'params.yaml').write_text(yaml.safe_dump({
+        'ln_source': {'ros__parameters': {
+            'gn_path': '$BAG_DIR/gn.geojson', 't0_ns': bagfactory.T0_NS, 'speed_mps': SPEED}},
+        'darces_matcher': {'ros__parameters': {'gn_path': '$BAG_DIR/gn.geojson'}},
+    }))
+    return bag_dir
+
+
+def _start_run(globloc_cmd, tmp_path: Path, bag_dir: Path, env, *extra: str):
+    return subprocess.Popen(
+        [*globloc_cmd, 'run', str(bag_dir), '--graph', str(tmp_path / 'graph.yaml'),
+         '--params', str(tmp_path / 'params.yaml'), '--out', str(tmp_path / 'out'),
+         '--run-id', 'r1', '--settle', '1', *extra],
+        env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        start_new_session=True)  # its own process group, as a shell job: Ctrl-C reaches all
+
+
+def _node_process(root: psutil.Process, name: str) -> psutil.Process:
+    for child in root.children(recursive=True):
+        try:
+            if f'__node:={name}' in child.cmdline():
+                return child
+        except psutil.Error:
+            continue
+    raise AssertionError(f'no process of node {name}')
+
+
+def test_killed_matcher_is_restarted_and_refixes(
+    tmp_path: Path, bagfactory: ModuleType, fast_discovery_env: dict[str, str],
+    globloc_cmd: list[str], globloc, sigkill_shm_cleanup: None,
+):
+    bag_dir = _matcher_graph(tmp_path, bagfactory, duration_s=12.0)
+    proc = _start_run(globloc_cmd, tmp_path, bag_dir, fast_discovery_env, '--rate', '1',
+                      '--drain', '3')
+    log = tmp_path / 'out' / 'route' / 'r1' / 'logs' / 'darces_matcher.log'
+    try:
+        _wait_for(lambda: 'first_fix' in _read(log) or proc.poll() is not None, 60,
+                  'the first fix')
+        assert proc.poll() is None, proc.communicate()
+        _wait_for(lambda: 'bag time' in _read(log.parent / 'globloc_player.log'), 30,
+                  'playback')
+        victim = _node_process(psutil.Process(proc.pid), 'darces_matcher')
+        victim.send_signal(signal.SIGKILL)  # dies without cleaning up, as a crash does
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGTERM)
+            proc.wait(timeout=30)
+    assert proc.returncode == 0, err
+    assert 'globloc: warning: darces_matcher exited (status -9) while running: restarting it ' \
+           '(1 of at most 3' in err
+    run_dir = tmp_path / 'out' / 'route' / 'r1'
+    report = yaml.safe_load((run_dir / 'run.yaml').read_text())
+    matcher = next(n for n in report['nodes'] if n['name'] == 'darces_matcher')
+    assert matcher['restarts'] == 1 and matcher['restarted_after_exit_codes'] == [-9]
+    assert matcher['status'] == 'ran' and report['status'] == 'ok'
+    text = _read(log)
+    assert text.count('first_fix') == 2, text  # the new matcher re-fixed from the latched LN
+    assert '[globloc] darces_matcher exited (status -9)' in text
+    assert report['outputs']['messages']['/global_alignment'] >= 2
+
+    # The run, judged: poses from both incarnations, right, and no false fix.
+    result = globloc(['eval', str(run_dir), '--json', '--no-plots'])
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout)
+    assert summary['localized'] and summary['false_fixes'] == 0
+    assert summary['max_error_m'] < 1.0
+    assert summary['consistency_3sigma'] >= 0.99
+
+
+def test_node_out_of_restarts_ends_the_run(
+    tmp_path: Path, bagfactory: ModuleType, fast_discovery_env: dict[str, str],
+    globloc_cmd: list[str],
+):
+    bag_dir = tmp_path / 'bags' / 'tiny'
+    bagfactory.write_bag(bag_dir / 'rosbag', bagfactory.BagSpec(duration_s=20.0))
+    (tmp_path / 'graph.yaml').write_text(
+        f'nodes:\n  - {{name: crasher, command: [$PYTHON, {FAKE}]}}\n')
+    (tmp_path / 'params.yaml').write_text('crasher:\n  ros__parameters:\n    mode: crash\n')
+    proc = _start_run(globloc_cmd, tmp_path, bag_dir, fast_discovery_env, '--rate', '1',
+                      '--max-restarts', '2')
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 1
+    assert err.count('crasher exited (status 3) while running: restarting it') == 2
+    assert 'globloc: error: node crasher crashed (exit status 3)' in err
+    report = yaml.safe_load((tmp_path / 'out' / 'tiny' / 'r1' / 'run.yaml').read_text())
+    assert report['nodes'][0]['restarts'] == 2 and report['nodes'][0]['crashed']
+
+
+def _check_outputs_readable(run_dir: Path) -> dict[str, int]:
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    from rosbags.rosbag2 import Reader
+
+    with Reader(run_dir / 'outputs') as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        assert sum(1 for _ in reader.messages()) == sum(counts.values())
+    with (run_dir / 'outputs' / 'outputs.mcap').open('rb') as fh:
+        n = sum(1 for _ in make_reader(fh, decoder_factories=[DecoderFactory()])
+                .iter_decoded_messages())
+    assert n == sum(counts.values())
+    return counts
+
+
+def test_ctrl_c_leaves_a_readable_outputs_bag(
+    tmp_path: Path, bagfactory: ModuleType, fast_discovery_env: dict[str, str],
+    globloc_cmd: list[str],
+):
+    bag_dir = tmp_path / 'bags' / 'tiny'
+    bagfactory.write_bag(bag_dir / 'rosbag', bagfactory.BagSpec(duration_s=30.0))
+    (tmp_path / 'graph.yaml').write_text(
+        f'nodes:\n  - {{name: fake_vo, command: [$PYTHON, {FAKE}]}}\n')
+    (tmp_path / 'params.yaml').write_text('fake_vo:\n  ros__parameters:\n    mode: echo\n')
+    proc = _start_run(globloc_cmd, tmp_path, bag_dir, fast_discovery_env, '--rate', '1')
+    player_log = tmp_path / 'out' / 'tiny' / 'r1' / 'logs' / 'globloc_player.log'
+    try:
+        _wait_for(lambda: 'bag time 2.' in _read(player_log) or proc.poll() is not None, 60,
+                  'two seconds of playback')
+        os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in the terminal does
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130, err
+    assert 'Traceback' not in err
+    run_dir = tmp_path / 'out' / 'tiny' / 'r1'
+    counts = _check_outputs_readable(run_dir)
+    assert 100 <= counts['/vo/odometry'] < 3000  # part of the bag, all of it kept
+    report = yaml.safe_load((run_dir / 'run.yaml').read_text())
+    assert report['errors'] == ['interrupted']
+    assert all(n['status'] == 'ran' for n in report['nodes'])
+    # The TUM export of what was recorded.
+    rows = [ln for ln in (run_dir / 'vo.tum').read_text().splitlines() if ln[0] != '#']
+    assert len(rows) == counts['/vo/odometry']
+
+
+def _corrupt_copy(src: Path, dst: Path, topic: str, every: int) -> int:
+    """Copy a bag, truncating the CDR bytes of every ``every``-th message of ``topic``;
+    returns how many were corrupted."""
+    from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    n, corrupted = 0, 0
+    with Reader(src) as reader, Writer(dst, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        out = {c.id: w.add_connection(c.topic, c.msgtype, typestore=ts,
+                                      offered_qos_profiles=c.ext.offered_qos_profiles)
+               for c in reader.connections}
+        for conn, stamp, raw in reader.messages():
+            if conn.topic == topic:
+                n += 1
+                if n % every == 0:
+                    raw, corrupted = bytes(raw[:9]), corrupted + 1
+            w.write(out[conn.id], stamp, raw)
+    return corrupted
+
+
+def test_bag_with_corrupt_messages_plays_the_rest(
+    tmp_path: Path, bagfactory: ModuleType, fast_discovery_env: dict[str, str],
+    globloc_cmd: list[str],
+):
+    spec = bagfactory.write_bag(tmp_path / 'clean', bagfactory.BagSpec(duration_s=3.0))
+    bag_dir = tmp_path / 'bags' / 'tiny'
+    bag_dir.mkdir(parents=True)
+    corrupted = _corrupt_copy(tmp_path / 'clean', bag_dir / 'rosbag', bagfactory.IMU_TOPIC, 20)
+    n_imu = len(spec.expected[bagfactory.IMU_TOPIC])
+    assert corrupted == n_imu // 20
+    (tmp_path / 'graph.yaml').write_text(
+        f'nodes:\n  - {{name: fake_vo, command: [$PYTHON, {FAKE}]}}\n')
+    (tmp_path / 'params.yaml').write_text('fake_vo:\n  ros__parameters:\n    mode: echo\n')
+    proc = _start_run(globloc_cmd, tmp_path, bag_dir, fast_discovery_env, '--rate', '5')
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert 'Traceback' not in err
+    assert '/imu/data: corrupt message at bag time' in err
+    assert f'corrupt messages skipped: /imu/data {corrupted}' in err
+    run_dir = tmp_path / 'out' / 'tiny' / 'r1'
+    counts = _check_outputs_readable(run_dir)
+    # Every good IMU message became one odometry message; the node never died.
+    assert counts['/vo/odometry'] == n_imu - corrupted
+    report = yaml.safe_load((run_dir / 'run.yaml').read_text())
+    assert report['status'] == 'ok' and 'restarts' not in report['nodes'][0]
+
+
+def test_bag_cut_short_is_a_clear_error_before_anything_starts(
+    tmp_path: Path, bagfactory: ModuleType, globloc,
+):
+    bag_dir = tmp_path / 'bags' / 'tiny'
+    bagfactory.write_bag(bag_dir / 'rosbag', bagfactory.BagSpec(duration_s=2.0))
+    mcap = bag_dir / 'rosbag' / 'rosbag.mcap'
+    mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size * 2 // 3])  # no end marker
+    (tmp_path / 'graph.yaml').write_text(
+        f'nodes:\n  - {{name: fake_vo, command: [$PYTHON, {FAKE}]}}\n')
+    result = globloc(['run', str(bag_dir), '--graph', str(tmp_path / 'graph.yaml'),
+                      '--out', str(tmp_path / 'out')])
+    assert result.returncode == 1
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f'globloc: error: cannot read bag {mcap.parent}')
+    assert 'cut short' in lines[0] or 'magic' in lines[0]
+    assert not (tmp_path / 'out').exists()  # nothing started, nothing half-written
