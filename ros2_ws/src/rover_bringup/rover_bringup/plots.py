@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from rover_bringup.errors import GloblocError
 from rover_bringup.evaluation import FALSE_FIX_M, Evaluation, RunData
 from rover_bringup.run_outputs import LOCAL_NETWORK
 
@@ -113,16 +114,16 @@ def plot_route(ev: Evaluation, data: RunData, path: Path) -> None:
             pass
     ln_path = data.run_dir / LOCAL_NETWORK
     if ln_path.is_file() and len(data.alignment):
-        from roi_network.geojson import read_geojson
         from roi_network.transform import Rigid2D
+        from rover_bringup.run_outputs import read_records_csv
 
         try:
-            ln = read_geojson(ln_path).records
+            ln = read_records_csv(ln_path)
             _, tx, ty, yaw = data.alignment[-1]
             xy = Rigid2D(yaw, tx, ty).apply(np.c_[ln['x'], ln['y']])
             ax.scatter(xy[:, 0], xy[:, 1], s=16, facecolors='none', edgecolors='cyan',
                        label='LN as aligned (last alignment)')
-        except (OSError, ValueError):
+        except (GloblocError, ValueError):
             pass
     ax.plot(route[:, 0], route[:, 1], 'w-', lw=2.5, alpha=0.6)
     ax.plot(route[:, 0], route[:, 1], 'k-', lw=1.2, label='truth')

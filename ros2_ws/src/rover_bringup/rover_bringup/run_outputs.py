@@ -9,7 +9,7 @@
 ``vo.tum``                 /vo/odometry, TUM (base_link in ``odom``)
 ``alignment.tsv``          /global_alignment: t tx ty yaw (map -> odom; m, rad)
 ``matcher_events.tsv``     /matcher/status: t event reason ln_size inliers
-``local_network.geojson``  the last /local_network (``odom`` frame), when there is one
+``local_network.csv``      the last /local_network (``odom`` frame): one ROI record a row
 =========================  ================================================================
 
 Times are the messages' header stamps (bag time, seconds). Every file is written
@@ -18,7 +18,6 @@ atomically (a temporary file renamed), so a reader never sees half a file.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import tempfile
@@ -33,7 +32,7 @@ GLOBAL_POSE_COV = 'global_pose_cov.tsv'
 VO_TUM = 'vo.tum'
 ALIGNMENT = 'alignment.tsv'
 EVENTS = 'matcher_events.tsv'
-LOCAL_NETWORK = 'local_network.geojson'
+LOCAL_NETWORK = 'local_network.csv'
 _TOPICS = ('/global_pose', '/vo/odometry', '/global_alignment', '/matcher/status',
            '/local_network')
 
@@ -61,6 +60,40 @@ def _tum_line(t: float, p, q) -> str:
 
 def _lines(header: str, rows: Iterable[str]) -> str:
     return header + ''.join(rows)
+
+
+def records_csv(records) -> str:
+    """ROI records as CSV, a header of the ROI record's field names (roi_network)."""
+    names = records.dtype.names
+    rows = [','.join(repr(v.item()) for v in (r[n] for n in names)) for r in records]
+    return ','.join(names) + '\n' + ''.join(row + '\n' for row in rows)
+
+
+def read_records_csv(path: Path):
+    """ROI records from :func:`records_csv`'s file.
+
+    Raises:
+        GloblocError: Unreadable, or its columns are not the ROI record's fields.
+    """
+    import numpy as np
+
+    from roi_network.records import ROI_FIELDS, empty_records
+
+    try:
+        lines = [ln for ln in path.read_text().splitlines() if ln.strip()]
+    except OSError as exc:
+        raise GloblocError(f'cannot read {path}: {exc.strerror or exc}') from None
+    if not lines or tuple(lines[0].split(',')) != ROI_FIELDS:
+        raise GloblocError(f'{path}: header is not the ROI record fields {",".join(ROI_FIELDS)}')
+    records = empty_records(len(lines) - 1)
+    try:
+        values = np.array([[float(v) for v in ln.split(',')] for ln in lines[1:]]).reshape(
+            -1, len(ROI_FIELDS))
+    except ValueError as exc:
+        raise GloblocError(f'{path}: {exc}') from None
+    for j, name in enumerate(ROI_FIELDS):
+        records[name] = values[:, j]
+    return records
 
 
 def export_outputs(run_dir: Path) -> dict[str, int]:
@@ -137,13 +170,12 @@ def export_outputs(run_dir: Path) -> dict[str, int]:
                ALIGNMENT: len(alignment), EVENTS: len(events), 'undecodable': undecodable}
     if last_ln is not None:
         try:
-            from roi_network.geojson import to_geojson_dict
-            from roi_network.network import RoiNetwork
             from roi_network.pointcloud import from_pointcloud2
 
-            net = RoiNetwork(from_pointcloud2(last_ln), last_ln.header.frame_id or 'odom')
-            write_atomic(run_dir / LOCAL_NETWORK, json.dumps(to_geojson_dict(net)))
-            written[LOCAL_NETWORK] = len(net)
+            records = from_pointcloud2(last_ln)
         except Exception:  # a malformed LN: the other files stand
             written['undecodable'] += 1
+        else:
+            write_atomic(run_dir / LOCAL_NETWORK, records_csv(records))
+            written[LOCAL_NETWORK] = len(records)
     return written

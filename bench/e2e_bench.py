@@ -1,0 +1,346 @@
+"""End-to-end benchmark: the whole graph on bags, judged by ``globloc eval``, beside the
+paper's end-of-route alignment. Results go to bench/results/e2e_<tag>.{json,md}.
+
+For each bag:
+
+1. ``globloc run BAG --rate R`` (the graph of rover_bringup/config/graph.yaml, or
+   ``--graph``), while the CPU time of every process of the run is sampled (psutil), so
+   each stage's share of CPU is known;
+2. ``globloc eval RUN_DIR --json``: final error, RMSE after the first fix, distance before
+   the first fix, false fixes, 3-sigma consistency (docs/e2e.md);
+3. the paper's protocol on the same run: one DARCES fit of the whole final LN (the last
+   /local_network) on the GN, then the whole VO trajectory (vo.tum) mapped with that one
+   transform; its error at the end of the route and its RMSE over the route;
+4. latency: for every /global_pose, its receive time at the recorder minus its stamp (the
+   stereo pair's stamp, carried through VO), in bag seconds and divided by the rate in
+   wall seconds; and whether the graph kept up (a /global_pose for every /vo/odometry
+   after the first fix).
+
+A bag the graph could not localize gets n/a, never a number made up. Until orbital_gn,
+rover_vo, roi_detector and ln_builder are built, ``globloc run`` skips them and the
+results say which nodes ran.
+
+Usage (from the repository root, after ``source env.sh``)::
+
+    python bench/e2e_bench.py bags/atacama_1km_s1 bags/atacama_1km_s2 bags/atacama_1km_s3 \
+        bags/quick --rate 5 --tag 1km
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import threading
+import time
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import psutil
+import yaml
+
+from rover_bringup.evaluation import MAX_STAMP_DIFF_S, PAPER_FINAL_ERROR_M, read_tum
+from rover_bringup.run_outputs import LOCAL_NETWORK, VO_TUM, read_records_csv, write_atomic
+
+RESULTS = Path(__file__).resolve().parent / "results"
+#: Metrics of the continuous estimate aggregated over bags.
+METRICS = ("final_error_m", "rmse_after_first_fix_m", "distance_before_first_fix_m",
+           "false_fixes", "consistency_3sigma")
+
+
+def _globloc() -> list[str]:
+    return [sys.executable, "-m", "rover_bringup.cli"]
+
+
+class CpuSampler:
+    """CPU seconds per process name of a process tree, sampled every ``period_s``.
+
+    A process is named by its ROS node name (``__node:=NAME``) or, for the tools,
+    ``globloc_<subcommand>``; a restarted node's incarnations add up.
+    """
+
+    def __init__(self, root: psutil.Process, period_s: float = 0.5) -> None:
+        self.root, self.period_s = root, period_s
+        self.cpu_s: dict[int, tuple[str, float]] = {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    @staticmethod
+    def _name(cmdline: list[str]) -> str:
+        for arg in cmdline:
+            if arg.startswith("__node:="):
+                return arg.split("=", 1)[1]
+        if "rover_bringup.cli" in " ".join(cmdline):
+            for sub in ("play", "record", "run"):
+                if sub in cmdline:
+                    return f"globloc_{sub}"
+        return Path(cmdline[0]).name if cmdline else "?"
+
+    def _sample(self) -> None:
+        try:
+            procs = [self.root, *self.root.children(recursive=True)]
+        except psutil.Error:
+            return
+        for p in procs:
+            try:
+                with p.oneshot():
+                    t = p.cpu_times()
+                    name = self.cpu_s.get(p.pid, (None,))[0] or self._name(p.cmdline())
+                    self.cpu_s[p.pid] = (name, t.user + t.system)
+            except psutil.Error:
+                continue
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period_s):
+            self._sample()
+
+    def __enter__(self) -> CpuSampler:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+    def per_name(self) -> dict[str, float]:
+        """CPU seconds per process name (the last sample of each process)."""
+        out: dict[str, float] = {}
+        for name, seconds in self.cpu_s.values():
+            out[name] = out.get(name, 0.0) + seconds
+        return out
+
+
+def run_graph(bag: Path, out: Path, rate: float, run_id: str,
+              extra: list[str]) -> tuple[Path, int, float, dict[str, float], str]:
+    """``globloc run`` on one bag; returns (run dir, exit status, wall s, CPU s per process,
+    stderr tail)."""
+    t0 = time.monotonic()
+    proc = subprocess.Popen([*_globloc(), "run", str(bag), "--out", str(out), "--rate",
+                             str(rate), "--run-id", run_id, *extra],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    with CpuSampler(psutil.Process(proc.pid)) as sampler:
+        _, err = proc.communicate()
+    wall = time.monotonic() - t0
+    return out / bag.resolve().name / run_id, proc.returncode, wall, sampler.per_name(), err[-2000:]
+
+
+def evaluate_run(run_dir: Path) -> dict[str, Any]:
+    """``globloc eval RUN_DIR --json`` (also writes its report and plots)."""
+    result = subprocess.run([*_globloc(), "eval", str(run_dir), "--json"],
+                            capture_output=True, text=True, check=False)
+    if result.returncode != 0:
+        return {"error": result.stderr.strip()}
+    return json.loads(result.stdout)
+
+
+def _associate(t_est: np.ndarray, t_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (est, ref) of stamps within MAX_STAMP_DIFF_S of each other (nearest)."""
+    k = np.clip(np.searchsorted(t_ref, t_est), 1, len(t_ref) - 1)
+    k = np.where(np.abs(t_ref[k - 1] - t_est) < np.abs(t_ref[k] - t_est), k - 1, k)
+    ok = np.abs(t_ref[k] - t_est) <= MAX_STAMP_DIFF_S
+    return np.nonzero(ok)[0], k[ok]
+
+
+def end_of_route_alignment(run_dir: Path, bag_dir: Path) -> dict[str, Any]:
+    """The paper's protocol on a run: one DARCES fit of the final LN, the VO mapped with it.
+
+    Args:
+        run_dir: A run directory with ``local_network.csv`` (the last LN, odom) and
+            ``vo.tum``.
+        bag_dir: Its bag directory, with ``gn.geojson`` and ``truth/trajectory.tum``.
+
+    Returns:
+        ``status`` (``fix``, ``no_fix`` or ``n/a`` with ``why``), and on a fix the error
+        at the end of the route and the RMSE of the aligned VO over the whole route, m.
+    """
+    from darces_matcher.matcher import Matcher
+    from roi_network.geojson import read_geojson
+
+    ln_path, gn_path = run_dir / LOCAL_NETWORK, bag_dir / "gn.geojson"
+    truth_path = bag_dir / "truth" / "trajectory.tum"
+    for path, what in ((ln_path, "no LN recorded"), (gn_path, "no GN"),
+                       (run_dir / VO_TUM, "no odometry recorded"),
+                       (truth_path, "no ground truth")):
+        if not path.is_file():
+            return {"status": "n/a", "why": f"{what} ({path})"}
+    ln = read_records_csv(ln_path)
+    vo = read_tum(run_dir / VO_TUM)
+    if len(vo) == 0:
+        return {"status": "n/a", "why": "no odometry recorded"}
+    t0 = time.perf_counter()
+    result = Matcher(read_geojson(gn_path)).match(ln)
+    match_ms = 1e3 * (time.perf_counter() - t0)
+    base = {"ln_size": len(ln), "reason": result.reason, "support": int(result.support),
+            "match_ms": match_ms}
+    if not result.is_fix:
+        return {"status": "no_fix", **base}
+    truth = read_tum(truth_path)
+    aligned = result.map_T_odom.apply(vo[:, 1:3])
+    i, k = _associate(vo[:, 0], truth[:, 0])
+    if len(i) == 0:
+        return {"status": "n/a", "why": "no odometry stamp matches the truth", **base}
+    err = np.linalg.norm(aligned[i] - truth[k, 1:3], axis=1)
+    return {"status": "fix", **base, "final_error_m": float(err[-1]),
+            "rmse_m": float(np.sqrt(np.mean(err**2))), "max_error_m": float(err.max())}
+
+
+def latency(run_dir: Path, rate: float) -> dict[str, Any]:
+    """/global_pose receive time at the recorder minus its stamp, and keeping up."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_JAZZY)
+    lat, n_odom_after, first = [], 0, None
+    try:
+        with Reader(run_dir / "outputs") as reader:
+            conns = [c for c in reader.connections
+                     if c.topic in ("/global_pose", "/vo/odometry")]
+            for conn, log_ns, raw in reader.messages(connections=conns):
+                msg = ts.deserialize_cdr(raw, conn.msgtype)
+                stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+                if conn.topic == "/global_pose":
+                    first = stamp if first is None else first
+                    lat.append(log_ns * 1e-9 - stamp)
+                elif first is not None and stamp >= first:
+                    n_odom_after += 1
+    except Exception as exc:  # unreadable outputs: say so
+        return {"error": f"cannot read {run_dir / 'outputs'}: {exc}"}
+    if not lat:
+        return {"global_poses": 0}
+    a = np.array(lat)
+    return {
+        "global_poses": len(a),
+        "odometry_after_first_fix": n_odom_after,
+        "latency_bag_s": {"median": float(np.median(a)), "p95": float(np.percentile(a, 95)),
+                          "max": float(a.max())},
+        "latency_wall_s_p95": float(np.percentile(a, 95)) / rate if rate > 0 else None,
+        "note": "recorder receive time in bag time; at rate R, wall latency = bag / R",
+    }
+
+
+def _spread(values: list[float]) -> dict[str, float] | None:
+    v = [x for x in values if x is not None]
+    if not v:
+        return None
+    return {"n": len(v), "min": float(np.min(v)), "median": float(np.median(v)),
+            "max": float(np.max(v))}
+
+
+def bench_bag(bag: Path, args: argparse.Namespace, run_id: str) -> dict[str, Any]:
+    """Run, evaluate and compare on one bag."""
+    extra = [*(["--graph", str(args.graph)] if args.graph else []),
+             *(["--params", str(args.params)] if args.params else [])]
+    run_dir, status, wall, cpu, err = run_graph(bag, args.out, args.rate, run_id, extra)
+    entry: dict[str, Any] = {"bag": str(bag), "run_dir": str(run_dir), "run_status": status,
+                             "wall_s": wall}
+    if not run_dir.is_dir():
+        entry["error"] = err.strip().splitlines()[-1:] or ["globloc run failed"]
+        return entry
+    run = yaml.safe_load((run_dir / "run.yaml").read_text())
+    entry["nodes"] = {n["name"]: n["status"] for n in run["nodes"]}
+    entry["bag_duration_s"] = None
+    total = sum(cpu.values()) or 1.0
+    entry["cpu_s"] = {k: round(v, 2) for k, v in sorted(cpu.items())}
+    entry["cpu_share"] = {k: round(v / total, 3) for k, v in sorted(cpu.items())}
+    entry["continuous"] = evaluate_run(run_dir)
+    if "route_duration_s" in entry["continuous"]:
+        d = entry["continuous"]["route_duration_s"]
+        entry["bag_duration_s"] = d
+        entry["cpu_cores_used"] = total / wall if wall > 0 else None
+        entry["realtime_factor_of_cpu"] = total / d if d else None
+    entry["end_of_route"] = end_of_route_alignment(run_dir, Path(run["bag"]["dir"]))
+    entry["latency"] = latency(run_dir, args.rate)
+    return entry
+
+
+def _fmt(v: Any, digits: int = 2) -> str:
+    if v is None:
+        return "n/a"
+    if isinstance(v, float):
+        return f"{v:.{digits}f}"
+    return str(v)
+
+
+def markdown(report: dict[str, Any]) -> str:
+    """The results as a Markdown table per bag and the spread over bags."""
+    lines = [f"# End-to-end benchmark `{report['tag']}`", "",
+             f"{report['date']}; {report['machine']}; rate {report['rate']}; command: "
+             f"`{report['command']}`", "",
+             "| bag | localized | first fix after (m) | final error (m) | RMSE after fix (m) "
+             "| false fixes | 3-sigma | end-of-route (paper) final / RMSE (m) | nodes ran |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for e in report["bags"]:
+        c = e.get("continuous", {})
+        p = e.get("end_of_route", {})
+        paper = (f"{_fmt(p.get('final_error_m'))} / {_fmt(p.get('rmse_m'))}"
+                 if p.get("status") == "fix" else p.get("status", "n/a"))
+        cons = c.get("consistency_3sigma")
+        ran = ", ".join(k for k, v in e.get("nodes", {}).items() if v == "ran") or "none"
+        lines.append(
+            f"| {Path(e['bag']).name} | {_fmt(c.get('localized'))} "
+            f"| {_fmt(c.get('distance_before_first_fix_m'), 1)} "
+            f"| {_fmt(c.get('final_error_m'))} | {_fmt(c.get('rmse_after_first_fix_m'))} "
+            f"| {_fmt(c.get('false_fixes'))} "
+            f"| {_fmt(None if cons is None else 100 * cons, 1)} % | {paper} | {ran} |")
+    lines += ["", f"Paper (end-of-route alignment on its 1 km route): {PAPER_FINAL_ERROR_M} m.",
+              "", "Spread over bags (continuous estimate):", ""]
+    for k, v in report["spread"].items():
+        lines.append(f"- {k}: " + (", ".join(f"{a} {_fmt(b)}" for a, b in v.items())
+                                   if v else "n/a"))
+    lines += ["", "CPU share per process (of the run's CPU seconds):", ""]
+    for e in report["bags"]:
+        if e.get("cpu_share"):
+            lines.append(f"- {Path(e['bag']).name}: " + ", ".join(
+                f"{k} {100 * v:.0f} %" for k, v in e["cpu_share"].items()))
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line: see the module docstring."""
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("bags", nargs="+", type=Path, help="bag directories bags/<name>/")
+    ap.add_argument("--rate", type=float, default=5.0, help="playback rate (default 5)")
+    ap.add_argument("--out", type=Path, default=Path("out/bench"), help="run output root")
+    ap.add_argument("--tag", default="e2e", help="results name: bench/results/e2e_<tag>.*")
+    ap.add_argument("--graph", type=Path, help="graph file (default: the package's)")
+    ap.add_argument("--params", type=Path, help="params file (default: the package's)")
+    ap.add_argument("--results", type=Path, default=RESULTS, help="results directory")
+    args = ap.parse_args(argv)
+    for bag in args.bags:
+        if not bag.is_dir():
+            print(f"e2e_bench: error: bag directory not found: {bag}", file=sys.stderr)
+            return 1
+    run_id = "bench-" + datetime.now().strftime("%Y%m%d-%H%M%S")
+    entries = []
+    for bag in args.bags:
+        print(f"e2e_bench: {bag} ...", file=sys.stderr, flush=True)
+        entries.append(bench_bag(bag, args, run_id))
+    cont = [e.get("continuous", {}) for e in entries]
+    report = {
+        "tag": args.tag,
+        "date": datetime.now().isoformat(timespec="seconds"),
+        "machine": f"{platform.node()}, {os.cpu_count()} cores (shared with other jobs "
+                   f"unless stated), Python {platform.python_version()}",
+        "command": "python bench/e2e_bench.py " + " ".join(sys.argv[1:] if argv is None
+                                                            else argv),
+        "rate": args.rate,
+        "bags": entries,
+        "spread": {m: _spread([c.get(m) for c in cont]) for m in METRICS}
+        | {"end_of_route_final_error_m": _spread(
+            [e.get("end_of_route", {}).get("final_error_m") for e in entries])},
+        "paper_final_error_m": PAPER_FINAL_ERROR_M,
+    }
+    args.results.mkdir(parents=True, exist_ok=True)
+    write_atomic(args.results / f"e2e_{args.tag}.json", json.dumps(report, indent=2) + "\n")
+    write_atomic(args.results / f"e2e_{args.tag}.md", markdown(report))
+    print(markdown(report))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
