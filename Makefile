@@ -13,6 +13,10 @@ PKG_META := $(wildcard $(WS)/src/*/package.xml $(WS)/src/*/setup.py $(WS)/src/*/
 BAG ?= bags/quick
 # Playback rate of the demo (the quick bag spans ~30 min of rover time).
 RATE ?= 5
+# Run directory of the demo: out/<bag>/$(RUN_ID)/ (evaluated right after the run).
+ifndef RUN_ID
+RUN_ID := $(shell date +%Y%m%d-%H%M%S)
+endif
 RUN_ENV := source ./env.sh &&
 
 .PHONY: setup sysdeps test demo lint clean
@@ -46,7 +50,8 @@ demo: setup
 	  $(RUN_ENV) command -v atacama_sim >/dev/null || { \
 	    echo "demo: cannot generate $(BAG): the atacama_sim generator is not built yet (issue 3)"; exit 2; }; \
 	  $(RUN_ENV) atacama_sim generate --preset quick --seed 1 --out $(BAG); fi
-	$(RUN_ENV) globloc run $(BAG) --out out --rate $(RATE)
+	$(RUN_ENV) globloc run $(BAG) --out out --rate $(RATE) --run-id $(RUN_ID)
+	$(RUN_ENV) globloc eval out/$(notdir $(patsubst %/,%,$(BAG)))/$(RUN_ID)
 
 clean:
 	rm -rf $(WS)/build $(WS)/install $(WS)/log $(WS)/build.log
