@@ -112,10 +112,8 @@ class FilterConfig:
 
     def __post_init__(self) -> None:
         for name in ("drift_xy_m2_per_m", "drift_yaw_rad2_per_m", "min_match_sigma_m",
-                     "min_match_sigma_yaw_rad"):
-            if not getattr(self, name) >= 0.0:
-                raise ValueError(f"FilterConfig.{name} must be >= 0, got {getattr(self, name)}")
-        for name in ("local_route_m", "local_radius_m", "local_sigma_floor_m"):
+                     "min_match_sigma_yaw_rad", "local_route_m", "local_radius_m",
+                     "local_sigma_floor_m"):
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f"FilterConfig.{name} must be >= 0, got {getattr(self, name)}")
         if self.local_min_pairs < 3:

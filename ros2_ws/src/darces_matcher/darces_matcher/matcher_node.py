@@ -38,6 +38,8 @@ from roi_network.spin import spin_until_shutdown
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
 RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+#: Deep enough for ~100 s of 10 Hz odometry arriving while the GN index is built.
+ODOMETRY = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
 
 def _config_field_default(f: dataclasses.Field) -> bool | int | float:
@@ -83,12 +85,6 @@ class MatcherNode(Node):
         if not gn_path:
             raise ValueError("parameter 'gn_path' is not set (the GN GeoJSON file)")
         gn = read_geojson(gn_path)
-        t0 = time.perf_counter()
-        self.matcher = Matcher(gn, MatchConfig(**overrides))
-        self.get_logger().info(
-            f"GN {gn_path}: {len(gn)} ROIs, index built in "
-            f"{1e3 * (time.perf_counter() - t0):.0f} ms"
-        )
         self.filter = MapOdomFilter(FilterConfig(**filter_overrides))
         self.gn_xy = xy(gn.records)
         self.last_matched_size = 0
@@ -101,8 +97,17 @@ class MatcherNode(Node):
         self.pose_pub = self.create_publisher(PoseWithCovarianceStamped, "/global_pose",
                                               RELIABLE)
         self.status_pub = self.create_publisher(DiagnosticArray, "/matcher/status", 10)
+        # Subscribed before the index is built (which takes seconds on a large GN): the
+        # player starts once every node subscribed to /clock, and what arrives meanwhile
+        # waits in these queues (callbacks run only once spinning) instead of being missed.
         self.create_subscription(PointCloud2, "/local_network", self.on_local_network, LATCHED)
-        self.create_subscription(Odometry, "/vo/odometry", self.on_odometry, RELIABLE)
+        self.create_subscription(Odometry, "/vo/odometry", self.on_odometry, ODOMETRY)
+        t0 = time.perf_counter()
+        self.matcher = Matcher(gn, MatchConfig(**overrides))
+        self.get_logger().info(
+            f"GN {gn_path}: {len(gn)} ROIs, index built in "
+            f"{1e3 * (time.perf_counter() - t0):.0f} ms"
+        )
 
     def on_local_network(self, msg: PointCloud2) -> None:
         """Re-match the LN when it has grown (or changed for long enough)."""
@@ -227,6 +232,12 @@ def main(args: list[str] | None = None) -> int:
     except (OSError, ValueError) as exc:
         print(f"darces_matcher: error: {exc}", file=sys.stderr)
         return 1
+    except Exception:
+        # Asked to stop (SIGTERM/SIGINT) while starting: rclpy then fails to create the
+        # remaining entities on the shut-down context. That is a stop, not a crash.
+        if rclpy.ok():
+            raise
+        return 0
     finally:
         if node is not None:
             node.destroy_node()

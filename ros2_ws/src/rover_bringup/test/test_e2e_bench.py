@@ -85,7 +85,7 @@ def test_bench_runs_and_compares_on_the_matcher_graph(
     for k, v in fast_discovery_env.items():
         monkeypatch.setenv(k, v)
     results = tmp_path / 'results'
-    code = bench.main([str(bag_dir), '--rate', '2', '--out', str(tmp_path / 'out'),
+    code = bench.main([str(bag_dir), '--rate', '5', '--out', str(tmp_path / 'out'),
                        '--tag', 'test', '--graph', str(tmp_path / 'graph.yaml'),
                        '--params', str(tmp_path / 'params.yaml'), '--results', str(results)])
     assert code == 0
