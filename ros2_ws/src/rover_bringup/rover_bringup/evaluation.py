@@ -182,6 +182,10 @@ def load_run(run_dir: Path, bag_dir: Path | None = None) -> RunData:
                                   axis=1)
         elif len(estimate):
             raise GloblocError(f'{cov_path}: stamps do not match {GLOBAL_POSE_TUM}')
+    # Recorded in arrival order; a restarted matcher can interleave stamps: sort by stamp.
+    order = np.argsort(estimate[:, 0], kind='stable')
+    estimate = estimate[order]
+    covariance = covariance[order] if covariance is not None else None
     vo = read_tum(run_dir / VO_TUM) if (run_dir / VO_TUM).is_file() else None
     alignment = (_read_table(run_dir / ALIGNMENT, 4) if (run_dir / ALIGNMENT).is_file()
                  else np.zeros((0, 4)))
