@@ -121,8 +121,8 @@ class Bag:
             # An MCAP file is closed by a footer and end magic: without them the recording
             # was cut short (recorder killed, disk full, copy interrupted).
             reason += (' (the MCAP file has no end marker: the recording was cut short; '
-                       'its complete chunks can be salvaged with `mcap recover` of the '
-                       'mcap command-line tool, which is not part of this project)')
+                       '`globloc salvage BAG --out NEW_BAG` copies its complete chunks '
+                       'into a new bag)')
         return BagReadError(f'cannot read bag {self.location.rosbag}: {reason}')
 
     def _collect_topics(self, connections: Sequence[Connection]) -> dict[str, BagTopic]:

@@ -142,6 +142,20 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--no-plots', action='store_true', help='skip the plots')
 
 
+def _add_salvage(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        'salvage',
+        help='copy the complete chunks of a cut-short MCAP bag into a new bag',
+        description='Read a rosbag2 MCAP file that has no summary or end marker (the '
+        'recording was cut short) from its start, and copy every message of its complete '
+        'chunks, with types and offered QoS, into a new rosbag2 directory.',
+    )
+    p.add_argument('bag', type=Path, metavar='BAG',
+                   help='bag directory (bags/<name>/ or its rosbag/), or the .mcap file')
+    p.add_argument('--out', type=Path, required=True, metavar='NEW_BAG_DIR',
+                   help='rosbag2 directory to create')
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``globloc`` argument parser."""
     parser = argparse.ArgumentParser(
@@ -152,6 +166,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run(sub)
     _add_record(sub)
     _add_eval(sub)
+    _add_salvage(sub)
     return parser
 
 
@@ -179,6 +194,16 @@ def _dispatch(args: argparse.Namespace, ros: list[str]) -> int:
         from rover_bringup.record import RecordOptions, record
 
         return record(RecordOptions(out=args.out, topics=args.topics, ros_args=ros))
+    if args.command == 'salvage':
+        from rover_bringup.salvage import salvage
+
+        report = salvage(args.bag, args.out)
+        topics = ', '.join(f'{t} {n}' for t, n in sorted(report.topics.items()))
+        print(f'{PROG}: salvaged {report.messages} messages ({topics}) from {report.source} '
+              f'into {report.out}; last at bag time {report.last_time_ns / 1e9:.3f} s'
+              + (f'; reading stopped at: {report.stopped} (the incomplete rest is lost)'
+                 if report.stopped else ''), file=sys.stderr)
+        return 0
     if args.command == 'eval':
         from rover_bringup.report import EvalOptions, evaluate_run
 

@@ -263,3 +263,39 @@ def test_bag_cut_short_is_a_clear_error_before_anything_starts(
     assert len(lines) == 1 and lines[0].startswith(f'globloc: error: cannot read bag {mcap.parent}')
     assert 'cut short' in lines[0] or 'magic' in lines[0]
     assert not (tmp_path / 'out').exists()  # nothing started, nothing half-written
+
+
+def test_cut_short_bag_is_salvaged(tmp_path: Path, bagfactory: ModuleType, globloc):
+    bag_dir = tmp_path / 'bags' / 'tiny'
+    # 40 s: about 1.8 MB, two complete 1 MiB chunks before the cut.
+    spec = bagfactory.write_bag(bag_dir / 'rosbag', bagfactory.BagSpec(duration_s=40.0))
+    total = sum(len(v) for v in spec.expected.values())
+    from rosbags.rosbag2 import Reader
+
+    with Reader(bag_dir / 'rosbag') as reader:
+        original = [bytes(raw) for c, _, raw in reader.messages()
+                    if c.topic == bagfactory.IMU_TOPIC]
+    mcap = bag_dir / 'rosbag' / 'rosbag.mcap'
+    mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size * 9 // 10])
+    result = globloc(['play', str(bag_dir)])
+    assert result.returncode == 1 and 'globloc salvage' in result.stderr
+    out = tmp_path / 'salvaged'
+    result = globloc(['salvage', str(bag_dir), '--out', str(out)])
+    assert result.returncode == 0, result.stderr
+    assert 'reading stopped at: EndOfFile' in result.stderr
+
+    from rover_bringup.qos import qos_from_offers
+
+    with Reader(out) as reader:
+        n = sum(1 for _ in reader.messages())
+        conns = {c.topic: c for c in reader.connections}
+        # Every message before the cut, in order, bytes unchanged.
+        imu = [bytes(raw) for c, _, raw in reader.messages()
+               if c.topic == bagfactory.IMU_TOPIC]
+    assert 0 < n < total
+    assert conns[bagfactory.IMU_TOPIC].msgtype == 'sensor_msgs/msg/Imu'
+    assert not qos_from_offers(conns[bagfactory.IMU_TOPIC].ext.offered_qos_profiles).reliable
+    assert len(imu) > 1000 and imu == original[:len(imu)]
+    # A second salvage into the same place is refused, nothing overwritten.
+    result = globloc(['salvage', str(bag_dir), '--out', str(out)])
+    assert result.returncode == 1 and 'exists already' in result.stderr
