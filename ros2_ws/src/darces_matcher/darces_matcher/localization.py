@@ -49,6 +49,8 @@ Event = Literal["first_fix", "refined", "held", "switched", "kept", "none"]
 
 #: Events after which the published alignment changed.
 ALIGNMENT_EVENTS = ("first_fix", "refined", "switched")
+#: Indices of x, y and yaw in a ROS (x, y, z, roll, pitch, yaw) covariance.
+_PLANAR = [0, 1, 5]
 
 
 @dataclass(frozen=True)
@@ -94,6 +96,9 @@ class FilterConfig:
         local_min_pairs: fewest pairs for that local refit (else the whole-LN fit).
         local_sigma_floor_m: floor of the per-node one-sigma residual the local refit's
             covariance assumes, metres.
+        drift_from_odometry: take the drift from the growth of the odometry's own
+            covariance instead of ``drift_*_per_m`` (for a VO whose covariance is the
+            honest, cumulative error since the start; off by default).
     """
 
     drift_xy_m2_per_m: float = 0.01
@@ -109,6 +114,7 @@ class FilterConfig:
     local_radius_m: float = 20.0
     local_min_pairs: int = 6
     local_sigma_floor_m: float = 0.3
+    drift_from_odometry: bool = False
 
     def __post_init__(self) -> None:
         for name in ("drift_xy_m2_per_m", "drift_yaw_rad2_per_m", "min_match_sigma_m",
@@ -234,6 +240,7 @@ class MapOdomFilter:
     _support: int = 0
     _ln_size: int = 0
     _last_xy: np.ndarray | None = None
+    _last_cov: np.ndarray | None = None
     _path_d: list[float] = field(default_factory=list)
     _path_xy: list[np.ndarray] = field(default_factory=list)
 
@@ -249,28 +256,55 @@ class MapOdomFilter:
             return None
         return Alignment(_rigid(self.x), self.p.copy(), self._support, self._ln_size)
 
-    def drift_noise(self, x: np.ndarray, rover_xy: np.ndarray, d_m: float) -> np.ndarray:
+    def drift_noise(
+        self, x: np.ndarray, rover_xy: np.ndarray, d_m: float, q: np.ndarray | None = None
+    ) -> np.ndarray:
         """Process noise of the alignment ``x`` over ``d_m`` metres driven at ``rover_xy``.
 
         Args:
             x: (3,) alignment (tx, ty, yaw).
             rover_xy: (2,) the rover's position in ``odom``, metres.
             d_m: distance driven, metres.
+            q: (3, 3) the VO's pose error over that drive (x, y in ``odom``, yaw), m^2 and
+                rad^2; default: the configured random walk per metre times ``d_m``.
 
         Returns:
-            (3, 3) covariance increment: the VO's position and heading random walk, the
-            heading error rotating the alignment about the rover's position in ``map``.
+            (3, 3) covariance increment: the VO's position and heading error, the heading
+            error rotating the alignment about the rover's position in ``map``.
         """
         c = self.config
-        q = np.diag([c.drift_xy_m2_per_m, c.drift_xy_m2_per_m, c.drift_yaw_rad2_per_m]) * d_m
+        if q is None:
+            q = np.diag([c.drift_xy_m2_per_m, c.drift_xy_m2_per_m,
+                         c.drift_yaw_rad2_per_m]) * d_m
+        else:  # odom -> map: the position block turns with the alignment's yaw
+            r = np.eye(3)
+            r[:2, :2] = _rigid(x).rotation
+            q = r @ q @ r.T
         rover_map = _rigid(x).apply(np.asarray(rover_xy, dtype=float))
         lever = x[:2] - rover_map
         g = np.array([[1.0, 0.0, -lever[1]], [0.0, 1.0, lever[0]], [0.0, 0.0, 1.0]])
         return g @ q @ g.T
 
-    def predict(self, odom_xy: np.ndarray) -> None:
-        """Account for the drive from the previous odometry pose to ``odom_xy`` (odom, m)."""
+    def predict(self, odom_xy: np.ndarray, odom_covariance: np.ndarray | None = None) -> None:
+        """Account for the drive from the previous odometry pose to ``odom_xy`` (odom, m).
+
+        Args:
+            odom_xy: (2,) the rover's position in ``odom``, metres.
+            odom_covariance: (6, 6) the odometry's pose covariance (x, y, z, roll, pitch,
+                yaw; the VO's error since the start of the drive). Used as the drift, by
+                its growth since the previous pose, when ``drift_from_odometry``.
+        """
         xy = np.asarray(odom_xy, dtype=float)[:2]
+        q = None
+        if self.config.drift_from_odometry and odom_covariance is not None:
+            cov = np.asarray(odom_covariance, dtype=float).reshape(6, 6)[np.ix_(_PLANAR,
+                                                                                 _PLANAR)]
+            if self._last_cov is not None:
+                # The growth since the previous pose, without its negative part (a VO whose
+                # covariance shrinks did not undo drift).
+                w, v = np.linalg.eigh(_symmetric(cov - self._last_cov))
+                q = (v * np.clip(w, 0.0, None)) @ v.T
+            self._last_cov = cov
         if self._last_xy is None:
             self._last_xy = xy
             self._path_d.append(0.0)
@@ -282,7 +316,7 @@ class MapOdomFilter:
             return
         self.distance_m += step
         if self.x is not None:
-            self.p = _symmetric(self.p + self.drift_noise(self.x, xy, step))
+            self.p = _symmetric(self.p + self.drift_noise(self.x, xy, step, q))
         if self.distance_m - self._path_d[-1] >= self.config.path_step_m:
             self._path_d.append(self.distance_m)
             self._path_xy.append(xy)
@@ -440,10 +474,6 @@ def compose_pose(
     jac[5, 2] = 1.0  # map yaw = alignment yaw + odom yaw
     cov += jac @ alignment.covariance @ jac.T
     return pos, rot.as_quat(), cov
-
-
-#: Indices of x, y and yaw in a ROS (x, y, z, roll, pitch, yaw) covariance.
-_PLANAR = [0, 1, 5]
 
 
 def global_pose(

@@ -170,7 +170,7 @@ class MatcherNode(Node):
             self.get_logger().error(
                 "/vo/odometry: non-finite position or invalid orientation: message ignored")
             return
-        self.filter.predict(position[:2])
+        self.filter.predict(position[:2], np.array(msg.pose.covariance))
         alignment = self.filter.alignment
         if alignment is None:
             return
