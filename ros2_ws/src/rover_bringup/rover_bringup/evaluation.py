@@ -123,6 +123,7 @@ class RunData:
         vo: (K, 8) /vo/odometry, TUM rows (odom), or None.
         events: (stamp s, event) from /matcher/status.
         alignment: (J, 4) /global_alignment rows t tx ty yaw (map -> odom).
+        not_run: nodes of the graph that did not run, with why (from run.yaml).
     """
 
     run_dir: Path
@@ -133,6 +134,7 @@ class RunData:
     vo: np.ndarray | None = None
     events: list[tuple[float, str]] = field(default_factory=list)
     alignment: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    not_run: list[str] = field(default_factory=list)
 
 
 def bag_dir_of(run_dir: Path) -> Path:
@@ -190,7 +192,16 @@ def load_run(run_dir: Path, bag_dir: Path | None = None) -> RunData:
     alignment = (_read_table(run_dir / ALIGNMENT, 4) if (run_dir / ALIGNMENT).is_file()
                  else np.zeros((0, 4)))
     return RunData(run_dir, bag_dir, estimate, covariance, truth, vo,
-                   read_events(run_dir / EVENTS), alignment)
+                   read_events(run_dir / EVENTS), alignment, _not_run(run_dir))
+
+
+def _not_run(run_dir: Path) -> list[str]:
+    """'name (status)' of the graph's nodes that did not run, from run.yaml ([] if none)."""
+    try:
+        nodes = yaml.safe_load((run_dir / 'run.yaml').read_text()).get('nodes') or []
+        return [f"{n['name']} ({n['status']})" for n in nodes if n.get('status') != 'ran']
+    except (OSError, yaml.YAMLError, AttributeError, KeyError, TypeError):
+        return []
 
 
 def _trajectory(rows: np.ndarray):
@@ -274,6 +285,7 @@ def evaluate(data: RunData) -> Evaluation:
         'paper_final_error_m': PAPER_FINAL_ERROR_M,
         'targets': TARGETS,
         'vo': _vo_summary(data.vo, truth),
+        'nodes_not_run': data.not_run,
     }
     empty = np.zeros(0)
     nothing = Evaluation(summary, empty, empty, empty, empty, np.zeros((0, 2)),
@@ -286,6 +298,8 @@ def evaluate(data: RunData) -> Evaluation:
         summary['localized'] = False
         summary['message'] = ('not localized: the run published no /global_pose '
                               f'(route {route_d[-1]:.0f} m)')
+        if data.not_run:
+            summary['message'] += '; nodes that did not run: ' + ', '.join(data.not_run)
         return nothing
 
     from evo.core import metrics, sync

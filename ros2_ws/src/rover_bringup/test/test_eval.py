@@ -139,10 +139,14 @@ def test_false_fixes_without_events_count_episodes(tmp_path: Path):
 def test_nothing_localized_is_reported_not_a_crash(tmp_path: Path, capsys):
     bag, _, _ = _bag(tmp_path)
     run = _run_dir(tmp_path, bag)
+    (run / 'run.yaml').write_text(yaml.safe_dump({'bag': {'dir': str(bag)}, 'nodes': [
+        {'name': 'rover_vo', 'status': 'not built'}, {'name': 'darces_matcher', 'status': 'ran'},
+        {'name': 'gn_server', 'status': 'no input'}]}))
     (run / 'global_pose.tum').write_text('# t x y z qx qy qz qw\n')
     assert evaluate_run(EvalOptions(run)) == 0
     out = capsys.readouterr().out
-    assert out.startswith('not localized: the run published no /global_pose')
+    assert out.startswith('not localized: the run published no /global_pose (route 300 m); '
+                          'nodes that did not run: rover_vo (not built), gn_server (no input)')
     report = json.loads((run / 'report.json').read_text())
     assert report['localized'] is False and report['final_error_m'] is None
     assert (run / 'error.png').is_file() and (run / 'route.png').is_file()
