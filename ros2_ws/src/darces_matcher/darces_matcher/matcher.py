@@ -19,6 +19,7 @@ from typing import Literal
 
 import numpy as np
 
+from darces_matcher.decision import ChanceModel, decide
 from darces_matcher.em_refit import EmModel, em_refit, gn_density
 from darces_matcher.gn_index import GnIndex
 from darces_matcher.hypotheses import (
@@ -128,6 +129,17 @@ class MatchConfig:
         anneal_start_m: widest annealing width of the EM, metres (halved down to
             0.5 m, then 0); 0: no annealing.
         em_iterations: EM iterations per annealing level.
+        decision: ``"odds"``: a fix when the probability that the winning alignment is
+            a chance (or a distinct alternative's) is at most ``false_match_rate``
+            (:mod:`~darces_matcher.decision`); ``"counts"``: the fixed tests of
+            ``min_inliers``, ``min_inlier_fraction`` and ``min_margin`` (the matcher
+            before issue 13, kept as the baseline ``darces_counts``).
+        false_match_rate: the accepted share of wrong fixes, the one threshold of the
+            odds decision.
+        min_side_floor_m: when no control triangle has sides of ``min_side_m``, the
+            triplets are chosen again with this shortest side (a rock cluster's close
+            nodes; their orientation is still checked against their tolerances by
+            ``min_height_ratio``); None: no second try.
     """
 
     use_orientation: bool = True
@@ -168,6 +180,15 @@ class MatchConfig:
     label_confusion: float = 0.1
     anneal_start_m: float = 4.0
     em_iterations: int = 4
+    decision: Literal["odds", "counts"] = "odds"
+    false_match_rate: float = 1e-3
+    min_side_floor_m: float | None = 3.0
+
+    @classmethod
+    def counts(cls, **overrides: object) -> MatchConfig:
+        """The matcher as it was before the odds decision: fixed support and margin
+        counts, control triangles of 10 m sides only (the generality baseline)."""
+        return replace(cls(decision="counts", min_side_floor_m=None), **overrides)
 
     @classmethod
     def original(cls, **overrides: object) -> MatchConfig:
@@ -175,7 +196,8 @@ class MatchConfig:
         this project's additions beyond the paper's hypothesise-verify-vote-refit
         (no probabilistic refit)."""
         return replace(cls(use_orientation=False, use_labels=False,
-                           probabilistic_refit=False), **overrides)
+                           probabilistic_refit=False, decision="counts",
+                           min_side_floor_m=None), **overrides)
 
 
 @dataclass
@@ -202,6 +224,11 @@ class MatchResult:
         n_triplets: control triplets tried.
         n_hypotheses: triangle hypotheses verified.
         timings_ms: wall time per stage, milliseconds.
+        log_odds: natural log of the odds of the winner against a chance alignment
+            (:mod:`~darces_matcher.decision`); NaN when not computed.
+        false_match_probability: probability that the winner is a chance or wrong
+            alignment, given the alignments searched and the distinct alternatives;
+            NaN when not computed (``decision="counts"``, or no candidate).
     """
 
     status: Status
@@ -217,6 +244,8 @@ class MatchResult:
     n_triplets: int = 0
     n_hypotheses: int = 0
     timings_ms: dict[str, float] = field(default_factory=dict)
+    log_odds: float = float("nan")
+    false_match_probability: float = float("nan")
 
     @property
     def is_fix(self) -> bool:
@@ -241,6 +270,9 @@ class Matcher:
         if not 0.0 <= self.config.outlier_prior < 1.0:
             raise ValueError(f"MatchConfig.outlier_prior must be in [0, 1), got "
                              f"{self.config.outlier_prior}")
+        if not 0.0 < self.config.false_match_rate < 1.0:
+            raise ValueError(f"MatchConfig.false_match_rate must be in (0, 1), got "
+                             f"{self.config.false_match_rate}")
         if not 0.0 <= self.config.label_confusion <= 0.5:
             raise ValueError(f"MatchConfig.label_confusion must be in [0, 0.5], got "
                              f"{self.config.label_confusion}")
@@ -255,9 +287,16 @@ class Matcher:
         self._gn_labels = gn.records["label"].astype(np.int64)
         self._gn = gn
         self._blind: Matcher | None = None
+        #: (alignments examined, odds of the distinct alternatives) of the last search.
+        self._last_search: tuple[float, list[float]] = (1.0, [])
         #: GN ROIs per square metre: the EM's outlier density (a node with no
         #: counterpart is as likely anywhere).
         self.gn_density = gn_density(self.index.pts)
+        #: What a chance alignment looks like on this GN (the odds decision).
+        self.chance = ChanceModel(self.index.tree, self._gn_labels,
+                                  use_labels=self.config.use_labels,
+                                  outlier_prior=self.config.outlier_prior,
+                                  label_confusion=self.config.label_confusion)
         if self.config.use_labels and self.config.label_fallback and self.index.exhaustive:
             # The label-blind fallback's index, built now rather than at the first
             # fallback: a running matcher never stalls for it.
@@ -324,7 +363,18 @@ class Matcher:
         T = result.map_T_odom
         fit = em_refit(model, T.yaw, np.array([T.tx, T.ty]),
                        anneal_start_m=cfg.anneal_start_m, iterations=cfg.em_iterations)
-        if len(fit.ln) < max(cfg.min_inliers, cfg.min_inlier_fraction * len(pts)):
+        if cfg.decision == "odds":
+            # The decision again, on the maximum-likelihood alignment.
+            searched = self._blind if result.reason == "ok_label_blind" else self
+            n_tested, alternatives = searched._last_search
+            odds = self.chance.odds(fit.yaw, fit.t, pts, labels, var)
+            verdict = decide(odds.log_odds, n_tested, alternatives, cfg.false_match_rate)
+            result.log_odds = verdict.log_odds
+            result.false_match_probability = verdict.p_false
+            withheld = not verdict.accept
+        else:
+            withheld = len(fit.ln) < max(cfg.min_inliers, cfg.min_inlier_fraction * len(pts))
+        if withheld:
             result.status, result.reason = "no_fix", "insufficient_support"
         else:
             # Each node informs the fit by its probability of having a counterpart.
@@ -470,15 +520,25 @@ class Matcher:
 
         # Control triplets: precise, well conditioned, spread over nodes.
         t0 = time.perf_counter()
-        triplets = control_triplets(
-            pts, node_tol, cfg.n_triplets,
-            min_side_m=cfg.min_side_m, max_side_m=self.index.max_side_m,
-            min_height_ratio=cfg.min_height_ratio, max_uses_per_node=cfg.max_uses_per_node,
-            # Counting candidates pays off only where random congruent triangles abound.
-            cost=None if self.index.exhaustive else (
-                lambda trips: self._candidates(pts, labels, edge_tol, trips)),
-            max_cost=self.max_candidates,
-        )
+        sides = [cfg.min_side_m]
+        if cfg.min_side_floor_m is not None and cfg.min_side_floor_m < cfg.min_side_m:
+            # No wide triangle (a short LN, or one inside a rock cluster): close nodes
+            # still make a triangle whose orientation survives their tolerances.
+            sides.append(cfg.min_side_floor_m)
+        for min_side in sides:
+            triplets = control_triplets(
+                pts, node_tol, cfg.n_triplets,
+                min_side_m=min_side, max_side_m=self.index.max_side_m,
+                min_height_ratio=cfg.min_height_ratio,
+                max_uses_per_node=cfg.max_uses_per_node,
+                # Counting candidates pays off only where random congruent triangles
+                # abound.
+                cost=None if self.index.exhaustive else (
+                    lambda trips: self._candidates(pts, labels, edge_tol, trips)),
+                max_cost=self.max_candidates,
+            )
+            if len(triplets):
+                break
         timings["triplets"] = _ms(t0)
         if len(triplets) == 0:
             return MatchResult("no_fix", "no_control_triplet", timings_ms=_since(t_start, timings))
@@ -489,6 +549,7 @@ class Matcher:
         # Refined hypotheses by pool row: a later round refines the same best rows again.
         refined_cache: dict[int, _Refined] = {}
         result = MatchResult("no_fix", "no_hypothesis", n_triplets=len(triplets))
+        tested = 0
         for first in range(0, len(triplets), cfg.triplet_batch):
             batch = triplets[first : first + cfg.triplet_batch]
             t0 = time.perf_counter()
@@ -498,6 +559,7 @@ class Matcher:
                 use_orientation=cfg.use_orientation, max_hypotheses=cfg.max_hypotheses,
             )
             source += first
+            tested += len(source)
             _add(timings, "hypotheses", t0)
             t0 = time.perf_counter()
             # Each hypothesis gives a proper rigid transform (never a reflection).
@@ -519,8 +581,13 @@ class Matcher:
             candidates, leftover = self._refine_distinct(pts, groups, gate, weights, pool,
                                                          refined_cache)
             # Decision: enough support AND a clear margin over the best distinct alternative.
-            result = self._decide(candidates, leftover, pool, pts, gate, weights, kept)
-            result.n_triplets = min(first + cfg.triplet_batch, len(triplets))
+            done = min(first + cfg.triplet_batch, len(triplets))
+            # The alignments the whole search examines (the union bound of the odds),
+            # extrapolated from the rounds so far.
+            n_tested = tested * len(triplets) / done
+            result = self._decide(candidates, leftover, pool, pts, labels, weights, kept,
+                                  n_tested)
+            result.n_triplets = done
             _add(timings, "refine", t0)
             if result.is_fix:
                 break
@@ -567,9 +634,10 @@ class Matcher:
         leftover: int,
         pool: _Pool,
         pts: np.ndarray,
-        node_tol: np.ndarray,
+        labels: np.ndarray,
         weights: np.ndarray,
         kept: np.ndarray,
+        n_tested: float,
     ) -> MatchResult:
         """Fix or no fix from the refined candidates (best first)."""
         cfg = self.config
@@ -591,7 +659,22 @@ class Matcher:
         spread = float(np.sqrt(predicted_variance(pts, best.yaw, covariance).max()))
         status: Status = "fix"
         reason = "ok"
-        if support < max(cfg.min_inliers, cfg.min_inlier_fraction * len(pts)):
+        log_odds = p_false = float("nan")
+        if cfg.decision == "odds":
+            # The odds of the winner and of every distinct alternative against chance.
+            var = 1.0 / weights
+            alternatives = [self.chance.odds(c.yaw, c.t, pts, labels, var).log_odds
+                            for c in candidates[1:] if not _same_fix(best, c)]
+            self._last_search = (n_tested, alternatives)
+            verdict = decide(self.chance.odds(best.yaw, best.t, pts, labels, var).log_odds,
+                             n_tested, alternatives, cfg.false_match_rate)
+            log_odds, p_false = verdict.log_odds, verdict.p_false
+            unsupported = not verdict.accept and not verdict.ambiguous
+            ambiguous = not verdict.accept and verdict.ambiguous
+        else:
+            unsupported = support < max(cfg.min_inliers, cfg.min_inlier_fraction * len(pts))
+            ambiguous = support - runner_up < cfg.min_margin
+        if unsupported:
             status, reason = "no_fix", "insufficient_support"
         elif votes < cfg.min_votes:
             # The refit drifted away from every triangle hypothesis: not trustworthy.
@@ -599,7 +682,7 @@ class Matcher:
         elif spread > cfg.max_position_sigma_m:
             # Right or wrong, a fit this loose cannot place the LN within metres.
             status, reason = "no_fix", "imprecise"
-        elif support - runner_up < cfg.min_margin:
+        elif ambiguous:
             status, reason = "no_fix", "ambiguous"
         return MatchResult(
             status=status, reason=reason, map_T_odom=best_T,
@@ -607,6 +690,7 @@ class Matcher:
             inliers=np.column_stack([kept[best.ln], best.gn]).astype(np.int64),
             votes=votes, support=support,
             runner_up=runner_up, margin=support - runner_up,
+            log_odds=log_odds, false_match_probability=p_false,
         )
 
     def _refine_distinct(

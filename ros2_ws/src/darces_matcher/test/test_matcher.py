@@ -118,10 +118,12 @@ def test_label_blind_polish_without_em(gn: RoiNetwork) -> None:
 
 
 def test_label_blind_fallback(gn: RoiNetwork) -> None:
-    # Labelled support (80 %) below the needed 90 %: only the label-blind search fixes,
-    # and its inliers agree on class at 80 % >= min_label_agreement.
-    matcher = Matcher(gn, MatchConfig(min_inlier_fraction=0.9))
-    strict = Matcher(gn, MatchConfig(min_inlier_fraction=0.9, label_fallback=False))
+    # Labelled support (80 %) below the needed 90 % (the count decision, which can be
+    # made to fail that way; the odds decision fixes such an LN in the labelled search):
+    # only the label-blind search fixes, and its inliers agree on class at 80 %
+    # >= min_label_agreement.
+    matcher = Matcher(gn, MatchConfig.counts(min_inlier_fraction=0.9))
+    strict = Matcher(gn, MatchConfig.counts(min_inlier_fraction=0.9, label_fallback=False))
     gn_pts = xy(gn.records)
     for sim in _lns(gn, 4, noise_fraction=0.0):
         flipped, _ = _flip_fifth(sim.records)
