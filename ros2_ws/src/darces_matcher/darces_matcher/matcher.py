@@ -100,7 +100,15 @@ class MatchConfig:
             (every triangle for small GNs, local triangles for large ones).
         index_exhaustive_max_nodes: GN size up to which every triangle is indexed.
         index_neighbours: with automatic side limit, about this many neighbours per node
+            (index memory ~ neighbours^2 per node); None: 40 up to 20,000 ROIs (sides
+            ~155 m at 400 ROIs/km^2: consecutive route nodes ~50 m apart still make an
+            indexed triangle; with 14, ~105 m, under 30 % outliers the LN kept 4-10
+            usable triplets and 18 of 100 stressed LNs on a Poisson GN got no fix, none
+            with 40), 14 above (memory: 631 MB at 10^6 ROIs with 14). 14 in ``counts()``.
             fall inside it (index memory ~ neighbours^2 per node).
+        index_mean_density_side: the automatic side limit is at least the radius
+            holding ``index_neighbours`` ROIs at the GN's mean density (clustered GNs);
+            False in ``counts()``: the median k-th neighbour distance alone, as before.
         index_quant_m: side-length quantisation of the triangle keys, metres; None:
             4 m for an exhaustive index, 1 m for a local one.
         label_fallback: with ``use_labels``, when the labelled search gives no fix, search
@@ -108,7 +116,11 @@ class MatchConfig:
             its inliers mostly agree on class. Misclassified nodes then still count as
             geometry, while a class-swapped LN is still rejected. Costs a second index
             (built at the first fallback) and a second search on the LNs that need it;
-            only with an exhaustive index (small GN). Also enables the polish.
+            only for a GN of at most ``label_fallback_max_nodes`` ROIs. Also enables
+            the polish.
+        label_fallback_max_nodes: largest GN (ROIs) given a label-blind fallback (its
+            index doubles the index memory); 0 in ``counts()``: exhaustive index only,
+            as before.
         min_label_agreement: least share of a label-blind fix's (or refit's) inlier
             pairs whose LN and GN classes agree.
         polish_label_blind: refit a labelled fix with label-blind association when a
@@ -170,9 +182,11 @@ class MatchConfig:
     max_position_sigma_m: float = 2.0
     index_max_side_m: float | None = None
     index_exhaustive_max_nodes: int = 300
-    index_neighbours: int = 14
+    index_neighbours: int | None = None
     index_quant_m: float | None = None
+    index_mean_density_side: bool = True
     label_fallback: bool = True
+    label_fallback_max_nodes: int = 50000
     min_label_agreement: float = 0.75
     polish_label_blind: bool = True
     probabilistic_refit: bool = True
@@ -181,14 +195,19 @@ class MatchConfig:
     anneal_start_m: float = 4.0
     em_iterations: int = 4
     decision: Literal["odds", "counts"] = "odds"
-    false_match_rate: float = 1e-3
+    false_match_rate: float = 1e-2
     min_side_floor_m: float | None = 3.0
 
     @classmethod
     def counts(cls, **overrides: object) -> MatchConfig:
-        """The matcher as it was before the odds decision: fixed support and margin
-        counts, control triangles of 10 m sides only (the generality baseline)."""
-        return replace(cls(decision="counts", min_side_floor_m=None), **overrides)
+        """The matcher as it was before issue 13: fixed support and margin counts,
+        control triangles of 10 m sides only, the label-blind fallback on an exhaustive
+        index only, the local index's side limit from the median neighbour distance
+        (the generality baseline)."""
+        return replace(cls(decision="counts", min_side_floor_m=None,
+                           label_fallback_max_nodes=0, index_mean_density_side=False,
+                           index_neighbours=14),
+                       **overrides)
 
     @classmethod
     def original(cls, **overrides: object) -> MatchConfig:
@@ -281,8 +300,10 @@ class Matcher:
             use_labels=self.config.use_labels,
             max_side_m=self.config.index_max_side_m,
             exhaustive_max_nodes=self.config.index_exhaustive_max_nodes,
-            neighbours=self.config.index_neighbours,
+            neighbours=self.config.index_neighbours or (
+                40 if len(gn) <= 20000 else 14),
             quant_m=self.config.index_quant_m,
+            mean_density_side=self.config.index_mean_density_side,
         )
         self._gn_labels = gn.records["label"].astype(np.int64)
         self._gn = gn
@@ -292,12 +313,14 @@ class Matcher:
         #: GN ROIs per square metre: the EM's outlier density (a node with no
         #: counterpart is as likely anywhere).
         self.gn_density = gn_density(self.index.pts)
+        self._fallback_ok = self.index.exhaustive or (
+            len(gn) <= self.config.label_fallback_max_nodes)
         #: What a chance alignment looks like on this GN (the odds decision).
         self.chance = ChanceModel(self.index.tree, self._gn_labels,
                                   use_labels=self.config.use_labels,
                                   outlier_prior=self.config.outlier_prior,
                                   label_confusion=self.config.label_confusion)
-        if self.config.use_labels and self.config.label_fallback and self.index.exhaustive:
+        if self.config.use_labels and self.config.label_fallback and self._fallback_ok:
             # The label-blind fallback's index, built now rather than at the first
             # fallback: a running matcher never stalls for it.
             self._blind_matcher()
@@ -403,7 +426,7 @@ class Matcher:
             return self._polish(result)
         if result.is_fix or not (cfg.use_labels and cfg.label_fallback) or result.reason in (
             "too_few_nodes", "no_control_triplet"
-        ) or not self.index.exhaustive:
+        ) or not self._fallback_ok:
             return result
         # Soft semantics: misclassified nodes cannot vote in the labelled search; search
         # again on geometry only, and keep that fix if its inliers mostly agree on class
