@@ -53,6 +53,8 @@ from roi_network.records import xy
 
 RESULTS = Path(__file__).resolve().parent / "results"
 GN_FILE = RESULTS / "darces_gn174.geojson"
+#: One JSON file per family GN measured by ``generality`` (merged into the table).
+PARTS = RESULTS / "darces_generality_parts"
 
 
 def _gn_file() -> Path:
@@ -216,15 +218,33 @@ def generality(names: list[str], n_lns: int, stress_lns: int, seed: int) -> dict
                              "oracle_within_2m_rate": report["oracle_within_2m_rate"],
                              "methods": report["methods"]}
         rows.append(row)
+        # Each GN's row as soon as it is measured: runs over parts of the family (one
+        # process each) are merged into the table by ``generality --merge``.
+        PARTS.mkdir(parents=True, exist_ok=True)
+        _write_json_atomic(PARTS / f"{name}.json", {**row, "lns_per_gn": n_lns,
+                                                     "stress_lns_per_gn": stress_lns,
+                                                     "seed": seed})
         print(json.dumps({"gn": name, **{p: {m: {k: row[p]["methods"][m][k] for k in (
             "correct_match_rate", "false_match_rate", "no_fix_rate", "no_fix_oracle_fit_rate")}
             for m in methods} for p in ("clean", "stress") if p in row}}), flush=True)
-    report = {"mode": "generality", "lns_per_gn": n_lns, "stress_lns_per_gn": stress_lns,
-              "seed": seed, "gn_seed": 1, "rows": rows,
-              "command": f"python bench/darces_bench.py generality --max-lns {n_lns} "
-                         f"--stress-lns {stress_lns} --seed {seed}"
-                         + (f" --gns {','.join(names)}" if names != list(FAMILY) else ""),
-              "timing": "wall time of match() per LN on a machine shared with other jobs"}
+    return merge_generality()
+
+
+def merge_generality() -> dict[str, Any]:
+    """The family table from every GN row measured so far (family order)."""
+    rows = [json.loads((PARTS / f"{name}.json").read_text()) for name in FAMILY
+            if (PARTS / f"{name}.json").exists()]
+    counts = sorted({(r["lns_per_gn"], r["stress_lns_per_gn"], r["seed"]) for r in rows})
+    command = "; ".join(f"python bench/darces_bench.py generality --max-lns {n} "
+                        f"--stress-lns {m} --seed {seed} --gns "
+                        + ",".join(r["gn"] for r in rows
+                                   if (r["lns_per_gn"], r["stress_lns_per_gn"], r["seed"])
+                                   == (n, m, seed))
+                        for n, m, seed in counts)
+    command += "; python bench/darces_bench.py generality --merge"
+    report = {"mode": "generality", "gn_seed": 1, "rows": rows, "command": command,
+              "timing": "wall time of match() per LN on a 2-core machine shared with other "
+                        "jobs (two family parts ran at once)"}
     _write_json_atomic(RESULTS / "darces_generality.json", report)
     _write_generality_md(report)
     return report
@@ -394,6 +414,8 @@ def main() -> None:
     p.add_argument("--stress-lns", type=int, default=None,
                    help="stressed LNs per GN (generality; default: --max-lns)")
     p.add_argument("--seed", type=int, default=7, help="LN seed (generality, firstfix)")
+    p.add_argument("--merge", action="store_true",
+                   help="generality: only rebuild the table from the GN rows measured")
     p.add_argument("--bag", type=Path, default=Path("/work/bags/quick"))
     p.add_argument("--trials", type=int, default=20)
     p.add_argument("--radius", type=float, default=15.0,
@@ -417,7 +439,9 @@ def main() -> None:
         if unknown:
             p.error(f"unknown GN(s) {unknown} (known: {', '.join(FAMILY)})")
         lns = args.max_lns or 400
-        if args.mode == "generality":
+        if args.mode == "generality" and args.merge:
+            merge_generality()
+        elif args.mode == "generality":
             stress = lns if args.stress_lns is None else args.stress_lns
             generality(names, lns, stress, args.seed)
         else:
