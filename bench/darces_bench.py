@@ -20,6 +20,8 @@ Usage (from the repository root, after ``source env.sh``)::
     python bench/darces_bench.py paper
     python bench/darces_bench.py stress
     python bench/darces_bench.py scale --sizes 1000,10000,100000,1000000 --scale-lns 100
+    python bench/darces_bench.py paper --max-lns 2000 --baseline-lns 1000 \
+        --methods darces,darces_counts,darces_original --tag odds
     python bench/darces_bench.py generality --max-lns 400
     python bench/darces_bench.py firstfix --max-lns 300
     python bench/darces_bench.py quick --bag /work/bags/quick --trials 20
@@ -65,19 +67,20 @@ def _gn_file() -> Path:
     return GN_FILE
 
 
-def _eval(mode: str, extra: list[str], baseline_lns: int) -> dict[str, Any]:
-    out = RESULTS / f"darces_{mode}.json"
+def _eval(mode: str, extra: list[str], baseline_lns: int, tag: str = "") -> dict[str, Any]:
+    name = f"{mode}_{tag}" if tag else mode
+    out = RESULTS / f"darces_{name}.json"
     argv = ["--gn", str(_gn_file()), "--seed", "0", "--baseline-max-lns", str(baseline_lns),
             "--json", str(out), "--progress", *extra]
     t0 = time.perf_counter()
     darces_eval(argv)
     report = json.loads(out.read_text())
     report["command"] = "darces_eval " + " ".join(
-        a if a != str(out) else f"bench/results/darces_{mode}.json" for a in argv
+        a if a != str(out) else f"bench/results/darces_{name}.json" for a in argv
     ).replace(str(GN_FILE), "bench/results/darces_gn174.geojson")
     report["bench_wall_s"] = time.perf_counter() - t0
     out.write_text(json.dumps(report, indent=2) + "\n")
-    _write_eval_md(mode, report)
+    _write_eval_md(name, report)
     return report
 
 
@@ -414,6 +417,10 @@ def main() -> None:
     p.add_argument("--stress-lns", type=int, default=None,
                    help="stressed LNs per GN (generality; default: --max-lns)")
     p.add_argument("--seed", type=int, default=7, help="LN seed (generality, firstfix)")
+    p.add_argument("--methods", default=None,
+                   help="paper/stress: methods of darces_eval (default: its own)")
+    p.add_argument("--tag", default="",
+                   help="paper/stress: results go to darces_<mode>_<tag>.{json,md}")
     p.add_argument("--merge", action="store_true",
                    help="generality: only rebuild the table from the GN rows measured")
     p.add_argument("--bag", type=Path, default=Path("/work/bags/quick"))
@@ -427,10 +434,13 @@ def main() -> None:
     p.add_argument("--scale-lns", type=int, default=100)
     args = p.parse_args()
     cap = ["--max-lns", str(args.max_lns)] if args.max_lns else []
+    if args.methods:
+        cap += ["--methods", args.methods]
     if args.mode == "paper":
-        _eval("paper", cap, args.baseline_lns)
+        _eval("paper", cap, args.baseline_lns, args.tag)
     elif args.mode == "stress":
-        _eval("stress", ["--outliers", "0.3", "--label-flips", "0.1", *cap], args.baseline_lns)
+        _eval("stress", ["--outliers", "0.3", "--label-flips", "0.1", *cap], args.baseline_lns,
+              args.tag)
     elif args.mode == "scale":
         scale([int(s) for s in args.sizes.split(",")], args.scale_lns)
     elif args.mode in ("generality", "firstfix"):

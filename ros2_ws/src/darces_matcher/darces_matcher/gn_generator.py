@@ -75,21 +75,7 @@ def generate_gn(spec: GnSpec | None = None, seed: int = 0) -> RoiNetwork:
     background = rng.uniform(0.0, side, size=(n - n_clustered, 2))
     pts = np.vstack([clustered, background])
     pts = pts[rng.permutation(n)]
-    rec = empty_records(n)
-    rec["x"], rec["y"] = pts[:, 0], pts[:, 1]
-    rec["id"] = np.arange(n)
-    outcrop = rng.random(n) < spec.outcrop_fraction
-    rec["label"] = np.where(outcrop, OUTCROP, ROCK)
-    # Sizes above the paper's orbital detection limits (Sec. 4.2: rocks > 0.6 m^2,
-    # outcrops > 8 m^2), log-normal like boulder size distributions.
-    area = np.where(outcrop, 8.0 + rng.lognormal(2.5, 0.8, n), 0.6 + rng.lognormal(0.0, 0.7, n))
-    aspect = rng.uniform(1.0, 2.0, n)
-    rec["area_m2"] = area
-    rec["major_m"] = np.sqrt(4.0 * area * aspect / np.pi)
-    rec["minor_m"] = np.sqrt(4.0 * area / (aspect * np.pi))
-    rec["angle_rad"] = rng.uniform(-np.pi / 2, np.pi / 2, n)
-    rec["score"] = 1.0
-    rec["n_obs"] = 1
+    rec = _roi_records(pts, rng.random(n) < spec.outcrop_fraction, rng)
     return RoiNetwork(
         rec, "map", map_frame=MapFrame(spec.crs, (350000.0, 7400000.0)),
         metadata={"source_image": "synthetic", "generator": "darces_matcher.gn_generator",
@@ -209,11 +195,25 @@ def generate_family_gn(spec: FamilySpec, seed: int = 0, name: str = "") -> RoiNe
         lo = side / 2 - np.array(spec.hole_m) / 2
         inside = np.all((pts >= lo) & (pts <= lo + np.array(spec.hole_m)), axis=1)
         pts = pts[~inside]
+    rec = _roi_records(pts, rng.random(len(pts)) >= spec.rock_fraction, rng)
+    meta = {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(spec).items()}
+    return RoiNetwork(
+        rec, "map", map_frame=MapFrame("EPSG:32719", (350000.0, 7400000.0)),
+        metadata={"source_image": "synthetic", "generator": "darces_matcher.gn_generator",
+                  "family": name, "seed": seed, **meta},
+    )
+
+
+def _roi_records(pts: np.ndarray, outcrop: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """ROI records at ``pts`` (metres), outcrops where ``outcrop``, ids 0..n-1.
+
+    Sizes above the paper's orbital detection limits (Sec. 4.2: rocks > 0.6 m^2,
+    outcrops > 8 m^2), log-normal like boulder size distributions.
+    """
     n = len(pts)
     rec = empty_records(n)
     rec["x"], rec["y"] = pts[:, 0], pts[:, 1]
     rec["id"] = np.arange(n)
-    outcrop = rng.random(n) >= spec.rock_fraction
     rec["label"] = np.where(outcrop, OUTCROP, ROCK)
     area = np.where(outcrop, 8.0 + rng.lognormal(2.5, 0.8, n), 0.6 + rng.lognormal(0.0, 0.7, n))
     aspect = rng.uniform(1.0, 2.0, n)
@@ -223,12 +223,7 @@ def generate_family_gn(spec: FamilySpec, seed: int = 0, name: str = "") -> RoiNe
     rec["angle_rad"] = rng.uniform(-np.pi / 2, np.pi / 2, n)
     rec["score"] = 1.0
     rec["n_obs"] = 1
-    meta = {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(spec).items()}
-    return RoiNetwork(
-        rec, "map", map_frame=MapFrame("EPSG:32719", (350000.0, 7400000.0)),
-        metadata={"source_image": "synthetic", "generator": "darces_matcher.gn_generator",
-                  "family": name, "seed": seed, **meta},
-    )
+    return rec
 
 
 def repeated_pattern_gn(n_copies: int = 2, seed: int = 0, spacing_m: float = 2000.0) -> RoiNetwork:
