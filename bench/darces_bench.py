@@ -12,6 +12,8 @@ Modes:
             fixed counts (``darces_counts``), in one table.
     firstfix    the paper protocol's LNs fed as prefixes, node by node (as the rover
             drives): nodes and distance at the first fix, and whether it is right.
+    null    stressed LNs of each family GN against another GN of the same statistics:
+            every fix would be a chance alignment (calibration of the odds decision).
     quick   a perfect LN of the truth ROIs a bag's route passes (1 % drift, random odom
             frame), matched against the bag's truth ROIs, ``--trials`` times.
 
@@ -368,6 +370,33 @@ def firstfix(names: list[str], n_lns: int, seed: int) -> dict[str, Any]:
     return report
 
 
+def null(names: list[str], n_lns: int, seed: int) -> dict[str, Any]:
+    """The chance hypothesis itself: stressed LNs of each family GN (seed 1) matched
+    against another GN of the same statistics (seed 2). Every fix is a false match;
+    ``false_match_probability`` should stay high."""
+    rows = []
+    for name in names:
+        other = Matcher(family_gn(name, seed=2))
+        options = family_options(FAMILY[name].density_per_km2, outliers=0.3, label_flips=0.1)
+        p_false, fixes, count = [], 0, 0
+        for sim in iter_lns(family_gn(name, seed=1), options, seed=seed, max_lns=n_lns):
+            count += 1
+            result = other.match(sim.records)
+            fixes += result.is_fix
+            p = result.false_match_probability
+            p_false.append(1.0 if np.isnan(p) else p)
+        rows.append({"gn": name, "lns": count, "fixes": fixes,
+                     "min_false_match_probability": float(np.min(p_false)),
+                     "below_0.1": int(np.sum(np.array(p_false) < 0.1))})
+        print(json.dumps(rows[-1]), flush=True)
+    report = {"mode": "null", "rows": rows, "accepted_false_match_rate":
+              MatchConfig().false_match_rate,
+              "command": f"python bench/darces_bench.py null --max-lns {n_lns} --seed {seed} "
+                         f"--gns {','.join(names)}"}
+    _write_json_atomic(RESULTS / "darces_null.json", report)
+    return report
+
+
 def _route(tum: Path) -> np.ndarray:
     """(K, 2) positions of a TUM trajectory file (comment lines skipped), metres."""
     data = np.loadtxt(tum, comments="#", ndmin=2)
@@ -411,7 +440,7 @@ def main() -> None:
     """Command-line entry point."""
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("mode", choices=["paper", "stress", "scale", "generality", "firstfix",
-                                    "quick"])
+                                    "quick", "null"])
     p.add_argument("--gns", default=",".join(FAMILY),
                    help="family GNs (generality, firstfix), comma-separated")
     p.add_argument("--stress-lns", type=int, default=None,
@@ -443,7 +472,7 @@ def main() -> None:
               args.tag)
     elif args.mode == "scale":
         scale([int(s) for s in args.sizes.split(",")], args.scale_lns)
-    elif args.mode in ("generality", "firstfix"):
+    elif args.mode in ("generality", "firstfix", "null"):
         names = [n.strip() for n in args.gns.split(",") if n.strip()]
         unknown = [n for n in names if n not in FAMILY]
         if unknown:
@@ -454,8 +483,10 @@ def main() -> None:
         elif args.mode == "generality":
             stress = lns if args.stress_lns is None else args.stress_lns
             generality(names, lns, stress, args.seed)
-        else:
+        elif args.mode == "firstfix":
             firstfix(names, lns, args.seed)
+        else:
+            null(names, lns, args.seed)
     else:
         quick(args.bag, args.trials, args.radius, args.seed)
 
