@@ -7,12 +7,26 @@ Modes:
     stress  the same with 30 % LN outliers and 10 % label flips.
     scale   GN sizes 10^3..10^6 with no position prior: index build time and memory
             apart, per-LN time (median, p95) and outcome rates.
+    generality  the paper protocol (clean and stressed) on every GN of the evaluation
+            family (``gn_generator.FAMILY``), the odds decision (``darces``) beside the
+            fixed counts (``darces_counts``), in one table.
+    firstfix    the paper protocol's LNs fed as prefixes, node by node (as the rover
+            drives): nodes and distance at the first fix, and whether it is right.
+    null    stressed LNs of each family GN against another GN of the same statistics:
+            every fix would be a chance alignment (calibration of the odds decision).
+    quick   a perfect LN of the truth ROIs a bag's route passes (1 % drift, random odom
+            frame), matched against the bag's truth ROIs, ``--trials`` times.
 
 Usage (from the repository root, after ``source env.sh``)::
 
     python bench/darces_bench.py paper
     python bench/darces_bench.py stress
     python bench/darces_bench.py scale --sizes 1000,10000,100000,1000000 --scale-lns 100
+    python bench/darces_bench.py paper --max-lns 2000 --baseline-lns 1000 \
+        --methods darces,darces_counts,darces_original --tag odds
+    python bench/darces_bench.py generality --max-lns 400
+    python bench/darces_bench.py firstfix --max-lns 300
+    python bench/darces_bench.py quick --bag /work/bags/quick --trials 20
 """
 
 from __future__ import annotations
@@ -27,16 +41,24 @@ from typing import Any
 import numpy as np
 import psutil
 
+from darces_matcher.eval_cli import CORRECT_M, GROSS_M, evaluate, oracle_error
 from darces_matcher.eval_cli import main as darces_eval
-from darces_matcher.eval_cli import oracle_error
-from darces_matcher.gn_generator import GnSpec, generate_gn
-from darces_matcher.matcher import Matcher
-from darces_matcher.simulate import SimOptions, iter_lns, transform_error
-from roi_network.geojson import write_geojson
+from darces_matcher.gn_generator import FAMILY, GnSpec, family_gn, generate_gn
+from darces_matcher.matcher import MatchConfig, Matcher
+from darces_matcher.simulate import (
+    SimOptions,
+    corridor_ln,
+    iter_lns,
+    ln_prefix,
+    transform_error,
+)
+from roi_network.geojson import read_geojson, write_geojson
 from roi_network.records import xy
 
 RESULTS = Path(__file__).resolve().parent / "results"
 GN_FILE = RESULTS / "darces_gn174.geojson"
+#: One JSON file per family GN measured by ``generality`` (merged into the table).
+PARTS = RESULTS / "darces_generality_parts"
 
 
 def _gn_file() -> Path:
@@ -47,19 +69,20 @@ def _gn_file() -> Path:
     return GN_FILE
 
 
-def _eval(mode: str, extra: list[str], baseline_lns: int) -> dict[str, Any]:
-    out = RESULTS / f"darces_{mode}.json"
+def _eval(mode: str, extra: list[str], baseline_lns: int, tag: str = "") -> dict[str, Any]:
+    name = f"{mode}_{tag}" if tag else mode
+    out = RESULTS / f"darces_{name}.json"
     argv = ["--gn", str(_gn_file()), "--seed", "0", "--baseline-max-lns", str(baseline_lns),
             "--json", str(out), "--progress", *extra]
     t0 = time.perf_counter()
     darces_eval(argv)
     report = json.loads(out.read_text())
     report["command"] = "darces_eval " + " ".join(
-        a if a != str(out) else f"bench/results/darces_{mode}.json" for a in argv
+        a if a != str(out) else f"bench/results/darces_{name}.json" for a in argv
     ).replace(str(GN_FILE), "bench/results/darces_gn174.geojson")
     report["bench_wall_s"] = time.perf_counter() - t0
     out.write_text(json.dumps(report, indent=2) + "\n")
-    _write_eval_md(mode, report)
+    _write_eval_md(name, report)
     return report
 
 
@@ -167,10 +190,272 @@ def scale(sizes: list[int], n_lns: int) -> dict[str, Any]:
     return report
 
 
+def family_options(density_per_km2: float, **overrides: Any) -> SimOptions:
+    """The paper protocol on a family GN: 600 m..1 km routes; 19..29 nodes where the GN
+    is dense enough for such routes (>= 200 ROIs/km^2), else as many as a 1 km route
+    through that density passes (24 x sqrt(density / 400) +/- 20 %, at least 6)."""
+    if density_per_km2 >= 200.0:
+        # Many start/end pairs: two walks each, so that a few hundred LNs see many routes.
+        return SimOptions(walks_per_pair=2, **overrides)
+    mid = max(7.5, 24.0 * np.sqrt(density_per_km2 / 400.0))
+    return SimOptions(min_nodes=max(6, round(0.8 * mid)), max_nodes=round(1.2 * mid),
+                      **overrides)
+
+
+def generality(names: list[str], n_lns: int, stress_lns: int, seed: int) -> dict[str, Any]:
+    """The paper protocol on every family GN, odds decision beside fixed counts."""
+    methods = ["darces", "darces_counts"]
+    rows = []
+    for name in names:
+        gn = family_gn(name, seed=1)
+        spec = FAMILY[name]
+        row: dict[str, Any] = {"gn": name, "description": spec.description, "rois": len(gn),
+                               "density_per_km2": spec.density_per_km2}
+        for protocol, extra, count in (("clean", {}, n_lns),
+                                       ("stress", {"outliers": 0.3, "label_flips": 0.1},
+                                        stress_lns)):
+            if count <= 0:
+                continue
+            options = family_options(spec.density_per_km2, **extra)
+            report = evaluate(gn, methods, options, seed=seed, max_lns=count)
+            row[protocol] = {"lns": report["lns"], "min_nodes": options.min_nodes,
+                             "max_nodes": options.max_nodes,
+                             "oracle_within_2m_rate": report["oracle_within_2m_rate"],
+                             "methods": report["methods"]}
+        rows.append(row)
+        # Each GN's row as soon as it is measured: runs over parts of the family (one
+        # process each) are merged into the table by ``generality --merge``.
+        PARTS.mkdir(parents=True, exist_ok=True)
+        _write_json_atomic(PARTS / f"{name}.json", {**row, "lns_per_gn": n_lns,
+                                                     "stress_lns_per_gn": stress_lns,
+                                                     "seed": seed})
+        print(json.dumps({"gn": name, **{p: {m: {k: row[p]["methods"][m][k] for k in (
+            "correct_match_rate", "false_match_rate", "no_fix_rate", "no_fix_oracle_fit_rate")}
+            for m in methods} for p in ("clean", "stress") if p in row}}), flush=True)
+    return merge_generality()
+
+
+def merge_generality() -> dict[str, Any]:
+    """The family table from every GN row measured so far (family order)."""
+    rows = [json.loads((PARTS / f"{name}.json").read_text()) for name in FAMILY
+            if (PARTS / f"{name}.json").exists()]
+    counts = sorted({(r["lns_per_gn"], r["stress_lns_per_gn"], r["seed"]) for r in rows})
+    command = "; ".join(f"python bench/darces_bench.py generality --max-lns {n} "
+                        f"--stress-lns {m} --seed {seed} --gns "
+                        + ",".join(r["gn"] for r in rows
+                                   if (r["lns_per_gn"], r["stress_lns_per_gn"], r["seed"])
+                                   == (n, m, seed))
+                        for n, m, seed in counts)
+    command += "; python bench/darces_bench.py generality --merge"
+    report = {"mode": "generality", "gn_seed": 1, "rows": rows, "command": command,
+              "timing": "wall time of match() per LN on a 2-core machine shared with other "
+                        "jobs (two family parts ran at once)"}
+    _write_json_atomic(RESULTS / "darces_generality.json", report)
+    _write_generality_md(report)
+    return report
+
+
+def _write_json_atomic(path: Path, report: dict[str, Any]) -> None:
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(report, indent=2) + "\n")
+    tmp.replace(path)
+
+
+def _write_generality_md(report: dict[str, Any]) -> None:
+    lines = [
+        "# darces_matcher benchmark: generality (evaluation family of GNs)",
+        "",
+        f"Command: `{report['command']}`. GNs: `darces_eval --synthetic NAME --gn-seed 1`. "
+        "LNs: paper protocol (600 m..1 km, 1 % drift, 20 % missed; 2 walks per pair at "
+        ">= 200 ROIs/km^2, else 16 and fewer nodes, see `family_options`); "
+        "stress: 30 % outliers + 10 % label flips. `darces`: the odds decision; "
+        "`counts`: the fixed support/margin counts (the matcher before issue 13). "
+        "no fix | oracle: abstentions among the LNs the oracle fits within 2 m. "
+        f"{report['timing']}.",
+        "",
+        "| GN | ROIs | protocol | LNs (nodes) | oracle 2 m | method | correct match "
+        "| false match | > 10 m | no fix | no fix, oracle fits | median ms | p95 ms "
+        "| why no fix |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in report["rows"]:
+        for protocol in ("clean", "stress"):
+            if protocol not in row:
+                continue
+            p = row[protocol]
+            if not p["lns"]:
+                continue
+            for method, m in p["methods"].items():
+                why = ", ".join(f"{k} {v}" for k, v in m["no_fix_reasons"].items())
+                lines.append(
+                    f"| {row['gn']} | {row['rois']} | {protocol} "
+                    f"| {p['lns']} ({p['min_nodes']}-{p['max_nodes']}) "
+                    f"| {_pct(p['oracle_within_2m_rate'])} "
+                    f"| {'darces' if method == 'darces' else 'counts'} "
+                    f"| {_pct(m['correct_match_rate'])} | {_pct(m['false_match_rate'])} "
+                    f"| {_pct(m['false_fix_10m_rate'])} | {_pct(m['no_fix_rate'])} "
+                    f"| {_pct(m['no_fix_oracle_fit_rate'])} | {m['time_ms']['median']:.1f} "
+                    f"| {m['time_ms']['p95']:.1f} | {why} |")
+    lines += ["", "GN descriptions:", ""]
+    lines += [f"- `{r['gn']}`: {r['description']}" for r in report["rows"]]
+    (RESULTS / "darces_generality.md").write_text("\n".join(lines) + "\n")
+
+
+def first_fix(gn, options: SimOptions, config: MatchConfig, n_lns: int, seed: int
+              ) -> dict[str, Any]:
+    """Feed each LN as prefixes (least travelled node first) until the first fix."""
+    matcher = Matcher(gn, config)
+    gn_pts, gn_labels = xy(gn.records), gn.records["label"]
+    nodes, dist, outcomes = [], [], {"correct_match": 0, "false_match": 0, "gross": 0,
+                                     "never": 0}
+    count = 0
+    for sim in iter_lns(gn, options, seed=seed, max_lns=n_lns):
+        count += 1
+        for n in range(3, len(sim.records) + 1):
+            prefix = ln_prefix(sim, n)
+            result = matcher.match(prefix.records)
+            if not result.is_fix:
+                continue
+            error = transform_error(result.map_T_odom, prefix, gn_pts)
+            oracle = oracle_error(prefix, gn_pts, gn_labels)
+            right = error <= oracle + CORRECT_M
+            outcomes["correct_match" if right else "false_match"] += 1
+            outcomes["gross"] += error > GROSS_M
+            nodes.append(n)
+            # sigma = f s / 2 (simulate.py): the distance travelled to the n-th node.
+            dist.append(float(2.0 * prefix.sigma.max() / options.noise_fraction))
+            break
+        else:
+            outcomes["never"] += 1
+    return {
+        "lns": count, "fixed": len(nodes),
+        "nodes_median": float(np.median(nodes)) if nodes else None,
+        "nodes_p90": float(np.percentile(nodes, 90)) if nodes else None,
+        "distance_m_median": float(np.median(dist)) if dist else None,
+        "distance_m_p90": float(np.percentile(dist, 90)) if dist else None,
+        **{f"{k}_rate": v / max(1, count) for k, v in outcomes.items()},
+        **outcomes,
+    }
+
+
+def firstfix(names: list[str], n_lns: int, seed: int) -> dict[str, Any]:
+    """First fix on the family GNs, odds decision beside fixed counts."""
+    rows = []
+    for name in names:
+        gn = family_gn(name, seed=1)
+        options = family_options(FAMILY[name].density_per_km2)
+        for method, config in (("darces", MatchConfig()), ("darces_counts", MatchConfig.counts())):
+            row = {"gn": name, "method": method, "rois": len(gn),
+                   **first_fix(gn, options, config, n_lns, seed)}
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    report = {"mode": "firstfix", "lns_per_gn": n_lns, "seed": seed, "rows": rows,
+              "command": f"python bench/darces_bench.py firstfix --max-lns {n_lns} "
+                         f"--seed {seed} --gns {','.join(names)}"}
+    _write_json_atomic(RESULTS / "darces_firstfix.json", report)
+    lines = ["# darces_matcher benchmark: first fix (LNs fed node by node)", "",
+             f"Command: `{report['command']}`. Each LN of the paper protocol is matched "
+             "after each node (least travelled first) until the first fix; *right* is a "
+             "correct match on the nodes seen so far (error <= oracle + 2 m).", "",
+             "| GN | method | LNs | first fix | nodes median | nodes p90 | distance median m "
+             "| distance p90 m | right | wrong | > 10 m | never |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(
+            f"| {r['gn']} | {r['method']} | {r['lns']} | {r['fixed']} | {r['nodes_median']} "
+            f"| {r['nodes_p90']} | {r['distance_m_median'] or 0:.0f} "
+            f"| {r['distance_m_p90'] or 0:.0f} | {r['correct_match']} | {r['false_match']} "
+            f"| {r['gross']} | {r['never']} |")
+    (RESULTS / "darces_firstfix.md").write_text("\n".join(lines) + "\n")
+    return report
+
+
+def null(names: list[str], n_lns: int, seed: int) -> dict[str, Any]:
+    """The chance hypothesis itself: stressed LNs of each family GN (seed 1) matched
+    against another GN of the same statistics (seed 2). Every fix is a false match;
+    ``false_match_probability`` should stay high."""
+    rows = []
+    for name in names:
+        other = Matcher(family_gn(name, seed=2))
+        options = family_options(FAMILY[name].density_per_km2, outliers=0.3, label_flips=0.1)
+        p_false, fixes, count = [], 0, 0
+        for sim in iter_lns(family_gn(name, seed=1), options, seed=seed, max_lns=n_lns):
+            count += 1
+            result = other.match(sim.records)
+            fixes += result.is_fix
+            p = result.false_match_probability
+            p_false.append(1.0 if np.isnan(p) else p)
+        rows.append({"gn": name, "lns": count, "fixes": fixes,
+                     "min_false_match_probability": float(np.min(p_false)),
+                     "below_0.1": int(np.sum(np.array(p_false) < 0.1))})
+        print(json.dumps(rows[-1]), flush=True)
+    report = {"mode": "null", "rows": rows, "accepted_false_match_rate":
+              MatchConfig().false_match_rate,
+              "command": f"python bench/darces_bench.py null --max-lns {n_lns} --seed {seed} "
+                         f"--gns {','.join(names)}"}
+    _write_json_atomic(RESULTS / "darces_null.json", report)
+    return report
+
+
+def _route(tum: Path) -> np.ndarray:
+    """(K, 2) positions of a TUM trajectory file (comment lines skipped), metres."""
+    data = np.loadtxt(tum, comments="#", ndmin=2)
+    return data[:, 1:3]
+
+
+def quick(bag: Path, trials: int, radius_m: float, seed: int) -> dict[str, Any]:
+    """Match perfect corridor LNs of a bag's route against its truth ROIs."""
+    gn = read_geojson(bag / "truth" / "rois.geojson")
+    route = _route(bag / "truth" / "trajectory.tum")
+    gn_pts, gn_labels = xy(gn.records), gn.records["label"]
+    out = {}
+    for method, config in (("darces", MatchConfig()), ("darces_counts", MatchConfig.counts())):
+        matcher = Matcher(gn, config)
+        fixes, errors, reasons, n_nodes = 0, [], {}, 0
+        for k in range(trials):
+            sim = corridor_ln(gn_pts, gn_labels, route, radius_m, 0.01,
+                              np.random.default_rng([seed, k]))
+            if sim is None:
+                raise SystemExit(f"{bag}: fewer than 3 truth ROIs within {radius_m} m "
+                                 "of the route")
+            n_nodes = len(sim.records)
+            result = matcher.match(sim.records)
+            if result.is_fix:
+                fixes += 1
+                errors.append(transform_error(result.map_T_odom, sim, gn_pts))
+            else:
+                reasons[result.reason] = reasons.get(result.reason, 0) + 1
+        out[method] = {"trials": trials, "fixes": fixes,
+                       "max_error_m": max(errors) if errors else None,
+                       "no_fix_reasons": reasons}
+    report = {"mode": "quick", "bag": str(bag), "gn_rois": len(gn), "ln_nodes": n_nodes,
+              "radius_m": radius_m, "methods": out,
+              "command": f"python bench/darces_bench.py quick --bag {bag} --trials {trials}"}
+    _write_json_atomic(RESULTS / "darces_quick.json", report)
+    print(json.dumps(report, indent=2))
+    return report
+
+
 def main() -> None:
     """Command-line entry point."""
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("mode", choices=["paper", "stress", "scale"])
+    p.add_argument("mode", choices=["paper", "stress", "scale", "generality", "firstfix",
+                                    "quick", "null"])
+    p.add_argument("--gns", default=",".join(FAMILY),
+                   help="family GNs (generality, firstfix), comma-separated")
+    p.add_argument("--stress-lns", type=int, default=None,
+                   help="stressed LNs per GN (generality; default: --max-lns)")
+    p.add_argument("--seed", type=int, default=7, help="LN seed (generality, firstfix)")
+    p.add_argument("--methods", default=None,
+                   help="paper/stress: methods of darces_eval (default: its own)")
+    p.add_argument("--tag", default="",
+                   help="paper/stress: results go to darces_<mode>_<tag>.{json,md}")
+    p.add_argument("--merge", action="store_true",
+                   help="generality: only rebuild the table from the GN rows measured")
+    p.add_argument("--bag", type=Path, default=Path("/work/bags/quick"))
+    p.add_argument("--trials", type=int, default=20)
+    p.add_argument("--radius", type=float, default=15.0,
+                   help="corridor half-width of the quick LN, metres")
     p.add_argument("--baseline-lns", type=int, default=1000,
                    help="LNs for the baselines (the first of the same stream)")
     p.add_argument("--max-lns", type=int, default=None, help="cap the LNs (paper/stress)")
@@ -178,12 +463,32 @@ def main() -> None:
     p.add_argument("--scale-lns", type=int, default=100)
     args = p.parse_args()
     cap = ["--max-lns", str(args.max_lns)] if args.max_lns else []
+    if args.methods:
+        cap += ["--methods", args.methods]
     if args.mode == "paper":
-        _eval("paper", cap, args.baseline_lns)
+        _eval("paper", cap, args.baseline_lns, args.tag)
     elif args.mode == "stress":
-        _eval("stress", ["--outliers", "0.3", "--label-flips", "0.1", *cap], args.baseline_lns)
-    else:
+        _eval("stress", ["--outliers", "0.3", "--label-flips", "0.1", *cap], args.baseline_lns,
+              args.tag)
+    elif args.mode == "scale":
         scale([int(s) for s in args.sizes.split(",")], args.scale_lns)
+    elif args.mode in ("generality", "firstfix", "null"):
+        names = [n.strip() for n in args.gns.split(",") if n.strip()]
+        unknown = [n for n in names if n not in FAMILY]
+        if unknown:
+            p.error(f"unknown GN(s) {unknown} (known: {', '.join(FAMILY)})")
+        lns = args.max_lns or 400
+        if args.mode == "generality" and args.merge:
+            merge_generality()
+        elif args.mode == "generality":
+            stress = lns if args.stress_lns is None else args.stress_lns
+            generality(names, lns, stress, args.seed)
+        elif args.mode == "firstfix":
+            firstfix(names, lns, args.seed)
+        else:
+            null(names, lns, args.seed)
+    else:
+        quick(args.bag, args.trials, args.radius, args.seed)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,8 @@
 """Baselines run side by side with the matcher by ``darces_eval``.
 
 * ``darces``: this package's improved DARCES (:class:`~darces_matcher.matcher.Matcher`).
+* ``darces_counts``: the same matcher deciding by fixed support and margin counts, as
+  before the odds decision (:meth:`MatchConfig.counts`).
 * ``darces_original``: the paper's baseline, the original DARCES: same machinery without
   the orientation and semantic constraints (:meth:`MatchConfig.original`).
 * ``kiss_matcher``: KISS-Matcher 1.0.2 (ROBIN max-clique pruning + graduated
@@ -21,7 +23,7 @@ from roi_network.network import RoiNetwork
 from roi_network.records import xy
 from roi_network.transform import Rigid2D
 
-METHODS = ("darces", "darces_original", "kiss_matcher")
+METHODS = ("darces", "darces_counts", "darces_original", "kiss_matcher")
 
 
 class LnMatcher(Protocol):
@@ -94,6 +96,8 @@ def make_method(name: str, gn: RoiNetwork) -> LnMatcher:
     """
     if name == "darces":
         return Matcher(gn, MatchConfig())
+    if name == "darces_counts":
+        return Matcher(gn, MatchConfig.counts())
     if name == "darces_original":
         return Matcher(gn, MatchConfig.original())
     if name == "kiss_matcher":

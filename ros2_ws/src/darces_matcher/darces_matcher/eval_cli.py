@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from darces_matcher.baselines import METHODS, LnMatcher, make_method
-from darces_matcher.gn_generator import GnSpec, generate_gn
+from darces_matcher.gn_generator import FAMILY, GnSpec, family_gn, generate_gn
 from darces_matcher.hypotheses import fit_rigid_batch
 from darces_matcher.matcher import MatchConfig
 from darces_matcher.simulate import SimOptions, SimulatedLn, degrade_gn, iter_lns, transform_error
@@ -83,10 +83,16 @@ class Tally:
         self.error_m: list[float] = []
         self.time_ms: list[float] = []
         self.gross: list[bool] = []
+        self.oracle_fits: list[bool] = []
+        self.reasons: list[str] = []
 
-    def add(self, fix: bool, error: float, oracle: float, time_ms: float) -> None:
-        """Record one LN: whether the method fixed, its transform error and the oracle's."""
+    def add(self, fix: bool, error: float, oracle: float, time_ms: float,
+            reason: str = "") -> None:
+        """Record one LN: whether the method fixed, its transform error and the oracle's,
+        and the method's reason (why it abstained)."""
         self.time_ms.append(time_ms)
+        self.oracle_fits.append(oracle <= CORRECT_M)
+        self.reasons.append(reason)
         self.error_m.append(error if fix else float("nan"))
         if not fix:
             self.outcome.append("no_fix")
@@ -116,6 +122,18 @@ class Tally:
             "p95": float(np.percentile(times, 95)) if lns else None,
             "mean": float(np.mean(times)) if lns else None,
         }
+        # Abstentions on LNs the oracle places within 2 m: the no fixes that a matcher
+        # could have avoided.
+        fits = self.oracle_fits[:n]
+        missed = sum(f and o == "no_fix" for f, o in zip(fits, outcome, strict=True))
+        out["oracle_fit"] = sum(fits)
+        out["no_fix_oracle_fit"] = missed
+        out["no_fix_oracle_fit_rate"] = missed / sum(fits) if sum(fits) else 0.0
+        reasons: dict[str, int] = {}
+        for o, r in zip(outcome, self.reasons[:n], strict=True):
+            if o == "no_fix":
+                reasons[r] = reasons.get(r, 0) + 1
+        out["no_fix_reasons"] = dict(sorted(reasons.items(), key=lambda kv: -kv[1]))
         errors = [e for e in self.error_m[:n] if np.isfinite(e)]
         out["fix_error_m"] = {
             "median": float(np.median(errors)) if errors else None,
@@ -175,7 +193,7 @@ def evaluate(
         elapsed = 1e3 * (time.perf_counter() - t0)
         fix = result.is_fix and result.map_T_odom is not None
         error = transform_error(result.map_T_odom, sim, gn_pts) if fix else float("inf")
-        tallies[name].add(fix, error, oracle, elapsed)
+        tallies[name].add(fix, error, oracle, elapsed, result.reason)
 
     for n_lns, sim in enumerate(iter_lns(gn, options, seed, max_lns), start=1):
         oracle = oracle_error(sim, gn_pts, gn_labels, visible_mask)
@@ -225,8 +243,10 @@ def _parser() -> argparse.ArgumentParser:
     )
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--gn", type=Path, help="GN GeoJSON file (map frame)")
-    src.add_argument("--synthetic", type=int, metavar="N",
-                     help="use a generated clustered GN of N ROIs instead (seed --gn-seed)")
+    src.add_argument("--synthetic", metavar="NAME|N",
+                     help="use a generated GN instead (seed --gn-seed): a member of the "
+                          f"evaluation family ({', '.join(FAMILY)}), or N for a clustered "
+                          "GN of N ROIs")
     p.add_argument("--gn-seed", type=int, default=0, help="seed of --synthetic (default 0)")
     p.add_argument("--seed", type=int, default=0, help="seed of the LN simulation")
     p.add_argument("--max-lns", type=int, default=None, help="evaluate at most N LNs")
@@ -238,6 +258,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="share of GN ROIs never detected in orbit (hidden from the methods)")
     p.add_argument("--noise", type=float, default=0.01,
                    help="VO error bound as a share of distance travelled (paper: 0.01)")
+    p.add_argument("--min-nodes", type=int, default=SimOptions.min_nodes,
+                   help="fewest nodes of a trajectory (paper: 19)")
+    p.add_argument("--max-nodes", type=int, default=SimOptions.max_nodes,
+                   help="most nodes of a trajectory (paper: 29)")
     p.add_argument("--walks-per-pair", type=int, default=SimOptions.walks_per_pair,
                    help="random-walk trajectories tried per start/end pair")
     p.add_argument("--methods", default="darces,darces_original,kiss_matcher",
@@ -275,8 +299,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             from roi_network.geojson import read_geojson
 
             gn = read_geojson(args.gn)
+        elif args.synthetic.isdigit():
+            gn = generate_gn(GnSpec(n_rois=int(args.synthetic)), seed=args.gn_seed)
         else:
-            gn = generate_gn(GnSpec(n_rois=args.synthetic), seed=args.gn_seed)
+            gn = family_gn(args.synthetic, seed=args.gn_seed)
     except (OSError, ValueError) as exc:
         print(f"darces_eval: cannot read the GN: {exc}", file=sys.stderr)
         return 1
@@ -284,12 +310,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"darces_eval: the GN holds {len(gn)} ROIs, at least 3 are needed", file=sys.stderr)
         return 1
     options = SimOptions(noise_fraction=args.noise, outliers=args.outliers,
-                         label_flips=args.label_flips, walks_per_pair=args.walks_per_pair)
+                         label_flips=args.label_flips, walks_per_pair=args.walks_per_pair,
+                         min_nodes=args.min_nodes, max_nodes=args.max_nodes)
+    if not 3 <= options.min_nodes <= options.max_nodes:
+        print(f"darces_eval: need 3 <= --min-nodes <= --max-nodes, got {options.min_nodes}, "
+              f"{options.max_nodes}", file=sys.stderr)
+        return 2
     report = evaluate(gn, methods, options, seed=args.seed, max_lns=args.max_lns,
                       gn_misses=args.gn_misses, baseline_max_lns=args.baseline_max_lns,
                       progress=args.progress)
     report["options"] = {
         "gn": str(args.gn) if args.gn else f"synthetic:{args.synthetic}:seed{args.gn_seed}",
+        "min_nodes": options.min_nodes, "max_nodes": options.max_nodes,
         "seed": args.seed, "max_lns": args.max_lns, "outliers": args.outliers,
         "label_flips": args.label_flips, "gn_misses": args.gn_misses, "noise": args.noise,
         "walks_per_pair": args.walks_per_pair, "methods": methods,

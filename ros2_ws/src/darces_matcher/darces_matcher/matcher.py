@@ -19,6 +19,7 @@ from typing import Literal
 
 import numpy as np
 
+from darces_matcher.decision import ChanceModel, decide
 from darces_matcher.em_refit import EmModel, em_refit, gn_density
 from darces_matcher.gn_index import GnIndex
 from darces_matcher.hypotheses import (
@@ -75,7 +76,8 @@ class MatchConfig:
             GN a triplet has at most a few hundred).
         max_candidates: on a local (large-GN) index, control triplets whose lookup
             returns more candidate triangles than this, or none, are not used (cost cap;
-            no candidate means a vertex has no counterpart). None: max(30000, 0.3 x GN
+            no candidate means a vertex has no counterpart). None: 3,000 with the
+            automatic 40-neighbour index (up to 20,000 ROIs), else max(30000, 0.3 x GN
             size), i.e. the cap grows with the random candidates a precise triplet has.
         prefilter_above: with more hypotheses than this in a round, only those confirmed
             by a precise LN node other than their own vertices are fully verified.
@@ -99,7 +101,15 @@ class MatchConfig:
             (every triangle for small GNs, local triangles for large ones).
         index_exhaustive_max_nodes: GN size up to which every triangle is indexed.
         index_neighbours: with automatic side limit, about this many neighbours per node
+            (index memory ~ neighbours^2 per node); None: 40 up to 20,000 ROIs (sides
+            ~155 m at 400 ROIs/km^2: consecutive route nodes ~50 m apart still make an
+            indexed triangle; with 14, ~105 m, under 30 % outliers the LN kept 4-10
+            usable triplets and 18 of 100 stressed LNs on a Poisson GN got no fix, none
+            with 40), 14 above (memory: 631 MB at 10^6 ROIs with 14). 14 in ``counts()``.
             fall inside it (index memory ~ neighbours^2 per node).
+        index_mean_density_side: the automatic side limit is at least the radius
+            holding ``index_neighbours`` ROIs at the GN's mean density (clustered GNs);
+            False in ``counts()``: the median k-th neighbour distance alone, as before.
         index_quant_m: side-length quantisation of the triangle keys, metres; None:
             4 m for an exhaustive index, 1 m for a local one.
         label_fallback: with ``use_labels``, when the labelled search gives no fix, search
@@ -107,7 +117,11 @@ class MatchConfig:
             its inliers mostly agree on class. Misclassified nodes then still count as
             geometry, while a class-swapped LN is still rejected. Costs a second index
             (built at the first fallback) and a second search on the LNs that need it;
-            only with an exhaustive index (small GN). Also enables the polish.
+            only for a GN of at most ``label_fallback_max_nodes`` ROIs. Also enables
+            the polish.
+        label_fallback_max_nodes: largest GN (ROIs) given a label-blind fallback (its
+            index doubles the index memory); 0 in ``counts()``: exhaustive index only,
+            as before.
         min_label_agreement: least share of a label-blind fix's (or refit's) inlier
             pairs whose LN and GN classes agree.
         polish_label_blind: refit a labelled fix with label-blind association when a
@@ -128,6 +142,17 @@ class MatchConfig:
         anneal_start_m: widest annealing width of the EM, metres (halved down to
             0.5 m, then 0); 0: no annealing.
         em_iterations: EM iterations per annealing level.
+        decision: ``"odds"``: a fix when the probability that the winning alignment is
+            a chance (or a distinct alternative's) is at most ``false_match_rate``
+            (:mod:`~darces_matcher.decision`); ``"counts"``: the fixed tests of
+            ``min_inliers``, ``min_inlier_fraction`` and ``min_margin`` (the matcher
+            before issue 13, kept as the baseline ``darces_counts``).
+        false_match_rate: the accepted share of wrong fixes, the one threshold of the
+            odds decision.
+        min_side_floor_m: when no control triangle has sides of ``min_side_m``, the
+            triplets are chosen again with this shortest side (a rock cluster's close
+            nodes; their orientation is still checked against their tolerances by
+            ``min_height_ratio``); None: no second try.
     """
 
     use_orientation: bool = True
@@ -158,9 +183,11 @@ class MatchConfig:
     max_position_sigma_m: float = 2.0
     index_max_side_m: float | None = None
     index_exhaustive_max_nodes: int = 300
-    index_neighbours: int = 14
+    index_neighbours: int | None = None
     index_quant_m: float | None = None
+    index_mean_density_side: bool = True
     label_fallback: bool = True
+    label_fallback_max_nodes: int = 50000
     min_label_agreement: float = 0.75
     polish_label_blind: bool = True
     probabilistic_refit: bool = True
@@ -168,6 +195,20 @@ class MatchConfig:
     label_confusion: float = 0.1
     anneal_start_m: float = 4.0
     em_iterations: int = 4
+    decision: Literal["odds", "counts"] = "odds"
+    false_match_rate: float = 1e-2
+    min_side_floor_m: float | None = 3.0
+
+    @classmethod
+    def counts(cls, **overrides: object) -> MatchConfig:
+        """The matcher as it was before issue 13: fixed support and margin counts,
+        control triangles of 10 m sides only, the label-blind fallback on an exhaustive
+        index only, the local index's side limit from the median neighbour distance
+        (the generality baseline)."""
+        return replace(cls(decision="counts", min_side_floor_m=None,
+                           label_fallback_max_nodes=0, index_mean_density_side=False,
+                           index_neighbours=14),
+                       **overrides)
 
     @classmethod
     def original(cls, **overrides: object) -> MatchConfig:
@@ -175,7 +216,8 @@ class MatchConfig:
         this project's additions beyond the paper's hypothesise-verify-vote-refit
         (no probabilistic refit)."""
         return replace(cls(use_orientation=False, use_labels=False,
-                           probabilistic_refit=False), **overrides)
+                           probabilistic_refit=False, decision="counts",
+                           min_side_floor_m=None), **overrides)
 
 
 @dataclass
@@ -202,6 +244,11 @@ class MatchResult:
         n_triplets: control triplets tried.
         n_hypotheses: triangle hypotheses verified.
         timings_ms: wall time per stage, milliseconds.
+        log_odds: natural log of the odds of the winner against a chance alignment
+            (:mod:`~darces_matcher.decision`); NaN when not computed.
+        false_match_probability: probability that the winner is a chance or wrong
+            alignment, given the alignments searched and the distinct alternatives;
+            NaN when not computed (``decision="counts"``, or no candidate).
     """
 
     status: Status
@@ -217,6 +264,8 @@ class MatchResult:
     n_triplets: int = 0
     n_hypotheses: int = 0
     timings_ms: dict[str, float] = field(default_factory=dict)
+    log_odds: float = float("nan")
+    false_match_probability: float = float("nan")
 
     @property
     def is_fix(self) -> bool:
@@ -241,6 +290,9 @@ class Matcher:
         if not 0.0 <= self.config.outlier_prior < 1.0:
             raise ValueError(f"MatchConfig.outlier_prior must be in [0, 1), got "
                              f"{self.config.outlier_prior}")
+        if not 0.0 < self.config.false_match_rate < 1.0:
+            raise ValueError(f"MatchConfig.false_match_rate must be in (0, 1), got "
+                             f"{self.config.false_match_rate}")
         if not 0.0 <= self.config.label_confusion <= 0.5:
             raise ValueError(f"MatchConfig.label_confusion must be in [0, 0.5], got "
                              f"{self.config.label_confusion}")
@@ -249,16 +301,27 @@ class Matcher:
             use_labels=self.config.use_labels,
             max_side_m=self.config.index_max_side_m,
             exhaustive_max_nodes=self.config.index_exhaustive_max_nodes,
-            neighbours=self.config.index_neighbours,
+            neighbours=self.config.index_neighbours or (
+                40 if len(gn) <= 20000 else 14),
             quant_m=self.config.index_quant_m,
+            mean_density_side=self.config.index_mean_density_side,
         )
         self._gn_labels = gn.records["label"].astype(np.int64)
         self._gn = gn
         self._blind: Matcher | None = None
+        #: (alignments examined, odds of the distinct alternatives) of the last search.
+        self._last_search: tuple[float, list[float]] = (1.0, [])
         #: GN ROIs per square metre: the EM's outlier density (a node with no
         #: counterpart is as likely anywhere).
         self.gn_density = gn_density(self.index.pts)
-        if self.config.use_labels and self.config.label_fallback and self.index.exhaustive:
+        self._fallback_ok = self.index.exhaustive or (
+            len(gn) <= self.config.label_fallback_max_nodes)
+        #: What a chance alignment looks like on this GN (the odds decision).
+        self.chance = ChanceModel(self.index.tree, self._gn_labels,
+                                  use_labels=self.config.use_labels,
+                                  outlier_prior=self.config.outlier_prior,
+                                  label_confusion=self.config.label_confusion)
+        if self.config.use_labels and self.config.label_fallback and self._fallback_ok:
             # The label-blind fallback's index, built now rather than at the first
             # fallback: a running matcher never stalls for it.
             self._blind_matcher()
@@ -268,6 +331,12 @@ class Matcher:
         """The effective ``MatchConfig.max_candidates``."""
         if self.config.max_candidates is not None:
             return self.config.max_candidates
+        if self.config.index_neighbours is None and len(self.index.pts) <= 20000:
+            # The 40-neighbour index holds ~8x the triangles of the 14-neighbour one: a
+            # triplet with more than 3,000 candidates is unselective and costly (on a
+            # 95 %-rock GN under stress, 30,000 gave a p95 of 8.7 s and 5 of 40 LNs no
+            # fix; 3,000 gave 0.56 s and 4).
+            return 3000
         return max(30000, int(0.3 * len(self.index.pts)))
 
     def node_sigma(self, records: np.ndarray, ln_sigma: np.ndarray | None) -> np.ndarray:
@@ -296,6 +365,21 @@ class Matcher:
 
         Returns:
             The :class:`MatchResult`; never raises on a degenerate LN.
+
+        The method's steps, in order (docs/matcher.md numbers them the same way):
+
+        1. tolerances d_D, gates and weights from the LN error model (:meth:`_match`);
+        2. control triplets (:func:`~darces_matcher.triplets.control_triplets`), from
+           close nodes when no wide triangle exists;
+        3. then, per round of triplets: triangle hypotheses
+           (:func:`~darces_matcher.hypotheses.triangle_hypotheses`), votes of the whole
+           LN (:func:`~darces_matcher.vote.vote`), refit of the distinct best
+           (:func:`~darces_matcher.vote.refine`) and the decision on the odds of a
+           chance alignment (:func:`~darces_matcher.decision.decide`), until a fix;
+        4. soft semantics: the label-blind search when the labelled one gives no fix
+           (:meth:`_match_semantic`);
+        5. the probabilistic refit of a fix (:func:`~darces_matcher.em_refit.em_refit`)
+           and the decision again on its alignment (:meth:`_em_refit`).
         """
         result = self._match_semantic(ln, ln_sigma)
         if result.is_fix and self.config.probabilistic_refit:
@@ -305,10 +389,11 @@ class Matcher:
     def _em_refit(self, result: MatchResult) -> MatchResult:
         """Maximum-likelihood refit of a fix (EM, :mod:`~darces_matcher.em_refit`).
 
-        The decision (support, margin, votes) stands, except that the EM's hard pairs
-        must pass the same support test (else no fix: the hard refit's support rested
-        on pairs the mixture does not believe); the transform, its inlier pairs and
-        covariance become the EM's if its predicted spread passes
+        The decision (votes, alternatives) stands, except that the EM's alignment must
+        pass it again: its odds against chance, with the same search size and
+        alternatives (``decision="odds"``), or its hard pairs the support test
+        (``"counts"``); else no fix (``insufficient_support``). The transform, its
+        inlier pairs and covariance become the EM's if its predicted spread passes
         ``max_position_sigma_m``.
         """
         cfg = self.config
@@ -324,7 +409,18 @@ class Matcher:
         T = result.map_T_odom
         fit = em_refit(model, T.yaw, np.array([T.tx, T.ty]),
                        anneal_start_m=cfg.anneal_start_m, iterations=cfg.em_iterations)
-        if len(fit.ln) < max(cfg.min_inliers, cfg.min_inlier_fraction * len(pts)):
+        if cfg.decision == "odds":
+            # The decision again, on the maximum-likelihood alignment.
+            searched = self._blind if result.reason == "ok_label_blind" else self
+            n_tested, alternatives = searched._last_search
+            odds = self.chance.odds(fit.yaw, fit.t, pts, labels, var)
+            verdict = decide(odds.log_odds, n_tested, alternatives, cfg.false_match_rate)
+            result.log_odds = verdict.log_odds
+            result.false_match_probability = verdict.p_false
+            withheld = not verdict.accept
+        else:
+            withheld = len(fit.ln) < max(cfg.min_inliers, cfg.min_inlier_fraction * len(pts))
+        if withheld:
             result.status, result.reason = "no_fix", "insufficient_support"
         else:
             # Each node informs the fit by its probability of having a counterpart.
@@ -353,7 +449,7 @@ class Matcher:
             return self._polish(result)
         if result.is_fix or not (cfg.use_labels and cfg.label_fallback) or result.reason in (
             "too_few_nodes", "no_control_triplet"
-        ) or not self.index.exhaustive:
+        ) or not self._fallback_ok:
             return result
         # Soft semantics: misclassified nodes cannot vote in the labelled search; search
         # again on geometry only, and keep that fix if its inliers mostly agree on class
@@ -470,15 +566,25 @@ class Matcher:
 
         # Control triplets: precise, well conditioned, spread over nodes.
         t0 = time.perf_counter()
-        triplets = control_triplets(
-            pts, node_tol, cfg.n_triplets,
-            min_side_m=cfg.min_side_m, max_side_m=self.index.max_side_m,
-            min_height_ratio=cfg.min_height_ratio, max_uses_per_node=cfg.max_uses_per_node,
-            # Counting candidates pays off only where random congruent triangles abound.
-            cost=None if self.index.exhaustive else (
-                lambda trips: self._candidates(pts, labels, edge_tol, trips)),
-            max_cost=self.max_candidates,
-        )
+        sides = [cfg.min_side_m]
+        if cfg.min_side_floor_m is not None and cfg.min_side_floor_m < cfg.min_side_m:
+            # No wide triangle (a short LN, or one inside a rock cluster): close nodes
+            # still make a triangle whose orientation survives their tolerances.
+            sides.append(cfg.min_side_floor_m)
+        for min_side in sides:
+            triplets = control_triplets(
+                pts, node_tol, cfg.n_triplets,
+                min_side_m=min_side, max_side_m=self.index.max_side_m,
+                min_height_ratio=cfg.min_height_ratio,
+                max_uses_per_node=cfg.max_uses_per_node,
+                # Counting candidates pays off only where random congruent triangles
+                # abound.
+                cost=None if self.index.exhaustive else (
+                    lambda trips: self._candidates(pts, labels, edge_tol, trips)),
+                max_cost=self.max_candidates,
+            )
+            if len(triplets):
+                break
         timings["triplets"] = _ms(t0)
         if len(triplets) == 0:
             return MatchResult("no_fix", "no_control_triplet", timings_ms=_since(t_start, timings))
@@ -489,6 +595,7 @@ class Matcher:
         # Refined hypotheses by pool row: a later round refines the same best rows again.
         refined_cache: dict[int, _Refined] = {}
         result = MatchResult("no_fix", "no_hypothesis", n_triplets=len(triplets))
+        tested = 0
         for first in range(0, len(triplets), cfg.triplet_batch):
             batch = triplets[first : first + cfg.triplet_batch]
             t0 = time.perf_counter()
@@ -498,6 +605,7 @@ class Matcher:
                 use_orientation=cfg.use_orientation, max_hypotheses=cfg.max_hypotheses,
             )
             source += first
+            tested += len(source)
             _add(timings, "hypotheses", t0)
             t0 = time.perf_counter()
             # Each hypothesis gives a proper rigid transform (never a reflection).
@@ -519,8 +627,13 @@ class Matcher:
             candidates, leftover = self._refine_distinct(pts, groups, gate, weights, pool,
                                                          refined_cache)
             # Decision: enough support AND a clear margin over the best distinct alternative.
-            result = self._decide(candidates, leftover, pool, pts, gate, weights, kept)
-            result.n_triplets = min(first + cfg.triplet_batch, len(triplets))
+            done = min(first + cfg.triplet_batch, len(triplets))
+            # The alignments the whole search examines (the union bound of the odds),
+            # extrapolated from the rounds so far.
+            n_tested = tested * len(triplets) / done
+            result = self._decide(candidates, leftover, pool, pts, labels, weights, kept,
+                                  n_tested)
+            result.n_triplets = done
             _add(timings, "refine", t0)
             if result.is_fix:
                 break
@@ -567,9 +680,10 @@ class Matcher:
         leftover: int,
         pool: _Pool,
         pts: np.ndarray,
-        node_tol: np.ndarray,
+        labels: np.ndarray,
         weights: np.ndarray,
         kept: np.ndarray,
+        n_tested: float,
     ) -> MatchResult:
         """Fix or no fix from the refined candidates (best first)."""
         cfg = self.config
@@ -591,7 +705,22 @@ class Matcher:
         spread = float(np.sqrt(predicted_variance(pts, best.yaw, covariance).max()))
         status: Status = "fix"
         reason = "ok"
-        if support < max(cfg.min_inliers, cfg.min_inlier_fraction * len(pts)):
+        log_odds = p_false = float("nan")
+        if cfg.decision == "odds":
+            # The odds of the winner and of every distinct alternative against chance.
+            var = 1.0 / weights
+            alternatives = [self.chance.odds(c.yaw, c.t, pts, labels, var).log_odds
+                            for c in candidates[1:] if not _same_fix(best, c)]
+            self._last_search = (n_tested, alternatives)
+            verdict = decide(self.chance.odds(best.yaw, best.t, pts, labels, var).log_odds,
+                             n_tested, alternatives, cfg.false_match_rate)
+            log_odds, p_false = verdict.log_odds, verdict.p_false
+            unsupported = not verdict.accept and not verdict.ambiguous
+            ambiguous = not verdict.accept and verdict.ambiguous
+        else:
+            unsupported = support < max(cfg.min_inliers, cfg.min_inlier_fraction * len(pts))
+            ambiguous = support - runner_up < cfg.min_margin
+        if unsupported:
             status, reason = "no_fix", "insufficient_support"
         elif votes < cfg.min_votes:
             # The refit drifted away from every triangle hypothesis: not trustworthy.
@@ -599,7 +728,7 @@ class Matcher:
         elif spread > cfg.max_position_sigma_m:
             # Right or wrong, a fit this loose cannot place the LN within metres.
             status, reason = "no_fix", "imprecise"
-        elif support - runner_up < cfg.min_margin:
+        elif ambiguous:
             status, reason = "no_fix", "ambiguous"
         return MatchResult(
             status=status, reason=reason, map_T_odom=best_T,
@@ -607,6 +736,7 @@ class Matcher:
             inliers=np.column_stack([kept[best.ln], best.gn]).astype(np.int64),
             votes=votes, support=support,
             runner_up=runner_up, margin=support - runner_up,
+            log_odds=log_odds, false_match_probability=p_false,
         )
 
     def _refine_distinct(

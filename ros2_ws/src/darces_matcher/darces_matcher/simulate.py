@@ -329,3 +329,67 @@ def transform_error(result_T: Rigid2D, sim: SimulatedLn, gn_pts: np.ndarray) -> 
     g = gn_pts[sim.truth_gn[sim.truth_gn >= 0]]
     odom_true = sim.map_T_odom.inverse().apply(g)
     return float(np.max(np.linalg.norm(result_T.apply(odom_true) - g, axis=1)))
+
+
+def ln_prefix(sim: SimulatedLn, n: int) -> SimulatedLn:
+    """The LN as the rover holds it after its first ``n`` nodes (least travelled first).
+
+    Nodes are ordered by their drift sigma, which grows with the distance travelled
+    (ties, e.g. a false detection and the node it was seen from, keep record order).
+    """
+    order = np.argsort(sim.sigma, kind="stable")[:n]
+    rec = sim.records[order].copy()
+    rec["id"] = np.arange(len(order))
+    return SimulatedLn(rec, sim.sigma[order], sim.truth_gn[order], sim.map_T_odom,
+                       sim.trajectory)
+
+
+def corridor_ln(
+    gn_pts: np.ndarray,
+    gn_labels: np.ndarray,
+    route: np.ndarray,
+    radius_m: float,
+    noise_fraction: float,
+    rng: np.random.Generator,
+) -> SimulatedLn | None:
+    """A perfect LN of the GN ROIs a route passes (every ROI within ``radius_m``).
+
+    Each ROI is seen at the route point nearest to it; its drift is uniform in the disc
+    of radius ``noise_fraction`` x the distance travelled to that point (protocol step
+    4); the odom frame is random (step 5). Evaluation only.
+
+    Args:
+        gn_pts: (M, 2) GN positions, ``map``, metres.
+        gn_labels: (M,) GN class labels.
+        route: (K, 2) route positions in ``map``, in driving order, metres.
+        radius_m: corridor half-width, metres.
+        noise_fraction: VO error bound as a share of distance travelled.
+        rng: random generator.
+
+    Returns:
+        The LN, or None when fewer than 3 ROIs lie in the corridor.
+    """
+    travelled = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(route, axis=0),
+                                                                axis=1))])
+    dist, at = cKDTree(route).query(gn_pts)
+    nodes = np.flatnonzero(dist <= radius_m)
+    if len(nodes) < 3:
+        return None
+    nodes = nodes[np.argsort(travelled[at[nodes]], kind="stable")]
+    s = travelled[at[nodes]]
+    half = noise_fraction * s
+    yaw = rng.uniform(-np.pi, np.pi)
+    map_T_odom = Rigid2D(yaw, *(route[0] + rng.uniform(-1000.0, 1000.0, 2)))
+    radius = half * np.sqrt(rng.random(len(nodes)))
+    angle = rng.uniform(-np.pi, np.pi, len(nodes))
+    drift = radius[:, None] * np.column_stack([np.cos(angle), np.sin(angle)])
+    odom = map_T_odom.inverse().apply(gn_pts[nodes]) + drift
+    sigma = half / 2.0
+    rec = empty_records(len(nodes))
+    rec["x"], rec["y"] = odom[:, 0], odom[:, 1]
+    rec["id"] = np.arange(len(nodes))
+    rec["label"] = gn_labels[nodes]
+    rec["cov_xx"] = rec["cov_yy"] = sigma**2
+    rec["score"] = 1.0
+    rec["n_obs"] = 1
+    return SimulatedLn(rec, sigma, nodes, map_T_odom, nodes)

@@ -100,21 +100,32 @@ def test_em_priors_out_of_range_are_named() -> None:
 
 
 def test_a_fix_whose_likeliest_refit_explains_too_few_nodes_is_withheld(monkeypatch) -> None:
-    # The EM's hard pairs must pass the same support test as the hard refit: here the
-    # mixture believes only 3 of the pairs, and the matcher abstains.
+    # The EM's fit must pass the decision again. Counts: its hard pairs must pass the
+    # support test (here the mixture believes only 3 pairs). Odds: its alignment must
+    # beat chance (here it moved 40 m: every node lands on nothing).
     import darces_matcher.matcher as matcher_module
     from darces_matcher.em_refit import EmFit
     from darces_matcher.simulate import SimOptions, iter_lns
 
     gn = generate_gn(GnSpec(n_rois=120), seed=3)
     sim = next(iter(iter_lns(gn, SimOptions(noise_fraction=0.0), seed=7, max_lns=1)))
-    matcher = Matcher(gn)
-    assert matcher.match(sim.records).status == "fix"
+    counts, odds = Matcher(gn, MatchConfig.counts()), Matcher(gn)
+    assert counts.match(sim.records).status == "fix"
+    assert odds.match(sim.records).status == "fix"
 
     def believes_three(model, yaw, t, **_):
         n = len(model.pts)
         return EmFit(yaw, t, np.arange(3), sim.truth_gn[:3], 0.0, np.full(n, 3 / n))
 
+    def moved_away(model, yaw, t, **_):
+        n = len(model.pts)
+        return EmFit(yaw, np.asarray(t) + 40.0, np.arange(3), sim.truth_gn[:3], 0.0,
+                     np.full(n, 3 / n))
+
     monkeypatch.setattr(matcher_module, "em_refit", believes_three)
-    result = matcher.match(sim.records)
+    result = counts.match(sim.records)
     assert (result.status, result.reason) == ("no_fix", "insufficient_support")
+    monkeypatch.setattr(matcher_module, "em_refit", moved_away)
+    result = odds.match(sim.records)
+    assert (result.status, result.reason) == ("no_fix", "insufficient_support")
+    assert result.false_match_probability > 0.5

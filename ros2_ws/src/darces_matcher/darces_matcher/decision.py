@@ -1,0 +1,211 @@
+"""The decision: how likely is it that the winning alignment is a chance coincidence?
+
+astrometry.net's verification (Lang et al. 2010, Sec. 2.4) in 2D, with classes. Under a
+candidate ``map_T_odom`` T, each LN node i either has a GN counterpart (probability
+1 - w) or none (a false detection, an orbital miss: w). Against the hypothesis that T is
+a chance alignment, under which an LN node's position and class say nothing about the
+GN, node i's likelihood ratio is::
+
+    LR_i = w + (1 - w) sum_j N(T x_i; g_j, s_i^2 I) P(c_i | c_j) / (lambda_j f(c_i))
+
+with s_i^2 its position variance (LN drift + GN error), lambda_j the GN's *local*
+density around GN node j (ROIs/m^2, k-nearest-neighbour estimate), f(c) the share of
+class c in the GN and P(c_i | c_j) = 1 - label_confusion when the classes agree,
+label_confusion otherwise. The sum N / lambda is how much denser the GN is right where
+the node lands, at the node's own precision, than around there: a precise node on an
+isolated rare-class ROI of a sparse GN is worth ~10 nats, a far, drifted node in a
+dense rock field next to nothing, and a node that lands on nothing costs log(w).
+So a few distinctive nodes suffice in a sparse GN and a dense GN demands more, with no
+fixed node count.
+
+The log-odds of the alignment is the sum over the LN of log LR_i, less the three
+largest terms: T was fitted to the nodes, three of them (a triangle) fix it, and their
+agreement is no evidence (astrometry.net leaves the quad's own stars out likewise).
+
+Under the chance hypothesis the likelihood ratio has expectation 1, so a chance alignment
+reaches odds e^K with probability at most e^-K (Markov), and among the ``n_tested``
+alignments a search examines, the expected number that do is at most n_tested e^-K.
+With the distinct alternatives the search refined (odds e^K_a each), the probability that
+the winner is not the true alignment is::
+
+    p_false = (n_tested + sum_a e^K_a) / (n_tested + e^K + sum_a e^K_a)
+
+and the matcher reports a fix when p_false <= ``false_match_rate``: the one threshold,
+the share of wrong fixes accepted. It subsumes the old support and margin tests
+(``min_inliers``, ``min_margin``): a strong runner-up raises p_false just as a weak winner
+does.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from darces_matcher.vote import transform_points
+
+#: GN candidates per LN node in the likelihood ratio (beyond them the Gaussian is ~0).
+_K = 6
+#: Candidate reach, in standard deviations of the node's position error.
+_REACH = 4.0
+#: Neighbours of the local density estimate lambda_j = k / (pi r_k^2): enough that the
+#: estimate is not the node itself and its closest pair, few enough to stay local
+#: (~80 m at 400 ROIs/km^2, ~20 m inside a rock cluster).
+DENSITY_NEIGHBOURS = 8
+#: Terms left out of the log-odds: the degrees of freedom of a 2D rigid fit are fixed by
+#: three nodes (a control triangle).
+SPENT_NODES = 3
+
+
+def local_density(pts: np.ndarray, tree: cKDTree | None = None,
+                  k: int = DENSITY_NEIGHBOURS) -> np.ndarray:
+    """Local ROI density at each GN node, ROIs per square metre.
+
+    The k-nearest-neighbour estimate k / (pi r_k^2), r_k the distance to the k-th
+    other node (a node is not its own neighbour); at most k = N - 1.
+
+    Args:
+        pts: (N, 2) GN positions, ``map``, metres.
+        tree: KD-tree of ``pts`` if already built.
+        k: neighbours of the estimate.
+    """
+    n = len(pts)
+    k = max(1, min(k, n - 1))
+    tree = tree if tree is not None else cKDTree(pts)
+    dist, _ = tree.query(pts, k=k + 1)
+    r = np.maximum(dist[:, -1], 1.0)
+    return k / (math.pi * r**2)
+
+
+def class_frequencies(labels: np.ndarray) -> np.ndarray:
+    """Share of each class label in the GN, indexed by label (0 for absent labels)."""
+    labels = np.asarray(labels, dtype=np.int64)
+    counts = np.bincount(labels, minlength=int(labels.max(initial=0)) + 1).astype(float)
+    return counts / max(1.0, counts.sum())
+
+
+@dataclass
+class Odds:
+    """Evidence for one alignment.
+
+    Attributes:
+        log_odds: K, natural log of the likelihood ratio of the alignment against a
+            chance one, spent nodes left out.
+        node_log_lr: (N,) log LR_i of each LN node.
+    """
+
+    log_odds: float
+    node_log_lr: np.ndarray
+
+
+class ChanceModel:
+    """How a chance alignment looks on one GN: local densities and class frequencies.
+
+    Built once per GN (one KD-tree query). The LN side (positions, classes, variances)
+    is given per call.
+
+    Args:
+        tree: KD-tree of the GN positions (``map``, metres).
+        gn_labels: (M,) GN class labels.
+        use_labels: whether classes carry evidence (False: the original DARCES).
+        outlier_prior: w, share of LN nodes with no GN counterpart.
+        label_confusion: probability that an LN node's class differs from its GN
+            counterpart's.
+    """
+
+    def __init__(self, tree: cKDTree, gn_labels: np.ndarray, *, use_labels: bool,
+                 outlier_prior: float, label_confusion: float) -> None:
+        self.tree = tree
+        self.gn_labels = np.asarray(gn_labels, dtype=np.int64)
+        self.density = local_density(np.asarray(tree.data), tree)
+        self.use_labels = use_labels
+        self.outlier_prior = outlier_prior
+        self.label_confusion = label_confusion
+        self.frequency = class_frequencies(self.gn_labels)
+
+    def odds(self, yaw: float, t: np.ndarray, pts: np.ndarray, labels: np.ndarray,
+             var: np.ndarray) -> Odds:
+        """Log-odds of the alignment (yaw rad, t m) of an LN against a chance one.
+
+        Args:
+            yaw: rotation of ``map_T_odom``, radians.
+            t: (2,) translation of ``map_T_odom``, metres.
+            pts: (N, 2) LN positions, ``odom``, metres.
+            labels: (N,) LN class labels.
+            var: (N,) per-axis position variance of each node (LN drift + GN), m^2.
+        """
+        mapped = transform_points(yaw, np.asarray(t, dtype=float), pts)
+        reach = _REACH * np.sqrt(var)
+        k = min(_K, len(self.gn_labels))
+        dist, idx = self.tree.query(mapped, k=k, distance_upper_bound=float(reach.max()))
+        dist, idx = dist.reshape(len(pts), k), idx.reshape(len(pts), k)
+        near = dist <= reach[:, None]
+        j = np.where(near, idx, 0)
+        gauss = np.exp(-0.5 * dist**2 / var[:, None]) / (2.0 * math.pi * var[:, None])
+        ratio = gauss / self.density[j]
+        if self.use_labels:
+            freq = np.maximum(self.frequency[np.minimum(labels, len(self.frequency) - 1)],
+                              1e-3)
+            agree = self.gn_labels[j] == labels[:, None]
+            ratio = ratio * np.where(agree, 1.0 - self.label_confusion,
+                                     self.label_confusion) / freq[:, None]
+        evidence = np.where(near, ratio, 0.0).sum(axis=1)
+        w = self.outlier_prior
+        node = np.log(w + (1.0 - w) * evidence)
+        spent = np.sort(node)[-SPENT_NODES:].sum() if len(node) > SPENT_NODES else node.sum()
+        return Odds(float(node.sum() - spent), node)
+
+
+def false_match_probability(log_odds: float, n_tested: float,
+                            alternatives: list[float] | tuple[float, ...] = ()) -> float:
+    """Probability that the winning alignment is not the true one.
+
+    Args:
+        log_odds: K of the winner (natural log).
+        n_tested: alignments the search examined (each a chance alignment of expected
+            odds at most 1).
+        alternatives: K of each distinct alternative the search refined.
+
+    Returns:
+        (n_tested + sum e^K_a) / (n_tested + e^K + sum e^K_a), computed in log space.
+    """
+    others = np.array([math.log(max(n_tested, 1.0)), *alternatives], dtype=float)
+    log_others = float(np.logaddexp.reduce(others))
+    # p = e^lo / (e^lo + e^K) = 1 / (1 + e^(K - lo))
+    return float(1.0 / (1.0 + math.exp(min(log_odds - log_others, 700.0))))
+
+
+@dataclass
+class Verdict:
+    """The decision on one alignment.
+
+    Attributes:
+        accept: whether p_false <= the accepted false-match rate.
+        log_odds: K of the winner.
+        p_false: probability that the winner is a chance or wrong alignment.
+        ambiguous: the rejection is due to a distinct alternative (without the
+            alternatives the winner would have passed).
+    """
+
+    accept: bool
+    log_odds: float
+    p_false: float
+    ambiguous: bool
+
+
+def decide(log_odds: float, n_tested: float, alternatives: list[float],
+           false_match_rate: float) -> Verdict:
+    """Accept the winner when its false-match probability is within the accepted rate.
+
+    Args:
+        log_odds: K of the winner.
+        n_tested: alignments examined by the search.
+        alternatives: K of the distinct alternatives refined.
+        false_match_rate: the accepted share of wrong fixes (the one threshold).
+    """
+    p_false = false_match_probability(log_odds, n_tested, alternatives)
+    accept = p_false <= false_match_rate
+    ambiguous = (not accept) and false_match_probability(log_odds, n_tested) <= false_match_rate
+    return Verdict(accept, log_odds, p_false, ambiguous)

@@ -1,0 +1,162 @@
+"""The odds decision (decision.py), the evaluation family of GNs, short and prefix LNs."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from darces_matcher.decision import (
+    ChanceModel,
+    class_frequencies,
+    decide,
+    false_match_probability,
+    local_density,
+)
+from darces_matcher.eval_cli import main as darces_eval
+from darces_matcher.gn_generator import FAMILY, FamilySpec, family_gn, generate_family_gn
+from darces_matcher.matcher import MatchConfig, Matcher
+from darces_matcher.simulate import (
+    SimOptions,
+    corridor_ln,
+    iter_lns,
+    ln_prefix,
+    transform_error,
+)
+from roi_network.records import OUTCROP, ROCK, xy
+
+
+def test_false_match_probability_follows_the_odds_the_search_and_the_alternatives() -> None:
+    base = false_match_probability(20.0, 1000.0)
+    assert base == pytest.approx(1000.0 / (1000.0 + math.exp(20.0)))
+    assert false_match_probability(25.0, 1000.0) < base       # stronger evidence
+    assert false_match_probability(20.0, 10000.0) > base      # a wider search
+    assert false_match_probability(20.0, 1000.0, [19.0]) > 0.2  # a close alternative
+    assert false_match_probability(-5.0, 1.0) > 0.99
+    # The one threshold: the accepted false-match rate.
+    assert decide(20.0, 1000.0, [], 1e-2).accept
+    assert not decide(20.0, 1000.0, [], 1e-9).accept
+    verdict = decide(20.0, 1000.0, [19.5], 1e-2)
+    assert not verdict.accept and verdict.ambiguous
+
+
+def test_local_density_and_class_frequencies() -> None:
+    # A 10 m grid: 0.01 ROIs/m^2 everywhere (the k-NN estimate within its discreteness).
+    g = np.arange(0.0, 400.0, 10.0)
+    pts = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)
+    inner = np.all((pts > 100) & (pts < 300), axis=1)
+    density = local_density(pts)[inner]
+    assert np.all((density > 0.005) & (density < 0.02))
+    freq = class_frequencies(np.array([ROCK] * 19 + [OUTCROP]))
+    assert freq[ROCK] == pytest.approx(0.95) and freq[OUTCROP] == pytest.approx(0.05)
+
+
+def test_odds_grow_with_sparsity_and_rarity_and_fall_for_a_wrong_alignment() -> None:
+    sparse, dense = family_gn("poisson_50", seed=1), family_gn("poisson_1000", seed=1)
+
+    def odds(gn, shift: float) -> float:
+        pts, labels = xy(gn.records), gn.records["label"].astype(np.int64)
+        chance = ChanceModel(cKDTree(pts), labels, use_labels=True, outlier_prior=0.3,
+                             label_confusion=0.1)
+        nodes = np.arange(8)
+        var = np.full(8, 0.5**2)
+        return chance.odds(0.0, np.array([shift, 0.0]), pts[nodes], labels[nodes],
+                           var).log_odds
+
+    # Eight precise nodes on their own ROIs: far more evidence where ROIs are sparse.
+    assert odds(sparse, 0.0) > odds(dense, 0.0) > 0.0
+    # The same nodes 7 m off (14 sigma): they land on nothing.
+    assert odds(sparse, 7.0) < 0.0 and odds(dense, 7.0) < odds(dense, 0.0)
+
+
+def test_family_members_generate_as_specified() -> None:
+    assert {"poisson_50", "poisson_1000", "thomas_strong", "rocks95", "hole"} <= set(FAMILY)
+    rocks = family_gn("rocks95", seed=1)
+    assert np.mean(rocks.records["label"] == ROCK) == pytest.approx(0.95, abs=0.03)
+    hole = family_gn("hole", seed=1)
+    pts = xy(hole.records)
+    assert not np.any(np.all(np.abs(pts - [1000.0, 500.0]) < [299.0, 249.0], axis=1))
+    strong = generate_family_gn(FamilySpec("thomas", 400.0, 20.0, 5.0), seed=3)
+    poisson = generate_family_gn(FamilySpec("poisson", 400.0), seed=3)
+    # Clustered: the median nearest-neighbour distance collapses (Poisson ~25 m).
+    for gn in (strong, poisson):
+        assert len(gn) == pytest.approx(800, rel=0.1)
+    nn = [np.median(cKDTree(xy(g.records)).query(xy(g.records), k=2)[0][:, 1])
+          for g in (strong, poisson)]
+    assert nn[0] < 0.3 * nn[1]
+    assert np.array_equal(xy(family_gn("poisson_50", seed=4).records),
+                          xy(family_gn("poisson_50", seed=4).records))
+    with pytest.raises(ValueError, match="poisson_50"):
+        family_gn("no_such_gn")
+
+
+@pytest.fixture(scope="module")
+def sparse_gn():
+    """The family's sparsest GN (100 ROIs: a small exhaustive index)."""
+    return family_gn("poisson_50", seed=1)
+
+
+def test_a_short_perfect_ln_localizes_where_fixed_counts_could_not(sparse_gn) -> None:
+    # As on bags/quick: the ROIs within 15 m of a short route (here 6-8 of them), 1 %
+    # drift, random odom frame. The counts (9 inliers at least) can never fix it; the
+    # odds of a few precise nodes on a sparse GN can.
+    gn = sparse_gn
+    pts, labels = xy(gn.records), gn.records["label"]
+    odds, counts = Matcher(gn), Matcher(gn, MatchConfig.counts())
+    fixes = tried = 0
+    for k, sim in enumerate(iter_lns(gn, SimOptions(min_nodes=7, max_nodes=9), seed=5,
+                                     max_lns=4)):
+        # The route through the trajectory's first 6 nodes, densified.
+        stops = pts[sim.trajectory[:6]]
+        route = np.concatenate([a + np.linspace(0.0, 1.0, 20)[:, None] * (b - a)
+                                for a, b in itertools.pairwise(stops)])
+        ln = corridor_ln(pts, labels, route, 15.0, 0.01, np.random.default_rng(k))
+        assert ln is not None and 6 <= len(ln.records) <= 8
+        tried += 1
+        assert not counts.match(ln.records).is_fix
+        result = odds.match(ln.records)
+        if result.is_fix:
+            fixes += 1
+            assert transform_error(result.map_T_odom, ln, pts) < 2.0
+            assert result.false_match_probability <= MatchConfig().false_match_rate
+    assert tried == 4 and fixes >= 3
+
+
+def test_lns_of_another_gn_give_no_fix(sparse_gn) -> None:
+    # The null hypothesis itself: LNs from one GN against another of the same
+    # statistics. Every fix would be a chance alignment.
+    matcher = Matcher(family_gn("poisson_50", seed=2))
+    options = SimOptions(min_nodes=7, max_nodes=10, walks_per_pair=1)
+    for sim in iter_lns(sparse_gn, options, seed=3, max_lns=5):
+        result = matcher.match(sim.records)
+        assert not result.is_fix
+        assert np.isnan(result.false_match_probability) or result.false_match_probability > 0.5
+
+
+def test_prefix_keeps_the_least_travelled_nodes(sparse_gn) -> None:
+    sim = next(iter_lns(sparse_gn, SimOptions(min_nodes=7, max_nodes=10), seed=0, max_lns=1))
+    prefix = ln_prefix(sim, 5)
+    assert len(prefix.records) == 5
+    assert prefix.sigma.max() <= np.sort(sim.sigma)[4]
+    assert set(prefix.truth_gn) <= set(sim.truth_gn)
+
+
+def test_darces_eval_generates_a_family_gn_by_name(tmp_path: Path) -> None:
+    out = tmp_path / "out.json"
+    code = darces_eval(["--synthetic", "poisson_50", "--gn-seed", "1", "--max-lns", "3",
+                        "--min-nodes", "7", "--max-nodes", "10",
+                        "--methods", "darces,darces_counts", "--json", str(out)])
+    assert code == 0
+    report = json.loads(out.read_text())
+    assert report["options"]["gn"] == "synthetic:poisson_50:seed1"
+    for name in ("darces", "darces_counts"):
+        r = report["methods"][name]
+        assert r["lns"] == 3
+        assert sum(r["no_fix_reasons"].values()) == r["no_fix"]
+        assert 0.0 <= r["no_fix_oracle_fit_rate"] <= 1.0
+    assert darces_eval(["--synthetic", "no_such_gn", "--json", str(out)]) == 1
