@@ -77,9 +77,12 @@ class MatcherNode(Node):
         }
         overrides = {}
         for f in dataclasses.fields(MatchConfig):
+            # Fields whose default is None (automatic) take 0.0 for it; dynamic typing lets
+            # a YAML file set them to an int or a float.
             value = self.declare_parameter(
                 f"match.{f.name}", _config_field_default(f),
-                ParameterDescriptor(description=f"MatchConfig.{f.name} (docs/matcher.md)"),
+                ParameterDescriptor(description=f"MatchConfig.{f.name} (docs/matcher.md)",
+                                    dynamic_typing=f.default is None),
             ).value
             overrides[f.name] = None if f.default is None and value == 0.0 else value
         if not gn_path:
