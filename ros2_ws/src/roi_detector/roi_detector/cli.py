@@ -4,6 +4,7 @@
     roi_detector ln BAG_DIR --odometry DIR/vo.tum --out DIR/ln.geojson
     roi_detector eval DIR/ln.geojson BAG_DIR [--json OUT] [--plot OUT.png]
     roi_detector truth-odometry BAG_DIR --out DIR/truth_odom.tum   (evaluation helper)
+    roi_detector [--ros-args ...]                                   (the roi_detector node)
 
 ``train``, ``eval`` and ``truth-odometry`` read the bag's truth files (training and
 evaluation only); ``ln`` reads the stereo images, rover.yaml, the odometry file and the
@@ -98,7 +99,11 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
 
 
 def _cmd_ln(args) -> int:
-    cfg = RoverConfig()
+    from roi_detector.local_network import LnConfig
+    from roi_detector.tracking import TrackerConfig
+
+    cfg = RoverConfig(tracker=TrackerConfig(min_obs=args.min_obs),
+                      ln=LnConfig(min_obs=args.min_obs))
     ln, stats = build_ln(args.bag, args.odometry, args.model, cfg, args.every, args.drift)
     meta = {"source_bag": str(Path(args.bag).resolve()), "odometry": str(args.odometry),
             "model": args.model or str(_installed_model()), **stats}
@@ -138,7 +143,16 @@ def _cmd_truth_odometry(args) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``roi_detector`` command; bad input exits 1 with one line."""
+    """Entry point of the ``roi_detector`` command; bad input exits 1 with one line.
+
+    With no sub-command (or ROS arguments first, as ``globloc run`` starts it) it runs the
+    roi_detector node.
+    """
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] in ("--ros-args", "--"):
+        from roi_detector.detector_node import main as node_main
+
+        return node_main(["roi_detector", *argv])
     ap = argparse.ArgumentParser(prog="roi_detector", description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     p = sub.add_parser("ln", help="the LN a drive builds (odom)")
@@ -147,6 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", required=True)
     p.add_argument("--model", default=None, help="rover model .npz ('none': no classifier)")
     p.add_argument("--every", type=int, default=1, help="use one stereo pair in N")
+    p.add_argument("--min-obs", type=int, default=3,
+                   help="observations that confirm a track (LN node)")
     p.add_argument("--drift", type=float, default=0.01,
                    help="odometry 1-sigma error per metre travelled (TUM has no covariance)")
     p.set_defaults(func=_cmd_ln)

@@ -111,34 +111,36 @@ def _match(ln: np.ndarray, gn, truth: Truth) -> dict:
 
 
 def _plot(path: str, truth: Truth, pts: np.ndarray, ln: np.ndarray, wanted: np.ndarray) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """Top-down map (OpenCV drawing): route, truth ROIs (circles, thick: counted), LN
+    nodes (crosses); rocks red, outcrops cyan; 5 px per metre, north up."""
+    import cv2
 
     t = truth.rois
-    fig, ax = plt.subplots(figsize=(8, 8))
-    ax.plot(truth.trajectory.p[:, 0], truth.trajectory.p[:, 1], "-", color="0.6", lw=1,
-            label="route (truth)")
-    for label, col in ((ROCK, "tab:red"), (OUTCROP, "tab:cyan")):
-        m = t["label"] == label
-        ax.scatter(t["x"][m & ~wanted], t["y"][m & ~wanted], s=10, facecolors="none",
-                   edgecolors=col, alpha=0.4)
-        ax.scatter(t["x"][m & wanted], t["y"][m & wanted], s=60, facecolors="none",
-                   edgecolors=col, label=f"truth {LABEL_NAMES[label]} (counted)")
-        n = ln["label"] == label
-        ax.scatter(pts[n, 0], pts[n, 1], s=14, marker="x", color=col,
-                   label=f"LN {LABEL_NAMES[label]}")
     route = truth.trajectory.p[:, :2]
     pad = 20.0
-    ax.set_xlim(route[:, 0].min() - pad, route[:, 0].max() + pad)
-    ax.set_ylim(route[:, 1].min() - pad, route[:, 1].max() + pad)
-    ax.set_aspect("equal")
-    ax.set_xlabel("map x (m)")
-    ax.set_ylabel("map y (m)")
-    ax.legend(loc="best", fontsize=8)
-    fig.tight_layout()
+    lo = route.min(axis=0) - pad
+    hi = route.max(axis=0) + pad
+    scale = min(5.0, 1600.0 / max(hi - lo))
+    size = np.ceil((hi - lo) * scale).astype(int) + 1
+    img = np.full((size[1], size[0], 3), 255, np.uint8)
+
+    def px(p):
+        q = (np.asarray(p)[..., :2] - lo) * scale
+        return np.column_stack([q[..., 0], size[1] - 1 - q[..., 1]]).round().astype(np.int32)
+
+    cv2.polylines(img, [px(route)], False, (150, 150, 150), 1, cv2.LINE_AA)
+    colours = {ROCK: (40, 40, 220), OUTCROP: (200, 170, 0)}
+    for label, col in colours.items():
+        m = t["label"] == label
+        for (u, v), w, r in zip(px(xy(t)[m]), wanted[m], t["major_m"][m], strict=True):
+            cv2.circle(img, (int(u), int(v)), max(3, int(0.5 * r * scale)), col,
+                       2 if w else 1, cv2.LINE_AA)
+        n = ln["label"] == label
+        for u, v in px(pts[n]):
+            cv2.drawMarker(img, (int(u), int(v)), col, cv2.MARKER_CROSS, 8, 2)
+    cv2.putText(img, "truth ROI: circle (thick: counted in recall); LN node: cross; "
+                "rock red, outcrop cyan", (8, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1,
+                cv2.LINE_AA)
     tmp = Path(path).with_name(Path(path).name + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
+    cv2.imwrite(str(tmp), img)
     tmp.replace(path)

@@ -6,7 +6,6 @@ the message and goes on, so neither a node nor a CLI run dies on one bad frame.
 
 from __future__ import annotations
 
-import bisect
 from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -186,10 +185,12 @@ class PoseTrack:
         n = len(self.t)
         if n == 0 or t < self.t[0] - 1e-6 or t > self.t[-1] + 1e-6:
             return None
-        i = bisect.bisect_left(self.t.tolist(), t) if n < 64 else int(np.searchsorted(self.t, t))
-        if i < n and abs(self.t[i] - t) < 1e-6:
-            cov = None if self.cov is None else self.cov[i]
-            return Rotation.from_quat(self.q[i]).as_matrix(), self.p[i].copy(), cov
+        i = int(np.searchsorted(self.t, t))
+        # A stamp equal to a pose's (within float rounding of nanosecond stamps) takes it.
+        for k in (i - 1, i):
+            if 0 <= k < n and abs(self.t[k] - t) < 1e-6:
+                cov = None if self.cov is None else self.cov[k]
+                return Rotation.from_quat(self.q[k]).as_matrix(), self.p[k].copy(), cov
         if i == 0 or i >= n:
             return None
         t0, t1 = self.t[i - 1], self.t[i]
@@ -202,7 +203,42 @@ class PoseTrack:
         return rot, pos, cov
 
 
-def read_tum(path: str | Path, max_gap_s: float = 1.0) -> PoseTrack:
+class OdometryBuffer:
+    """Odometry poses as they arrive (node side), queried like a :class:`PoseTrack`."""
+
+    def __init__(self, max_gap_s: float = 1.0, max_len: int = 20000) -> None:
+        self.max_gap_s = max_gap_s
+        self.max_len = max_len
+        self._rows: list[tuple] = []
+        self._track: PoseTrack | None = None
+
+    @property
+    def latest_t(self) -> float | None:
+        """Stamp of the newest pose, seconds (None before the first)."""
+        return self._rows[-1][0] if self._rows else None
+
+    def append(self, t: float, position, quat_xyzw, cov_xy) -> bool:
+        """Add a pose; False (and not added) when ``t`` is not after the newest stamp."""
+        if self._rows and t <= self._rows[-1][0]:
+            return False
+        self._rows.append((t, np.asarray(position, float), np.asarray(quat_xyzw, float),
+                           np.asarray(cov_xy, float)))
+        if len(self._rows) > self.max_len:
+            del self._rows[: len(self._rows) - self.max_len]
+        self._track = None
+        return True
+
+    def at(self, t: float):
+        """See :meth:`PoseTrack.at`."""
+        if not self._rows:
+            return None
+        if self._track is None:
+            ts, ps, qs, cs = zip(*self._rows, strict=True)
+            self._track = PoseTrack(ts, ps, qs, cs, self.max_gap_s)
+        return self._track.at(t)
+
+
+def read_tum(path: str | Path, max_gap_s: float = 12.0) -> PoseTrack:
     """A TUM trajectory file (``t x y z qx qy qz qw``, base_link in odom) as a PoseTrack.
 
     Raises:

@@ -39,6 +39,8 @@ class RoverThresholds:
     Attributes:
         rock_min_area_m2: rock footprint area on the ground, m^2 (paper: 0.6).
         rock_min_height_m: rock height above the local ground, m (paper: 0.25).
+        rock_max_area_m2: larger "rocks" are terrain swells or several rocks and clutter
+            merged (not in the paper; the world's largest rock footprint is 6 m^2).
         outcrop_min_area_m2: outcrop area on the ground, m^2 (paper: 5.5).
         rock_method: ``"stereo_height"`` or ``"hessian"`` (the paper's texture mask).
         seed_height_m: stereo_height seeds: pixels this high above the ground, m.
@@ -52,6 +54,7 @@ class RoverThresholds:
 
     rock_min_area_m2: float = 0.6
     rock_min_height_m: float = 0.25
+    rock_max_area_m2: float = 8.0
     outcrop_min_area_m2: float = 5.5
     rock_method: str = "stereo_height"
     seed_height_m: float = 0.25
@@ -255,8 +258,8 @@ def rover_candidates(gray: np.ndarray, points: np.ndarray, camera: StereoCamera,
                 if on_no_depth is not None:
                     on_no_depth()
                 continue
-            if label == ROCK and (c.area_m2 < cfg.rock_min_area_m2
-                                  or c.height_m < cfg.rock_min_height_m):
+            if label == ROCK and not (cfg.rock_min_area_m2 < c.area_m2 < cfg.rock_max_area_m2
+                                      and c.height_m > cfg.rock_min_height_m):
                 continue
             if label == OUTCROP and (c.area_m2 < cfg.outcrop_min_area_m2
                                      or c.height_m > cfg.max_outcrop_height_m):
