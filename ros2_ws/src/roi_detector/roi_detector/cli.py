@@ -90,7 +90,8 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
         if pose is None:
             bad("odometry gap", f"no odometry pose at {frame.stamp_ns * 1e-9:.3f} s")
             continue
-        mapper.add_detections(detections_to_records(dets), frame.stamp_ns * 1e-9, pose)
+        mapper.add_detections(detections_to_records(dets), frame.stamp_ns * 1e-9, pose,
+                              detector.camera)
         mapper.update_ln()
     stats = {"pairs": n_pairs, "detections": n_dets, "tracks": len(mapper.tracker.tracks),
              "ln_nodes": len(mapper.ln), "bad_input": dict(bad.counts),

@@ -31,7 +31,7 @@ from roi_detector.rover_pipeline import (
     RoverDetector,
     detections_to_records,
 )
-from roi_detector.tracking import TrackerConfig, tracks_to_records
+from roi_detector.tracking import TrackerConfig
 from roi_network.pointcloud import to_pointcloud2
 from roi_network.spin import spin_until_shutdown
 
@@ -169,7 +169,7 @@ class RoiDetectorNode(Node):
         for t, records in self.waiting:
             pose = self.odometry.at(t)
             if pose is not None:
-                self.mapper.add_detections(records, t, pose)
+                tracks = self.mapper.add_detections(records, t, pose, self.detector.camera)
                 changed = t
             elif latest is not None and latest > t + self.odometry_wait_s:
                 self.bad("odometry gap", f"no odometry pose at {t:.3f} s")
@@ -179,7 +179,6 @@ class RoiDetectorNode(Node):
                 keep.append((t, records))
         self.waiting = keep
         if changed is not None:
-            tracks = tracks_to_records(self.mapper.tracker.tracks)
             stamp = round(changed * 1e9)
             self.track_pub.publish(to_pointcloud2(tracks, "odom", stamp=stamp))
 

@@ -158,14 +158,30 @@ class DriveMapper:
         self.tracker = Tracker(cfg.tracker)
         self.ln = ln if ln is not None else LocalNetwork(cfg.ln)
 
-    def add_detections(self, records_base: np.ndarray, t: float, pose) -> np.ndarray:
+    def add_detections(self, records_base: np.ndarray, t: float, pose,
+                       camera: StereoCamera | None = None) -> np.ndarray:
         """Track one pair's detections; ``pose`` = (R_odom_base, t_odom_base, xy cov or
-        None). Returns the track records (odom) touched by this pair."""
+        None). With the pair's ``camera``, tracks in its view that it did not detect count
+        a miss. Returns the track records (odom) the detector stands behind (consistent
+        tracks, see :meth:`Tracker.consistent`)."""
         r_ob, t_ob, cov = pose
         obs = observations_in_odom(records_base, t, r_ob, t_ob, cov, np.zeros(2))
-        touched = self.tracker.update(obs)
-        return tracks_to_records(touched)
+        self.tracker.update(obs)
+        if not obs:
+            self.tracker._pair_t = t
+        if camera is not None:
+            max_range = self.cfg.stereo.max_range_m
+
+            def in_view(xy_odom: np.ndarray) -> bool:
+                p = (np.array([xy_odom[0], xy_odom[1], t_ob[2]]) - t_ob) @ r_ob
+                p[2] = 0.0  # on the ground plane of base_link
+                uv, z = camera.project_base(p[None])
+                return bool(2.5 < z[0] < 0.8 * max_range and 0 <= uv[0, 0] < camera.width
+                            and 0 <= uv[0, 1] < camera.height)
+
+            self.tracker.mark_missed(in_view)
+        return tracks_to_records(self.tracker.consistent())
 
     def update_ln(self) -> bool:
-        """Feed every track to the LN; True if the LN changed."""
-        return self.ln.update(tracks_to_records(self.tracker.tracks))
+        """Feed the consistent tracks to the LN; True if the LN changed."""
+        return self.ln.update(tracks_to_records(self.tracker.consistent()))

@@ -33,6 +33,10 @@ class TrackerConfig:
         gate_m: smallest association radius, metres.
         gate_range_sigmas: the gate widens by this many stereo range sigmas.
         min_obs: observations that confirm a track.
+        min_hit_ratio: a track is kept (published, fed to the LN) only while it was
+            detected in at least this fraction of the pairs that had its centre in view
+            within range: rocks are re-detected pair after pair, terrain swells and
+            clutter flicker.
         lateral_sigma_m: 1-sigma error of an observed centre across the line of sight, m.
         footprint_sigma_frac: extra centre error as a fraction of the footprint's major
             axis (a partly seen ROI's centre moves as more of it is seen).
@@ -42,6 +46,7 @@ class TrackerConfig:
     gate_m: float = 1.0
     gate_range_sigmas: float = 3.0
     min_obs: int = 3
+    min_hit_ratio: float = 0.5
     lateral_sigma_m: float = 0.05
     footprint_sigma_frac: float = 0.15
     max_obs_kept: int = 64
@@ -89,6 +94,7 @@ class Track:
     moments_sum: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
     first_t: float = 0.0
     last_t: float = 0.0
+    n_missed: int = 0
 
     @property
     def xy(self) -> np.ndarray:
@@ -152,6 +158,7 @@ class Tracker:
         self.cfg = cfg
         self.tracks: list[Track] = []
         self._next_id = first_id
+        self._pair_t: float | None = None
 
     def update(self, observations: list[Observation]) -> list[Track]:
         """Associate one stereo pair's observations with the tracks; return those touched.
@@ -160,6 +167,7 @@ class Tracker:
         side by side never fold into one track in a single frame.
         """
         touched: list[Track] = []
+        self._pair_t = observations[0].t if observations else None
         centres = np.array([t.xy for t in self.tracks]) if self.tracks else np.zeros((0, 2))
         taken: set[int] = set()
         for obs in sorted(observations, key=lambda o: -o.area_m2):
@@ -191,6 +199,18 @@ class Tracker:
     def confirmed(self) -> list[Track]:
         """Tracks with at least ``min_obs`` observations."""
         return [t for t in self.tracks if t.n_obs >= self.cfg.min_obs]
+
+    def mark_missed(self, in_view) -> None:
+        """Count a miss for every track not touched by this pair whose centre
+        ``in_view(xy_odom)`` says the pair saw."""
+        for t in self.tracks:
+            if t.last_t != self._pair_t and in_view(t.xy):
+                t.n_missed += 1
+
+    def consistent(self) -> list[Track]:
+        """Tracks detected in at least ``min_hit_ratio`` of the pairs that saw them."""
+        r = self.cfg.min_hit_ratio
+        return [t for t in self.tracks if t.n_obs >= r * (t.n_obs + t.n_missed)]
 
 
 def tracks_to_records(tracks: list[Track]) -> np.ndarray:
