@@ -204,3 +204,50 @@ def test_pose_track_interpolates_and_reports_gaps(tmp_path):
     bad.write_text("0 1 2 3\n")
     with pytest.raises(ValueError, match=r"bad\.tum:1"):
         read_tum(bad)
+
+
+def test_rover_classifier_round_trip(tmp_path):
+    """Rock Rover / Outcrop Rover trained on separable synthetic candidates, saved,
+    loaded, and applied: dark tall blobs are rocks, pale flat patches outcrops."""
+    from roi_detector.classifier import ModelFileError
+    from roi_detector.rover_candidates import Candidate, metric_images
+    from roi_detector.rover_classifier import (
+        RoverClassifier,
+        features_of,
+        save_rover_model,
+        train_classifiers,
+    )
+
+    rng = np.random.default_rng(1)
+    left = rng.normal(120, 8, (480, 640, 3)).clip(0, 255).astype(np.uint8)
+    cands, labels = [], []
+    for k in range(24):
+        y0, x0 = 20 + (k // 6) * 50, 20 + (k % 6) * 50
+        kind = k % 3  # 0 background, 1 rock (dark, tall), 2 outcrop (pale, flat)
+        if kind == 1:
+            left[2 * y0:2 * y0 + 40, 2 * x0:2 * x0 + 40] = 40
+        elif kind == 2:
+            left[2 * y0:2 * y0 + 40, 2 * x0:2 * x0 + 40] = 230
+        mask = np.ones((20, 20), bool)
+        height = {0: 0.3, 1: 0.8, 2: 0.1}[kind] + rng.normal(0, 0.02)
+        area = {0: 1.0, 1: 1.5, 2: 9.0}[kind] * (1 + rng.normal(0, 0.05))
+        cands.append(Candidate(1, mask, (x0, y0, x0 + 20, y0 + 20), np.zeros(3), area, height,
+                               1.2, 1.0, 0.0, 6.0, 0.1, np.array([1.0, 0.0])))
+        labels.append(kind)
+    gray = left.mean(axis=2).astype(np.uint8)
+    metrics = metric_images(gray)
+    x = features_of(left, cands, metrics, "stereo")
+    clfs = train_classifiers(x, np.array(labels), "stereo", k=3)
+    path = tmp_path / "rover.npz"
+    save_rover_model(path, clfs, {"feature_set": "stereo", "threshold": 0.5, "test": True})
+    model = RoverClassifier.load(path)
+    kept = model.classify(left, cands, metrics)
+    got = {id(c): c.label for c in kept}
+    for c, kind in zip(cands, labels, strict=True):
+        if kind == 0:
+            assert id(c) not in got
+        else:
+            assert got.get(id(c)) == kind
+    (tmp_path / "bad.npz").write_bytes(b"junk")
+    with pytest.raises(ModelFileError, match=r"bad\.npz"):
+        RoverClassifier.load(tmp_path / "bad.npz")
