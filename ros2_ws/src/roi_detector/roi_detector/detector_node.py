@@ -16,7 +16,6 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import ParameterDescriptor
@@ -25,6 +24,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, PointCloud2
 
 from roi_detector.inputs import BadInput, OdometryBuffer, StereoFrame, decode_image
+from roi_detector.node_runner import run_node
 from roi_detector.rover_pipeline import (
     DriveMapper,
     RoverConfig,
@@ -33,7 +33,6 @@ from roi_detector.rover_pipeline import (
 )
 from roi_detector.tracking import TrackerConfig
 from roi_network.pointcloud import to_pointcloud2
-from roi_network.spin import spin_until_shutdown
 
 RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 #: Sensor-data QoS (best effort) with room for the pairs that arrive while one is processed.
@@ -199,22 +198,8 @@ class RoiDetectorNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    """Run the node until shutdown; a bad parameter or model exits with status 1."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = RoiDetectorNode()
-        spin_until_shutdown(node)
-    except KeyboardInterrupt:
-        pass
-    except (OSError, ValueError) as exc:
-        print(f"roi_detector: error: {exc}", file=sys.stderr)
-        return 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    """Run the node until shutdown; a bad parameter exits with status 1."""
+    return run_node(RoiDetectorNode, "roi_detector", args)
 
 
 if __name__ == "__main__":

@@ -12,15 +12,14 @@ from __future__ import annotations
 
 import sys
 
-import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
 from roi_detector.local_network import LnConfig, load_or_fresh
+from roi_detector.node_runner import run_node
 from roi_network.pointcloud import PointCloudFormatError, from_pointcloud2, to_pointcloud2
-from roi_network.spin import spin_until_shutdown
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -88,21 +87,7 @@ class LnBuilderNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the node until shutdown; a bad parameter exits with status 1."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = LnBuilderNode()
-        spin_until_shutdown(node)
-    except KeyboardInterrupt:
-        pass
-    except (OSError, ValueError) as exc:
-        print(f"ln_builder: error: {exc}", file=sys.stderr)
-        return 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(LnBuilderNode, "ln_builder", args)
 
 
 if __name__ == "__main__":
