@@ -2,7 +2,7 @@
 
 DESIGN.md's rule: an LN node matches a truth ROI of the same class when its centre is
 within max(1 m, half the truth major axis). The LN is in odom; odom is the first truth
-pose (how both the truth odometry and rover_vo start), so truth = that pose applied.
+position and heading, gravity-aligned (how both the truth odometry and rover_vo start).
 """
 
 from __future__ import annotations

@@ -3,7 +3,8 @@
 Reads a bag directory's ``truth/rois.geojson`` (map) and ``truth/trajectory.tum``
 (base_link in map), places truth ROIs in base_link at a stereo stamp, labels candidates
 by DESIGN.md's matching rule, and re-expresses the truth trajectory in an odom frame that
-starts at its first pose (the "truth odometry" of the figures).
+starts at its first position and heading, gravity-aligned as rover_vo's odom is (the
+"truth odometry" of the figures).
 """
 
 from __future__ import annotations
@@ -63,10 +64,16 @@ class Truth:
         d, _ = cKDTree(route).query(xy(self.rois))
         return d <= radius_m
 
+    def _odom_in_map(self) -> Rotation:
+        """Rotation of odom in map: the first pose's heading only (odom is gravity-aligned,
+        as rover_vo's is: z up, x along the first heading)."""
+        yaw = Rotation.from_quat(self.trajectory.q[0]).as_euler("ZYX")[0]
+        return Rotation.from_euler("z", yaw)
+
     def odom_track(self) -> PoseTrack:
-        """The truth trajectory re-expressed in an odom frame starting at its first pose."""
+        """The truth trajectory re-expressed in odom (origin at its first position)."""
         tr = self.trajectory
-        r0 = Rotation.from_quat(tr.q[0])
+        r0 = self._odom_in_map()
         p = r0.inv().apply(tr.p - tr.p[0])
         q = (r0.inv() * Rotation.from_quat(tr.q)).as_quat()
         return PoseTrack(tr.t, p, q, max_gap_s=tr.max_gap_s)
@@ -77,9 +84,8 @@ class Truth:
         write_tum(path, o.t, o.p, o.q, "truth trajectory re-expressed in odom (first pose)")
 
     def odom_to_map(self, points_odom: np.ndarray) -> np.ndarray:
-        """Map-frame (N, 3) of odom points, odom being the first truth pose."""
-        tr = self.trajectory
-        return Rotation.from_quat(tr.q[0]).apply(np.asarray(points_odom, float)) + tr.p[0]
+        """Map-frame (N, 3) of odom points (see :meth:`_odom_in_map`)."""
+        return self._odom_in_map().apply(np.asarray(points_odom, float)) + self.trajectory.p[0]
 
 
 def match_rule_radius(truth_major_m: np.ndarray) -> np.ndarray:
