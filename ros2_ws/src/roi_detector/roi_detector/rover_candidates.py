@@ -41,6 +41,8 @@ class RoverThresholds:
         rock_min_height_m: rock height above the local ground, m (paper: 0.25).
         rock_max_area_m2: larger "rocks" are terrain swells or several rocks and clutter
             merged (not in the paper; the world's largest rock footprint is 6 m^2).
+        max_depth_m: candidates whose median depth is farther are not measured well
+            enough (range sigma ~0.25 m at 11 m); the route brings them closer later.
         outcrop_min_area_m2: outcrop area on the ground, m^2 (paper: 5.5).
         rock_method: ``"stereo_height"`` or ``"hessian"`` (the paper's texture mask).
         seed_height_m: stereo_height seeds: pixels this high above the ground, m.
@@ -55,6 +57,7 @@ class RoverThresholds:
     rock_min_area_m2: float = 0.6
     rock_min_height_m: float = 0.25
     rock_max_area_m2: float = 8.0
+    max_depth_m: float = 11.0
     outcrop_min_area_m2: float = 5.5
     rock_method: str = "stereo_height"
     seed_height_m: float = 0.25
@@ -251,12 +254,22 @@ def rover_candidates(gray: np.ndarray, points: np.ndarray, camera: StereoCamera,
     families = [(ROCK, rock_mask(gray, height, cfg, metrics_for_rocks or metrics, depth))]
     if metrics is not None:
         families.append((OUTCROP, paper_mask(OUTCROP, metrics, gray.shape)))
+    # Appearance masks also fire on the sky and the far field (smooth, low entropy):
+    # only pixels with a stereo point within range can be part of a candidate.
+    valid = np.isfinite(points[..., 2])
+    h, w = valid.shape
     for label, mask in families:
-        for region, bbox in _regions(mask, min_px=10):
+        for region, bbox in _regions(mask & valid, min_px=10):
+            # Cut by the image border: partly seen, so its area and centre are wrong; it
+            # is measured whole in another pair.
+            if bbox[0] == 0 or bbox[2] == w or bbox[3] == h:
+                continue
             c = measure_region(region, bbox, label, points, height, camera, cfg)
             if c is None:
                 if on_no_depth is not None:
                     on_no_depth()
+                continue
+            if c.depth_m > cfg.max_depth_m:
                 continue
             if label == ROCK and not (cfg.rock_min_area_m2 < c.area_m2 < cfg.rock_max_area_m2
                                       and c.height_m > cfg.rock_min_height_m):
