@@ -109,7 +109,7 @@ class StereoConfig:
     num_disparities: int = 96
     block_size: int = 5
     uniqueness_ratio: int = 5
-    max_range_m: float = 14.0
+    max_range_m: float = 20.0
     downscale: int = 1
 
 
