@@ -44,6 +44,7 @@ class RoverThresholds:
         max_depth_m: candidates whose median depth is farther are not measured well
             enough (range sigma ~0.5 m at 16 m). Not closer: with a 45 deg field of view,
             an ROI the route passes 4 m beside is in view only while > 10 m ahead.
+        skip_border_regions: skip regions cut by the left, right or bottom image border.
         outcrop_min_area_m2: outcrop area on the ground, m^2 (paper: 5.5).
         rock_method: ``"stereo_height"`` or ``"hessian"`` (the paper's texture mask).
         seed_height_m: stereo_height seeds: pixels this high above the ground, m.
@@ -59,6 +60,7 @@ class RoverThresholds:
     rock_min_height_m: float = 0.25
     rock_max_area_m2: float = 8.0
     max_depth_m: float = 16.0
+    skip_border_regions: bool = True
     outcrop_min_area_m2: float = 5.5
     rock_method: str = "stereo_height"
     seed_height_m: float = 0.25
@@ -263,7 +265,7 @@ def rover_candidates(gray: np.ndarray, points: np.ndarray, camera: StereoCamera,
         for region, bbox in _regions(mask & valid, min_px=10):
             # Cut by the image border: partly seen, so its area and centre are wrong; it
             # is measured whole in another pair.
-            if bbox[0] == 0 or bbox[2] == w or bbox[3] == h:
+            if cfg.skip_border_regions and (bbox[0] == 0 or bbox[2] == w or bbox[3] == h):
                 continue
             c = measure_region(region, bbox, label, points, height, camera, cfg)
             if c is None:
