@@ -19,7 +19,7 @@ RUN_ID := $(shell date +%Y%m%d-%H%M%S)
 endif
 RUN_ENV := source ./env.sh &&
 
-.PHONY: setup sysdeps test demo lint clean
+.PHONY: setup sysdeps test demo lint clean rover-model
 setup: sysdeps $(VENV)/.installed $(WS)/install/.built
 
 # Debian packages beyond PyPI (Mesa EGL for the simulator's renderer); a no-op when present.
@@ -52,6 +52,15 @@ demo: setup
 	  $(RUN_ENV) atacama_sim generate --preset quick --seed 1 --out $(BAG); fi
 	$(RUN_ENV) globloc run $(BAG) --out out --rate $(RATE) --run-id $(RUN_ID)
 	$(RUN_ENV) globloc eval out/$(notdir $(patsubst %/,%,$(BAG)))/$(RUN_ID)
+
+# The committed rover classifiers (Rock Rover, Outcrop Rover), re-trained on the training
+# seeds (never an evaluation seed): generates the training bags if missing.
+TRAIN_BAGS ?= bags/train_quick_s101 bags/train_quick_s102
+ROVER_MODEL := ros2_ws/src/roi_detector/roi_detector/models/rover.npz
+rover-model: setup
+	@for b in $(TRAIN_BAGS); do [ -d "$$b/rosbag" ] || { s=$${b##*_s}; \
+	  $(RUN_ENV) atacama_sim generate --preset quick --seed $$s --out $$b; }; done
+	$(RUN_ENV) roi_detector train $(TRAIN_BAGS) --out $(ROVER_MODEL)
 
 clean:
 	rm -rf $(WS)/build $(WS)/install $(WS)/log $(WS)/build.log

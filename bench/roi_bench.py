@@ -1,0 +1,168 @@
+"""Rover ROI detection, tracking and LN benchmarks; results in bench/results/roi_<name>.{json,md}.
+
+For each bag: the LN built by ``roi_detector ln`` (same library code) with the truth
+trajectory re-expressed in odom as odometry (detection geometry alone) and, when a
+``vo.tum`` is given per bag, with rover_vo odometry; judged by ``roi_detector eval``
+(DESIGN.md's matching rule): recall of the truth ROIs above the rover thresholds within
+15 m of the route, precision, classification accuracy, LN node error, and
+``Matcher(gn).match(ln)`` against the truth GN. Speed: detection time per stereo pair
+with OpenCV and BLAS on one thread (``--threads 1``).
+
+Usage (from the repository root, after ``source env.sh``)::
+
+    python bench/roi_bench.py --name eval --every 2 bags/atacama_1km_s1 bags/atacama_1km_s2
+    python bench/roi_bench.py --name recipes --every 2 --recipes bags/quick
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def _one_thread() -> None:
+    # Before numpy/OpenCV start their pools: "pairs per second on one core".
+    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[var] = "1"
+
+
+def run_bag(bag: str, model: str | None, every: int, cfg, tag: str, work: Path,
+            vo: str | None = None) -> dict:
+    """LN + evaluation of one bag with one configuration."""
+    from roi_detector.cli import build_ln
+    from roi_detector.evaluation import evaluate_ln
+    from roi_detector.truth import Truth
+
+    name = Path(bag).name
+    work.mkdir(parents=True, exist_ok=True)
+    odom = work / f"{name}_truth_odom.tum"
+    Truth.load(bag).write_odom_tum(odom)
+    out = {"bag": name, "config": tag, "every": every}
+    for kind, path in (("truth_odometry", str(odom)), ("vo_odometry", vo)):
+        if path is None:
+            out[kind] = {"status": "not run (no rover_vo odometry file given)"}
+            continue
+        t0 = time.perf_counter()
+        ln, stats = build_ln(bag, path, model, cfg, every=every, log=lambda m: None)
+        wall = time.perf_counter() - t0
+        ln_path = work / f"{name}_{tag}_{kind}_ln.geojson"
+        ln.save(ln_path, stats)
+        rep = evaluate_ln(str(ln_path), bag, plot=str(work / f"{name}_{tag}_{kind}.png"))
+        rep["stats"] = stats
+        rep["wall_s"] = round(wall, 1)
+        out[kind] = rep
+        print(f"{name} {tag} {kind}: {_line(rep)}", flush=True)
+    return out
+
+
+def _line(rep: dict) -> str:
+    pc = rep["per_class"]
+    ne = rep.get("node_error_m", {})
+    m = rep["matcher"]["truth_gn"]
+    return (f"rock R {pc['rock']['truth_found']}/{pc['rock']['truth_wanted']} "
+            f"P {pc['rock']['true_nodes']}/{pc['rock']['ln_nodes']}; outcrop R "
+            f"{pc['outcrop']['truth_found']}/{pc['outcrop']['truth_wanted']} P "
+            f"{pc['outcrop']['true_nodes']}/{pc['outcrop']['ln_nodes']}; class acc "
+            f"{rep['classification_accuracy']}; node err median {ne.get('median')}; matcher "
+            f"{m.get('status')} {m.get('reason', '')} err {m.get('error_m_mean')}; "
+            f"{rep['stats']['detect_s_per_pair']:.3f} s/pair")
+
+
+def _pct(x) -> str:
+    return "-" if x is None else f"{100 * x:.1f} %"
+
+
+def write_markdown(path: Path, results: list[dict], meta: dict) -> None:
+    """The results as a table per configuration and odometry."""
+    lines = [f"# roi_bench: {meta['name']}", "",
+             f"Command: `{meta['command']}`  ", f"Date: {meta['date']}; machine: "
+             f"{meta['machine']}", "",
+             "| bag | config | odometry | rock recall | rock precision | outcrop recall | "
+             "outcrop precision | class. acc. | LN nodes | node err median / p90 (m) | "
+             "matcher (truth GN) | s/pair (1 thread) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        for kind in ("truth_odometry", "vo_odometry"):
+            rep = r[kind]
+            if "per_class" not in rep:
+                lines.append(f"| {r['bag']} | {r['config']} | {kind} | {rep['status']} |"
+                             " | | | | | | | |")
+                continue
+            pc = rep["per_class"]
+            ne = rep.get("node_error_m", {})
+            m = rep["matcher"]["truth_gn"]
+            mtxt = m["status"] + (f", {m['error_m_mean']:.2f} m" if "error_m_mean" in m else
+                                  f" ({m.get('reason', '')})")
+            err = (f"{ne['median']:.2f} / {ne['p90']:.2f}" if ne else "-")
+            lines.append(
+                f"| {r['bag']} | {r['config']} | {kind} | "
+                f"{pc['rock']['truth_found']}/{pc['rock']['truth_wanted']} | "
+                f"{_pct(pc['rock']['precision'])} ({pc['rock']['true_nodes']}/"
+                f"{pc['rock']['ln_nodes']}) | "
+                f"{pc['outcrop']['truth_found']}/{pc['outcrop']['truth_wanted']} | "
+                f"{_pct(pc['outcrop']['precision'])} ({pc['outcrop']['true_nodes']}/"
+                f"{pc['outcrop']['ln_nodes']}) | {_pct(rep['classification_accuracy'])} | "
+                f"{rep['ln_nodes']} | {err} | {mtxt} | "
+                f"{rep['stats']['detect_s_per_pair']:.3f} |")
+    lines += ["", "Recall: truth ROIs above the rover thresholds within 15 m of the route found "
+              "by an LN node of their class (DESIGN.md's rule: centre within max(1 m, half "
+              "the truth major axis)); precision: LN nodes of a class that match a truth ROI "
+              "of that class; classification accuracy: LN nodes matching a truth ROI that "
+              "carry its class. s/pair: detection (+ classification) per stereo pair, one "
+              "thread, on the shared 2-core machine (other jobs running)."]
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("\n".join(lines) + "\n")
+    tmp.replace(path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("bags", nargs="+")
+    ap.add_argument("--name", default="eval")
+    ap.add_argument("--every", type=int, default=2)
+    ap.add_argument("--model", default=None, help="rover model (.npz); default: committed")
+    ap.add_argument("--vo", action="append", default=[],
+                    help="BAG_NAME=DIR/vo.tum: rover_vo odometry of a bag")
+    ap.add_argument("--recipes", action="store_true",
+                    help="also: paper rock recipe, no classifier")
+    ap.add_argument("--threads", type=int, default=1)
+    args = ap.parse_args(argv)
+    if args.threads == 1:
+        _one_thread()
+    import cv2
+
+    cv2.setNumThreads(args.threads)
+    from roi_detector.rover_candidates import RoverThresholds
+    from roi_detector.rover_pipeline import RoverConfig
+
+    configs = [("default", RoverConfig(), args.model)]
+    if args.recipes:
+        configs += [("no_classifier", RoverConfig(), "none"),
+                    ("paper_rock_mask", RoverConfig(thresholds=RoverThresholds(
+                        rock_method="hessian")), args.model)]
+    vo = dict(v.split("=", 1) for v in args.vo)
+    work = RESULTS / f"roi_{args.name}_work"
+    results = []
+    for bag in args.bags:
+        for tag, cfg, model in configs:
+            results.append(run_bag(bag, model, args.every, cfg, tag, work,
+                                   vo.get(Path(bag).name)))
+    meta = {"name": args.name, "command": "python bench/roi_bench.py " + " ".join(
+        argv if argv is not None else sys.argv[1:]), "date": time.strftime("%Y-%m-%d %H:%M"),
+            "machine": f"{os.cpu_count()} cores, shared with other jobs"}
+    RESULTS.mkdir(exist_ok=True)
+    out = RESULTS / f"roi_{args.name}.json"
+    out.write_text(json.dumps({"meta": meta, "results": results}, indent=1) + "\n")
+    write_markdown(RESULTS / f"roi_{args.name}.md", results, meta)
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,196 @@
+"""``roi_detector``: the rover ROI pipeline offline (same library code as the nodes).
+
+    roi_detector train BAG_DIR... --out models/rover.npz
+    roi_detector ln BAG_DIR --odometry DIR/vo.tum --out DIR/ln.geojson
+    roi_detector eval DIR/ln.geojson BAG_DIR [--json OUT] [--plot OUT.png]
+    roi_detector truth-odometry BAG_DIR --out DIR/truth_odom.tum   (evaluation helper)
+    roi_detector [--ros-args ...]                                   (the roi_detector node)
+
+``train``, ``eval`` and ``truth-odometry`` read the bag's truth files (training and
+evaluation only); ``ln`` reads the stereo images, rover.yaml, the odometry file and the
+model, never the truth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from roi_detector.inputs import BadInput, load_rover_params, read_stereo_frames, read_tum
+from roi_detector.rover_pipeline import (
+    DriveMapper,
+    RoverConfig,
+    RoverDetector,
+    detections_to_records,
+)
+
+DEFAULT_MODEL = Path(__file__).resolve().parent / "models" / "rover.npz"
+
+
+def _installed_model() -> Path | None:
+    """The committed rover model (package data), if present."""
+    if DEFAULT_MODEL.is_file():
+        return DEFAULT_MODEL
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        p = Path(get_package_share_directory("roi_detector")) / "models" / "rover.npz"
+        return p if p.is_file() else None
+    except Exception:
+        return None
+
+
+def load_classifier(path: str | None):
+    """The rover classifiers of ``path`` (or the committed model); None for 'none'."""
+    from roi_detector.rover_classifier import RoverClassifier
+
+    if path == "none":
+        return None
+    model = Path(path) if path else _installed_model()
+    if model is None:
+        return None
+    return RoverClassifier.load(model)
+
+
+def odometry_xy_covariance(track, drift_frac: float) -> np.ndarray:
+    """(N, 2, 2) x-y covariance of a TUM odometry (which carries none): isotropic, with
+    1-sigma ``drift_frac`` of the distance travelled (m^2)."""
+    steps = np.r_[0.0, np.linalg.norm(np.diff(track.p[:, :2], axis=0), axis=1)]
+    sigma = drift_frac * np.cumsum(steps) + 0.01
+    return sigma[:, None, None] ** 2 * np.eye(2)[None]
+
+
+def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | None = None,
+             every: int = 1, drift_frac: float = 0.01, log=print) -> tuple:
+    """Run detection, tracking and the LN over a bag with an odometry file.
+
+    Returns (LocalNetwork, stats dict).
+    """
+    cfg = cfg or RoverConfig()
+    params = load_rover_params(Path(bag_dir) / "rover.yaml")
+    track = read_tum(odometry)
+    track.cov = odometry_xy_covariance(track, drift_frac)
+    bad = BadInput(lambda m: log(f"roi_detector: {m}"))
+    detector = RoverDetector(params["base_to_left_camera"], load_classifier(model), cfg, bad)
+    mapper = DriveMapper(cfg)
+    n_pairs = n_dets = 0
+    t_detect = 0.0
+    for frame in read_stereo_frames(bag_dir, bad, every=every):
+        n_pairs += 1
+        t0 = time.perf_counter()
+        dets = detector.detect(frame)
+        t_detect += time.perf_counter() - t0
+        n_dets += len(dets)
+        pose = track.at(frame.stamp_ns * 1e-9)
+        if pose is None:
+            bad("odometry gap", f"no odometry pose at {frame.stamp_ns * 1e-9:.3f} s")
+            continue
+        mapper.add_detections(detections_to_records(dets), frame.stamp_ns * 1e-9, pose,
+                              detector.camera)
+        mapper.update_ln()
+    stats = {"pairs": n_pairs, "detections": n_dets, "tracks": len(mapper.tracker.tracks),
+             "ln_nodes": len(mapper.ln), "bad_input": dict(bad.counts),
+             "detect_s_per_pair": t_detect / max(n_pairs, 1)}
+    return mapper.ln, stats
+
+
+def _cmd_ln(args) -> int:
+    from roi_detector.local_network import LnConfig
+    from roi_detector.tracking import TrackerConfig
+
+    cfg = RoverConfig(tracker=TrackerConfig(min_obs=args.min_obs),
+                      ln=LnConfig(min_obs=args.min_obs))
+    ln, stats = build_ln(args.bag, args.odometry, args.model, cfg, args.every, args.drift)
+    meta = {"source_bag": str(Path(args.bag).resolve()), "odometry": str(args.odometry),
+            "model": args.model or str(_installed_model()), **stats}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    ln.save(args.out, meta)
+    print(f"roi_detector ln: {stats['pairs']} stereo pairs, {stats['detections']} detections, "
+          f"{stats['tracks']} tracks -> {len(ln)} LN nodes in {args.out} "
+          f"({stats['detect_s_per_pair']:.3f} s/pair detection)")
+    return 0
+
+
+def _cmd_eval(args) -> int:
+    from roi_detector.evaluation import evaluate_ln
+
+    report = evaluate_ln(args.ln, args.bag, gn=args.gn, plot=args.plot)
+    text = json.dumps(report, indent=2)
+    if args.json:
+        Path(args.json).write_text(text + "\n")
+    print(text)
+    return 0
+
+
+def _cmd_train(args) -> int:
+    from roi_detector.training import train_rover_model
+
+    summary = train_rover_model(args.bags, args.out, every=args.every, k=args.k)
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
+def _cmd_truth_odometry(args) -> int:
+    from roi_detector.truth import Truth
+
+    Truth.load(args.bag).write_odom_tum(args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``roi_detector`` command; bad input exits 1 with one line.
+
+    With no sub-command (or ROS arguments first, as ``globloc run`` starts it) it runs the
+    roi_detector node.
+    """
+    argv = sys.argv[1:] if argv is None else argv
+    if not argv or argv[0] in ("--ros-args", "--"):
+        from roi_detector.detector_node import main as node_main
+
+        return node_main(["roi_detector", *argv])
+    ap = argparse.ArgumentParser(prog="roi_detector", description=__doc__.split("\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    p = sub.add_parser("ln", help="the LN a drive builds (odom)")
+    p.add_argument("bag")
+    p.add_argument("--odometry", required=True, help="TUM file, base_link in odom")
+    p.add_argument("--out", required=True)
+    p.add_argument("--model", default=None, help="rover model .npz ('none': no classifier)")
+    p.add_argument("--every", type=int, default=1, help="use one stereo pair in N")
+    p.add_argument("--min-obs", type=int, default=3,
+                   help="observations that confirm a track (LN node)")
+    p.add_argument("--drift", type=float, default=0.01,
+                   help="odometry 1-sigma error per metre travelled (TUM has no covariance)")
+    p.set_defaults(func=_cmd_ln)
+    p = sub.add_parser("eval", help="an LN judged against the bag's truth")
+    p.add_argument("ln")
+    p.add_argument("bag")
+    p.add_argument("--gn", default=None, help="also match against this GN (map GeoJSON)")
+    p.add_argument("--json", default=None)
+    p.add_argument("--plot", default=None)
+    p.set_defaults(func=_cmd_eval)
+    p = sub.add_parser("train", help="train the Rock Rover / Outcrop Rover classifiers")
+    p.add_argument("bags", nargs="+")
+    p.add_argument("--out", required=True)
+    p.add_argument("--every", type=int, default=2)
+    p.add_argument("--k", type=int, default=5)
+    p.set_defaults(func=_cmd_train)
+    p = sub.add_parser("truth-odometry", help="truth trajectory re-expressed in odom (TUM)")
+    p.add_argument("bag")
+    p.add_argument("--out", required=True)
+    p.set_defaults(func=_cmd_truth_odometry)
+    args = ap.parse_args(argv)
+    try:
+        return args.func(args)
+    except (OSError, ValueError) as exc:
+        print(f"roi_detector {args.cmd}: error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,206 @@
+"""The roi_detector node: per stereo pair, detect and classify ROIs; track them in odom.
+
+Thin ROS wrapper around :class:`~roi_detector.rover_pipeline.RoverDetector` (detection,
+classification) and :class:`~roi_detector.rover_pipeline.DriveMapper` (tracking), the
+code ``roi_detector ln`` runs offline.
+
+Subscribes the stereo pair (CompressedImage + CameraInfo, sensor-data QoS) and
+``/vo/odometry``; publishes ``/rois/detections`` (base_link, every pair) and
+``/rois/tracks`` (odom, every track, after each pair whose odometry pose is known).
+Bad input (undecodable image, missing pair half, odometry gap, a detection with no valid
+depth) is counted, logged once per kind and skipped; counts are on ``/rois/status``.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, CompressedImage, PointCloud2
+
+from roi_detector.inputs import BadInput, OdometryBuffer, StereoFrame, decode_image
+from roi_detector.node_runner import run_node
+from roi_detector.rover_pipeline import (
+    DriveMapper,
+    RoverConfig,
+    RoverDetector,
+    detections_to_records,
+)
+from roi_detector.tracking import TrackerConfig
+from roi_network.pointcloud import to_pointcloud2
+
+RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+#: Sensor-data QoS (best effort) with room for the pairs that arrive while one is processed.
+SENSOR = QoSProfile(depth=20, reliability=qos_profile_sensor_data.reliability,
+                    durability=qos_profile_sensor_data.durability)
+
+
+def _stamp_s(stamp) -> float:
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
+class RoiDetectorNode(Node):
+    """Stereo pairs + odometry in, /rois/detections and /rois/tracks out."""
+
+    def __init__(self) -> None:
+        super().__init__("roi_detector")
+        d = ParameterDescriptor
+        extrinsic = self.declare_parameter(
+            "base_to_left_camera", [0.0] * 7,
+            d(description="left optical frame in base_link [x y z qx qy qz qw] (rover.yaml)"),
+        ).value
+        model = self.declare_parameter(
+            "model_path", "",
+            d(description="rover classifier model (.npz); '' = the installed model, "
+              "'none' = no classifier"),
+        ).value
+        self.max_gap_s = self.declare_parameter(
+            "odometry_max_gap_s", 12.0,
+            d(description="longest odometry gap interpolated across, seconds (odometry may "
+              "come once per stereo pair: every 0.45 m, every 10 s when stopped)"),
+        ).value
+        self.odometry_wait_s = self.declare_parameter(
+            "odometry_wait_s", 3.0,
+            d(description="how long a pair waits for odometry past its stamp, seconds"),
+        ).value
+        min_obs = self.declare_parameter(
+            "min_obs", TrackerConfig().min_obs,
+            d(description="observations that confirm a track"),
+        ).value
+        if len(extrinsic) != 7 or not any(extrinsic):
+            raise ValueError("parameter 'base_to_left_camera' is not set (pass the bag's "
+                             "rover.yaml as a params file)")
+        from roi_detector.cli import load_classifier
+
+        classifier = load_classifier(model or None)
+        cfg = RoverConfig(tracker=TrackerConfig(min_obs=int(min_obs)))
+        self.bad = BadInput(lambda m: self.get_logger().warning(m))
+        self.detector = RoverDetector(extrinsic, classifier, cfg, self.bad)
+        self.mapper = DriveMapper(cfg)
+        self.odometry = OdometryBuffer(self.max_gap_s)
+        self.pending_pairs: dict[int, dict[str, CompressedImage]] = {}
+        self.waiting: list[tuple[float, np.ndarray]] = []  # detections waiting for odometry
+        self.left_k = self.right_p = None
+        self.n_pairs = 0
+        prov = {} if classifier is None else classifier.meta.get("provenance", {})
+        self.get_logger().info(f"classifier: {prov.get('command', 'none')}")
+
+        self.det_pub = self.create_publisher(PointCloud2, "/rois/detections", RELIABLE)
+        self.track_pub = self.create_publisher(PointCloud2, "/rois/tracks", RELIABLE)
+        self.status_pub = self.create_publisher(DiagnosticArray, "/rois/status", 10)
+        self.create_subscription(CompressedImage, "/stereo/left/image_raw/compressed",
+                                 lambda m: self.on_image("left", m), SENSOR)
+        self.create_subscription(CompressedImage, "/stereo/right/image_raw/compressed",
+                                 lambda m: self.on_image("right", m), SENSOR)
+        self.create_subscription(CameraInfo, "/stereo/left/camera_info", self.on_left_info,
+                                 SENSOR)
+        self.create_subscription(CameraInfo, "/stereo/right/camera_info", self.on_right_info,
+                                 SENSOR)
+        self.create_subscription(Odometry, "/vo/odometry", self.on_odometry, RELIABLE)
+
+    def on_left_info(self, msg: CameraInfo) -> None:
+        self.left_k = np.asarray(msg.k, float)
+        self._process_ready()
+
+    def on_right_info(self, msg: CameraInfo) -> None:
+        self.right_p = np.asarray(msg.p, float)
+        self._process_ready()
+
+    def on_image(self, side: str, msg: CompressedImage) -> None:
+        """Pair the halves by header stamp; a half left alone for 2 s is dropped."""
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        self.pending_pairs.setdefault(stamp, {})[side] = msg
+        for old in [s for s in self.pending_pairs if s < stamp - 2_000_000_000]:
+            self.bad("missing pair half", f"stereo pair at {old * 1e-9:.3f} s has one image")
+            del self.pending_pairs[old]
+        self._process_ready()
+
+    def _process_ready(self) -> None:
+        if self.left_k is None or self.right_p is None:
+            return
+        for stamp in sorted(s for s, p in self.pending_pairs.items() if len(p) == 2):
+            pair = self.pending_pairs.pop(stamp)
+            self.process_pair(stamp, pair["left"], pair["right"])
+
+    def process_pair(self, stamp: int, left_msg, right_msg) -> None:
+        """Detect, publish detections, track when the odometry pose is known."""
+        left, right = decode_image(left_msg.data), decode_image(right_msg.data)
+        if left is None or right is None or left.shape != right.shape:
+            self.bad("undecodable image", f"stereo pair at {stamp * 1e-9:.3f} s "
+                     f"({left_msg.format!r})")
+            return
+        frame = StereoFrame(stamp, left, right, self.left_k, self.right_p)
+        try:
+            dets = self.detector.detect(frame)
+        except ValueError as exc:  # inconsistent CameraInfo: named field
+            self.bad("bad camera_info", str(exc))
+            return
+        self.n_pairs += 1
+        records = detections_to_records(dets)
+        self.det_pub.publish(to_pointcloud2(records, "base_link", stamp=left_msg.header.stamp))
+        self.waiting.append((_stamp_s(left_msg.header.stamp), records))
+        self._track_waiting()
+        self.publish_status(left_msg.header.stamp)
+
+    def on_odometry(self, msg: Odometry) -> None:
+        """Buffer the odometry pose and x-y covariance; resolve waiting detections."""
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        cov = np.asarray(msg.pose.covariance, float).reshape(6, 6)[:2, :2]
+        if not (np.all(np.isfinite([p.x, p.y, p.z, q.x, q.y, q.z, q.w]))
+                and np.all(np.isfinite(cov))):
+            self.bad("bad odometry", "non-finite pose or covariance on /vo/odometry")
+            return
+        if not self.odometry.append(_stamp_s(msg.header.stamp), [p.x, p.y, p.z],
+                                    [q.x, q.y, q.z, q.w], cov):
+            self.bad("odometry out of order", "a /vo/odometry stamp went backwards")
+            return
+        self._track_waiting()
+
+    def _track_waiting(self) -> None:
+        latest = self.odometry.latest_t
+        keep = []
+        changed = None
+        for t, records in self.waiting:
+            pose = self.odometry.at(t)
+            if pose is not None:
+                tracks = self.mapper.add_detections(records, t, pose, self.detector.camera)
+                changed = t
+            elif latest is not None and latest > t + self.odometry_wait_s:
+                self.bad("odometry gap", f"no odometry pose at {t:.3f} s")
+            elif latest is None and self.waiting[-1][0] > t + self.odometry_wait_s:
+                self.bad("odometry gap", f"no odometry at all by {self.waiting[-1][0]:.3f} s")
+            else:
+                keep.append((t, records))
+        self.waiting = keep
+        if changed is not None:
+            stamp = round(changed * 1e9)
+            self.track_pub.publish(to_pointcloud2(tracks, "odom", stamp=stamp))
+
+    def publish_status(self, stamp) -> None:
+        """Pair, track and bad-input counts on /rois/status."""
+        status = DiagnosticStatus(name="roi_detector", hardware_id="rover_stereo")
+        status.level = DiagnosticStatus.OK if not self.bad.counts else DiagnosticStatus.WARN
+        status.message = f"{self.n_pairs} pairs, {len(self.mapper.tracker.tracks)} tracks"
+        values = {"pairs": self.n_pairs, "tracks": len(self.mapper.tracker.tracks),
+                  "confirmed": len(self.mapper.tracker.confirmed()),
+                  "waiting_for_odometry": len(self.waiting), **{
+                      f"skipped: {k}": v for k, v in self.bad.counts.items()}}
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        msg = DiagnosticArray()
+        msg.header.stamp = stamp
+        msg.status = [status]
+        self.status_pub.publish(msg)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the node until shutdown; a bad parameter exits with status 1."""
+    return run_node(RoiDetectorNode, "roi_detector", args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

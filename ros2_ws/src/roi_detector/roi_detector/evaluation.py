@@ -1,0 +1,146 @@
+"""An LN judged against a bag's truth (evaluation only: reads truth files).
+
+DESIGN.md's rule: an LN node matches a truth ROI of the same class when its centre is
+within max(1 m, half the truth major axis). The LN is in odom; odom is the first truth
+position and heading, gravity-aligned (how both the truth odometry and rover_vo start).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from roi_detector.truth import Truth, match_to_truth
+from roi_network.geojson import read_geojson
+from roi_network.records import LABEL_NAMES, OUTCROP, ROCK, xy
+from roi_network.transform import Rigid2D
+
+
+def _rate(num: int, den: int) -> float | None:
+    return None if den == 0 else num / den
+
+
+def evaluate_ln(ln_path: str, bag_dir: str, gn: str | None = None,
+                plot: str | None = None, radius_m: float = 15.0) -> dict:
+    """Recall, precision, classification accuracy, node error and the matcher's fix.
+
+    Args:
+        ln_path: LN GeoJSON (odom) written by ``roi_detector ln`` or ln_builder.
+        bag_dir: the bag directory with ``truth/``.
+        gn: optional GN GeoJSON (map) to match against, besides the truth GN.
+        plot: optional PNG path: truth ROIs, route and LN nodes in map.
+        radius_m: recall counts truth ROIs above the rover thresholds this close to the
+            route, metres.
+    """
+    truth = Truth.load(bag_dir)
+    ln = read_geojson(ln_path).records
+    t = truth.rois
+    pts = truth.odom_to_map(np.column_stack([ln["x"], ln["y"], ln["z"]])) if len(ln) else \
+        np.zeros((0, 3))
+    # Matching by position only, then judged by class.
+    j_any, _ = match_to_truth(pts[:, :2], t)
+    wanted = truth.above_thresholds() & truth.near_route(radius_m)
+    report: dict = {"ln": str(ln_path), "bag": str(bag_dir), "ln_nodes": len(ln),
+                    "truth_wanted": int(wanted.sum()), "per_class": {}}
+    for label in (ROCK, OUTCROP):
+        name = LABEL_NAMES[label]
+        mine = ln["label"] == label
+        truth_of = np.where(j_any >= 0, t["label"][np.clip(j_any, 0, None)], 0)
+        tp_nodes = mine & (j_any >= 0) & (truth_of == label)
+        found = set(j_any[tp_nodes].tolist())
+        wanted_c = np.flatnonzero(wanted & (t["label"] == label))
+        hits = sum(1 for i in wanted_c if i in found)
+        report["per_class"][name] = {
+            "ln_nodes": int(mine.sum()), "true_nodes": int(tp_nodes.sum()),
+            "precision": _rate(int(tp_nodes.sum()), int(mine.sum())),
+            "truth_wanted": len(wanted_c), "truth_found": int(hits),
+            "recall": _rate(hits, len(wanted_c)),
+        }
+    matched = j_any >= 0
+    correct = matched & (t["label"][np.clip(j_any, 0, None)] == ln["label"])
+    report["classification_accuracy"] = _rate(int(correct.sum()), int(matched.sum()))
+    report["nodes_matching_any_truth"] = int(matched.sum())
+    tp = np.flatnonzero(correct)
+    if len(tp):
+        err = np.linalg.norm(pts[tp, :2] - xy(t)[j_any[tp]], axis=2 - 1)
+        report["node_error_m"] = {"median": float(np.median(err)), "p90":
+                                  float(np.percentile(err, 90)), "max": float(err.max()),
+                                  "n": len(err)}
+        sig = np.sqrt(0.5 * (ln["cov_xx"][tp] + ln["cov_yy"][tp]))
+        report["node_error_over_sigma_median"] = float(np.median(err / np.maximum(sig, 1e-6)))
+    report["matcher"] = {"truth_gn": _match(ln, read_geojson(Path(bag_dir) / "truth" /
+                                                             "rois.geojson"), truth)}
+    if gn:
+        report["matcher"]["gn"] = _match(ln, read_geojson(gn), truth)
+    if plot:
+        _plot(plot, truth, pts, ln, wanted)
+    return report
+
+
+def _true_map_t_odom(truth: Truth) -> Rigid2D:
+    tr = truth.trajectory
+    from scipy.spatial.transform import Rotation
+
+    yaw = Rotation.from_quat(tr.q[0]).as_euler("ZYX")[0]
+    return Rigid2D(float(yaw), float(tr.p[0, 0]), float(tr.p[0, 1]))
+
+
+def _match(ln: np.ndarray, gn, truth: Truth) -> dict:
+    """``Matcher(gn).match(ln)``: fix or not, and its error at the LN nodes (m)."""
+    try:
+        from darces_matcher.matcher import Matcher
+    except ImportError:
+        return {"status": "darces_matcher not installed"}
+    if len(ln) < 3:
+        return {"status": "no_fix", "reason": "too_few_nodes"}
+    res = Matcher(gn).match(ln)
+    out = {"status": res.status, "reason": res.reason, "support": int(res.support)}
+    if res.status == "fix":
+        true_t = _true_map_t_odom(truth)
+        # The 2D map_T_odom ignores the first pose's roll and pitch: compare where both
+        # place the LN nodes.
+        p = xy(ln)
+        err = np.linalg.norm(res.map_T_odom.apply(p) - true_t.apply(p), axis=1)
+        out["error_m_mean"] = float(err.mean())
+        out["error_m_max"] = float(err.max())
+        out["yaw_error_deg"] = float(np.degrees(np.angle(np.exp(1j * (res.map_T_odom.yaw -
+                                                                        true_t.yaw)))))
+        out["false_fix"] = bool(err.mean() > 10.0)
+    return out
+
+
+def _plot(path: str, truth: Truth, pts: np.ndarray, ln: np.ndarray, wanted: np.ndarray) -> None:
+    """Top-down map (OpenCV drawing): route, truth ROIs (circles, thick: counted), LN
+    nodes (crosses); rocks red, outcrops cyan; 5 px per metre, north up."""
+    import cv2
+
+    t = truth.rois
+    route = truth.trajectory.p[:, :2]
+    pad = 20.0
+    lo = route.min(axis=0) - pad
+    hi = route.max(axis=0) + pad
+    scale = min(5.0, 1600.0 / max(hi - lo))
+    size = np.ceil((hi - lo) * scale).astype(int) + 1
+    img = np.full((size[1], size[0], 3), 255, np.uint8)
+
+    def px(p):
+        q = (np.asarray(p)[..., :2] - lo) * scale
+        return np.column_stack([q[..., 0], size[1] - 1 - q[..., 1]]).round().astype(np.int32)
+
+    cv2.polylines(img, [px(route)], False, (150, 150, 150), 1, cv2.LINE_AA)
+    colours = {ROCK: (40, 40, 220), OUTCROP: (200, 170, 0)}
+    for label, col in colours.items():
+        m = t["label"] == label
+        for (u, v), w, r in zip(px(xy(t)[m]), wanted[m], t["major_m"][m], strict=True):
+            cv2.circle(img, (int(u), int(v)), max(3, int(0.5 * r * scale)), col,
+                       2 if w else 1, cv2.LINE_AA)
+        n = ln["label"] == label
+        for u, v in px(pts[n]):
+            cv2.drawMarker(img, (int(u), int(v)), col, cv2.MARKER_CROSS, 8, 2)
+    cv2.putText(img, "truth ROI: circle (thick: counted in recall); LN node: cross; "
+                "rock red, outcrop cyan", (8, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1,
+                cv2.LINE_AA)
+    tmp = Path(path).with_name(Path(path).name + ".tmp.png")
+    cv2.imwrite(str(tmp), img)
+    tmp.replace(path)

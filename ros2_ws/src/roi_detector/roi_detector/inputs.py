@@ -1,0 +1,280 @@
+"""Pipeline inputs shared by the offline CLI and the nodes: images, rover.yaml, odometry.
+
+Bad input is counted per kind and reported once per kind (``BadInput``): the caller skips
+the message and goes on, so neither a node nor a CLI run dies on one bad frame.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+from scipy.spatial.transform import Rotation, Slerp
+
+LEFT_IMAGE = "/stereo/left/image_raw/compressed"
+RIGHT_IMAGE = "/stereo/right/image_raw/compressed"
+LEFT_INFO = "/stereo/left/camera_info"
+RIGHT_INFO = "/stereo/right/camera_info"
+
+
+class BadInput:
+    """Counts skipped inputs per kind and reports the first of each kind once.
+
+    Args:
+        report: called with a one-line message the first time a kind occurs.
+    """
+
+    def __init__(self, report: Callable[[str], None]) -> None:
+        self.counts: Counter[str] = Counter()
+        self._report = report
+
+    def __call__(self, kind: str, detail: str) -> None:
+        """Count one skipped input of ``kind``; report it if it is the first."""
+        self.counts[kind] += 1
+        if self.counts[kind] == 1:
+            self._report(f"{kind}: {detail} (skipped; further '{kind}' counted, not logged)")
+
+
+def decode_image(data: bytes | np.ndarray) -> np.ndarray | None:
+    """BGR uint8 image of a CompressedImage payload (JPEG or PNG); None if undecodable."""
+    buf = np.frombuffer(bytes(data), np.uint8) if not isinstance(data, np.ndarray) else data
+    if buf.size == 0:
+        return None
+    img = cv2.imdecode(buf.astype(np.uint8, copy=False), cv2.IMREAD_COLOR)
+    return img
+
+
+def load_rover_params(path: str | Path) -> dict:
+    """The ``ros__parameters`` of a rover.yaml file (first section that has them).
+
+    Raises:
+        ValueError: naming the file when it is missing, unreadable or has no
+            ``base_to_left_camera``.
+    """
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ValueError(f"{path}: cannot read rover parameters ({exc})") from None
+    for section in (doc or {}).values():
+        params = (section or {}).get("ros__parameters") if isinstance(section, dict) else None
+        if params and "base_to_left_camera" in params:
+            return params
+    raise ValueError(f"{path}: no ros__parameters with 'base_to_left_camera'")
+
+
+@dataclass
+class StereoFrame:
+    """One stereo pair as the pipeline sees it.
+
+    Attributes:
+        stamp_ns: header stamp of the left image, nanoseconds.
+        left, right: BGR uint8 images.
+        left_k: left CameraInfo K (9 values); right_p: right CameraInfo P (12 values).
+    """
+
+    stamp_ns: int
+    left: np.ndarray
+    right: np.ndarray
+    left_k: np.ndarray
+    right_p: np.ndarray
+
+
+def _stamp_ns(header) -> int:
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def read_stereo_frames(bag_dir: str | Path, bad: BadInput,
+                       every: int = 1) -> Iterator[StereoFrame]:
+    """Stereo pairs of a bag directory (``BAG/rosbag``), paired by header stamp.
+
+    Args:
+        bag_dir: the bag directory (holding ``rosbag/``) or the rosbag2 directory itself.
+        bad: bad-input counter (undecodable image, missing pair half).
+        every: keep one pair in ``every`` (1: all).
+
+    Raises:
+        FileNotFoundError: when the bag is missing.
+    """
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    bag_dir = Path(bag_dir)
+    rosbag = bag_dir / "rosbag" if (bag_dir / "rosbag").is_dir() else bag_dir
+    if not (rosbag / "metadata.yaml").is_file():
+        raise FileNotFoundError(f"{bag_dir}: no rosbag2 directory (metadata.yaml) found")
+    topics = (LEFT_IMAGE, RIGHT_IMAGE, LEFT_INFO, RIGHT_INFO)
+    pending: dict[int, dict[str, object]] = {}
+    left_k = right_p = None
+    ready: list[tuple[int, dict]] = []
+    index = 0
+    with AnyReader([rosbag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        conns = [c for c in reader.connections if c.topic in topics]
+        for conn, _t, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic == LEFT_INFO:
+                left_k = np.asarray(msg.k, float)
+            elif conn.topic == RIGHT_INFO:
+                right_p = np.asarray(msg.p, float)
+            else:
+                stamp = _stamp_ns(msg.header)
+                slot = pending.setdefault(stamp, {})
+                slot[conn.topic] = msg.data
+                # A pair half that never comes: older pending stamps are given up.
+                for old in [s for s in pending if s < stamp - 2_000_000_000]:
+                    bad("missing pair half", f"stereo pair at {old * 1e-9:.3f} s has one image")
+                    del pending[old]
+                if LEFT_IMAGE in slot and RIGHT_IMAGE in slot:
+                    del pending[stamp]
+                    index += 1
+                    if (index - 1) % every == 0:
+                        ready.append((stamp, slot))
+            # CameraInfo is recorded after the images of its stamp: pairs wait for it.
+            if left_k is None or right_p is None:
+                continue
+            for stamp_r, slot_r in ready:
+                frame = _frame(stamp_r, slot_r, left_k, right_p, bad)
+                if frame is not None:
+                    yield frame
+            ready.clear()
+    for old in pending:
+        bad("missing pair half", f"stereo pair at {old * 1e-9:.3f} s has one image")
+    if ready:
+        bad("no camera_info", f"{len(ready)} stereo pair(s) and no CameraInfo")
+
+
+def _frame(stamp: int, slot: dict, left_k, right_p, bad: BadInput) -> StereoFrame | None:
+    left, right = decode_image(slot[LEFT_IMAGE]), decode_image(slot[RIGHT_IMAGE])
+    if left is None or right is None or left.shape != right.shape:
+        bad("undecodable image", f"stereo pair at {stamp * 1e-9:.3f} s")
+        return None
+    return StereoFrame(stamp, left, right, left_k, right_p)
+
+
+class PoseTrack:
+    """Timestamped base_link poses in odom, interpolated (slerp) at any stamp in range.
+
+    Args:
+        stamps_s: (N,) increasing times, seconds.
+        positions: (N, 3) base_link origins in odom, metres.
+        quats_xyzw: (N, 4) base_link orientations in odom.
+        covariances: optional (N, 2, 2) x-y position covariance in odom, m^2.
+        max_gap_s: an interpolation across a gap longer than this returns None
+            (odometry gap).
+    """
+
+    def __init__(self, stamps_s, positions, quats_xyzw, covariances=None,
+                 max_gap_s: float = 1.0) -> None:
+        self.t = np.asarray(stamps_s, float)
+        self.p = np.asarray(positions, float)
+        self.q = np.asarray(quats_xyzw, float)
+        self.cov = None if covariances is None else np.asarray(covariances, float)
+        self.max_gap_s = max_gap_s
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def at(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
+        """(R_odom_base (3, 3), t_odom_base (3,), xy covariance or None) at ``t``; None when
+        ``t`` is outside the track or inside a gap longer than ``max_gap_s``."""
+        n = len(self.t)
+        if n == 0 or t < self.t[0] - 1e-6 or t > self.t[-1] + 1e-6:
+            return None
+        i = int(np.searchsorted(self.t, t))
+        # A stamp equal to a pose's (within float rounding of nanosecond stamps) takes it.
+        for k in (i - 1, i):
+            if 0 <= k < n and abs(self.t[k] - t) < 1e-6:
+                cov = None if self.cov is None else self.cov[k]
+                return Rotation.from_quat(self.q[k]).as_matrix(), self.p[k].copy(), cov
+        if i == 0 or i >= n:
+            return None
+        t0, t1 = self.t[i - 1], self.t[i]
+        if t1 - t0 > self.max_gap_s:
+            return None
+        w = (t - t0) / (t1 - t0)
+        rot = Slerp([t0, t1], Rotation.from_quat(self.q[i - 1:i + 1]))([t]).as_matrix()[0]
+        pos = (1 - w) * self.p[i - 1] + w * self.p[i]
+        cov = None if self.cov is None else (1 - w) * self.cov[i - 1] + w * self.cov[i]
+        return rot, pos, cov
+
+
+class OdometryBuffer:
+    """Odometry poses as they arrive (node side), queried like a :class:`PoseTrack`."""
+
+    def __init__(self, max_gap_s: float = 1.0, max_len: int = 20000) -> None:
+        self.max_gap_s = max_gap_s
+        self.max_len = max_len
+        self._rows: list[tuple] = []
+        self._track: PoseTrack | None = None
+
+    @property
+    def latest_t(self) -> float | None:
+        """Stamp of the newest pose, seconds (None before the first)."""
+        return self._rows[-1][0] if self._rows else None
+
+    def append(self, t: float, position, quat_xyzw, cov_xy) -> bool:
+        """Add a pose; False (and not added) when ``t`` is not after the newest stamp."""
+        if self._rows and t <= self._rows[-1][0]:
+            return False
+        self._rows.append((t, np.asarray(position, float), np.asarray(quat_xyzw, float),
+                           np.asarray(cov_xy, float)))
+        if len(self._rows) > self.max_len:
+            del self._rows[: len(self._rows) - self.max_len]
+        self._track = None
+        return True
+
+    def at(self, t: float):
+        """See :meth:`PoseTrack.at`."""
+        if not self._rows:
+            return None
+        if self._track is None:
+            ts, ps, qs, cs = zip(*self._rows, strict=True)
+            self._track = PoseTrack(ts, ps, qs, cs, self.max_gap_s)
+        return self._track.at(t)
+
+
+def read_tum(path: str | Path, max_gap_s: float = 12.0) -> PoseTrack:
+    """A TUM trajectory file (``t x y z qx qy qz qw``, base_link in odom) as a PoseTrack.
+
+    Raises:
+        ValueError: naming the file and line of the first malformed row.
+    """
+    path = Path(path)
+    rows = []
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read odometry ({exc.strerror})") from None
+    for n, line in enumerate(text.splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        try:
+            vals = [float(v) for v in line.split()]
+        except ValueError:
+            raise ValueError(f"{path}:{n}: not a TUM row (t x y z qx qy qz qw)") from None
+        if len(vals) != 8 or not np.all(np.isfinite(vals)):
+            raise ValueError(f"{path}:{n}: expected 8 finite numbers, got {len(vals)}")
+        rows.append(vals)
+    if not rows:
+        raise ValueError(f"{path}: no poses")
+    a = np.array(rows)
+    a = a[np.argsort(a[:, 0], kind="stable")]
+    return PoseTrack(a[:, 0], a[:, 1:4], a[:, 4:8], max_gap_s=max_gap_s)
+
+
+def write_tum(path: str | Path, stamps_s, positions, quats_xyzw, header: str = "") -> None:
+    """Write a TUM file atomically."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    lines = [f"# {header}"] if header else []
+    for t, p, q in zip(stamps_s, positions, quats_xyzw, strict=True):
+        lines.append(f"{t:.9f} " + " ".join(f"{v:.6f}" for v in p) + " "
+                     + " ".join(f"{v:.9f}" for v in q))
+    tmp.write_text("\n".join(lines) + "\n")
+    tmp.replace(path)

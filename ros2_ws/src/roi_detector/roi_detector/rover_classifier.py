@@ -1,0 +1,140 @@
+"""The "Rock Rover" and "Outcrop Rover" binary classifiers (paper Sec. 4.3), rover side.
+
+Appearance metrics, texture masks, features and the PCA + kNN classifiers are the shared
+library's (:mod:`roi_detector.metrics`, :mod:`~roi_detector.candidates`,
+:mod:`~roi_detector.features`, :mod:`~roi_detector.classifier`); this module adapts a
+rover candidate (a region of the left image measured in 3D) to them, and adds the
+stereo geometry to the feature vector in the default recipe (``feature_set="stereo"``):
+log footprint area, height above the ground, log depth, footprint elongation. The paper's
+recipe (``feature_set="paper"``) uses the paper's feature groups only.
+
+Features are computed at the metrics' scale (half resolution, see
+:func:`~roi_detector.rover_candidates.metric_images`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from roi_detector.candidates import Region
+from roi_detector.classifier import (
+    BinaryClassifier,
+    ClassifierConfig,
+    load_classifiers,
+    save_classifiers,
+)
+from roi_detector.features import GROUPS, PAPER_GROUPS, feature_names, region_features
+from roi_detector.rover_candidates import METRIC_SCALE, Candidate
+from roi_network.records import OUTCROP, ROCK
+
+GEOMETRY_NAMES = ("geo_log_area_m2", "geo_height_m", "geo_log_depth_m", "geo_elongation")
+CLASSIFIER_NAMES = {ROCK: "rock_rover", OUTCROP: "outcrop_rover"}
+
+
+def _region(c: Candidate) -> Region:
+    """The shared library's Region of a candidate (same grid as the metric images)."""
+    x0, y0, x1, y1 = c.bbox
+    rows, cols = np.nonzero(c.mask)
+    pos = np.column_stack([cols + x0, rows + y0]).astype(float)
+    cov = np.cov(pos.T) + np.eye(2) / 12 if len(pos) > 1 else np.eye(2) / 12
+    return Region(float(pos[:, 1].mean()), float(pos[:, 0].mean()), c.area_m2, len(pos),
+                  cov, (y0, x0, y1, x1), 0.0, c.label, c.mask)
+
+
+def candidate_feature_vector(c: Candidate, rgb01: np.ndarray, gray_small: np.ndarray,
+                             entropy: np.ndarray, feature_set: str) -> np.ndarray:
+    """One candidate's features (``feature_set``: "stereo" or "paper")."""
+    reg = _region(c)
+    if feature_set == "paper":
+        return region_features(reg, rgb01, gray_small, entropy, PAPER_GROUPS)
+    f = region_features(reg, rgb01, gray_small, entropy, GROUPS)
+    geo = [np.log(max(c.area_m2, 1e-3)), c.height_m, np.log(max(c.depth_m, 0.1)),
+           c.major_m / max(c.minor_m, 1e-3)]
+    return np.concatenate([f, np.asarray(geo, np.float32)])
+
+
+def names_for(feature_set: str) -> tuple[str, ...]:
+    """Feature names of a feature set."""
+    if feature_set == "paper":
+        return feature_names(PAPER_GROUPS)
+    if feature_set == "stereo":
+        return feature_names(GROUPS) + GEOMETRY_NAMES
+    raise ValueError(f"feature_set: unknown '{feature_set}' (expected 'stereo' or 'paper')")
+
+
+def features_of(left_bgr: np.ndarray, cands: list[Candidate], metrics: dict[str, np.ndarray],
+                feature_set: str) -> np.ndarray:
+    """(N, F) features of a pair's candidates."""
+    if not cands:
+        return np.zeros((0, len(names_for(feature_set))), np.float32)
+    small = cv2.resize(left_bgr, None, fx=METRIC_SCALE, fy=METRIC_SCALE,
+                       interpolation=cv2.INTER_AREA)
+    rgb01 = cv2.cvtColor(small, cv2.COLOR_BGR2RGB).astype(np.float32) / 255.0
+    return np.stack([candidate_feature_vector(c, rgb01, metrics["_gray"], metrics["entropy"],
+                                              feature_set) for c in cands])
+
+
+class RoverClassifier:
+    """Rock Rover and Outcrop Rover, applied to a pair's candidates.
+
+    A candidate is kept when one classifier's vote share is above ``threshold``; its
+    class is the more confident classifier's, its score that vote share.
+    """
+
+    def __init__(self, classifiers: dict[str, BinaryClassifier], feature_set: str,
+                 threshold: float = 0.5, meta: dict | None = None) -> None:
+        self.classifiers = classifiers
+        self.feature_set = feature_set
+        self.threshold = threshold
+        self.meta = meta or {}
+
+    def classify(self, left_bgr: np.ndarray, cands: list[Candidate],
+                 metrics: dict[str, np.ndarray]) -> list[Candidate]:
+        """The candidates the classifiers accept, with class and score set."""
+        x = features_of(left_bgr, cands, metrics, self.feature_set)
+        p_rock = self.classifiers[CLASSIFIER_NAMES[ROCK]].predict_proba(x)
+        p_out = self.classifiers[CLASSIFIER_NAMES[OUTCROP]].predict_proba(x)
+        kept = []
+        for c, pr, po, f in zip(cands, p_rock, p_out, x, strict=True):
+            best, p = (ROCK, pr) if pr >= po else (OUTCROP, po)
+            if p > self.threshold:
+                c.label, c.score, c.features = best, float(p), f
+                kept.append(c)
+        return kept
+
+    @classmethod
+    def load(cls, path: str | Path) -> RoverClassifier:
+        """Read a model written by :func:`save_rover_model`.
+
+        Raises:
+            ModelFileError (ValueError): naming the file and what is wrong.
+        """
+        from roi_detector.classifier import ModelFileError
+
+        classifiers, meta = load_classifiers(path)
+        missing = [n for n in CLASSIFIER_NAMES.values() if n not in classifiers]
+        if missing:
+            raise ModelFileError(f"{path}: classifier(s) {missing} missing (not a rover model)")
+        prov = meta.get("provenance", {})
+        return cls(classifiers, prov.get("feature_set", "stereo"),
+                   float(prov.get("threshold", 0.5)), meta)
+
+
+def train_classifiers(x: np.ndarray, truth_labels: np.ndarray, feature_set: str,
+                      k: int = 5) -> dict[str, BinaryClassifier]:
+    """Fit Rock Rover and Outcrop Rover on features ``x`` and truth labels (0: neither)."""
+    names = names_for(feature_set)
+    out = {}
+    for label, name in CLASSIFIER_NAMES.items():
+        clf = BinaryClassifier(name, names, ClassifierConfig(n_components=8, k=k))
+        out[name] = clf.fit(x, (truth_labels == label).astype(np.uint8))
+    return out
+
+
+def save_rover_model(path: str | Path, classifiers: dict[str, BinaryClassifier],
+                     provenance: dict) -> None:
+    """Write the rover model (shared library format) atomically."""
+    save_classifiers(path, classifiers, provenance)

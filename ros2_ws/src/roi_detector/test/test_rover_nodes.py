@@ -1,0 +1,273 @@
+"""The roi_detector CLI and both nodes, each node in its own process, on the tiny bag.
+
+The tiny bag (atacama_sim preset ``tiny``) is generated once per module; the test driver
+replays its stereo pairs over ROS 2 in lock-step with the node and publishes odometry
+from the truth trajectory (re-expressed in odom), as rover_vo would.
+"""
+
+import os
+import shutil
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+from roi_network.geojson import read_geojson
+from roi_network.pointcloud import from_pointcloud2, to_pointcloud2
+from roi_network.records import ROCK, empty_records
+
+pytestmark = pytest.mark.ros
+
+LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+BEST_EFFORT = QoSProfile(depth=20, reliability=ReliabilityPolicy.BEST_EFFORT)
+
+
+@pytest.fixture(scope="module")
+def tiny_bag(tmp_path_factory) -> Path:
+    from atacama_sim.config import make_config
+    from atacama_sim.generate import generate
+
+    out = tmp_path_factory.mktemp("bags") / "tiny"
+    generate(make_config("tiny", 1), out, progress=False)
+    return out
+
+
+def _domain() -> int:
+    """A ROS domain apart from the other packages' tests (40-99): 150-228 (Linux allows
+    up to 232)."""
+    return 150 + 2 * (os.getpid() % 39)
+
+
+def _env(domain: int) -> dict[str, str]:
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = str(domain)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+def _start(args, domain, log: Path) -> subprocess.Popen:
+    exe = shutil.which(args[0])
+    assert exe, f"{args[0]} not on PATH (source env.sh)"
+    return subprocess.Popen([exe, *args[1:]], env=_env(domain), stdout=log.open("w"),
+                            stderr=subprocess.STDOUT)
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def test_cli_ln_and_eval_on_tiny(tiny_bag, tmp_path):
+    odom = tmp_path / "truth_odom.tum"
+    run = lambda *a: subprocess.run([shutil.which("roi_detector"), *a], capture_output=True,  # noqa: E731
+                                    text=True, timeout=240)
+    r = run("truth-odometry", str(tiny_bag), "--out", str(odom))
+    assert r.returncode == 0, r.stderr
+    ln_path = tmp_path / "ln.geojson"
+    # The tiny route (12 m) turns on the spot: its few rocks are whole in view in one or
+    # two pairs, so every observation makes a node here (min_obs 1).
+    r = run("ln", str(tiny_bag), "--odometry", str(odom), "--out", str(ln_path), "--model",
+            "none", "--min-obs", "1")
+    assert r.returncode == 0, r.stderr
+    ln = read_geojson(ln_path)
+    assert ln.frame_id == "odom" and len(ln) >= 1
+    assert np.all(ln.records["cov_xx"] > 0) and np.all(ln.records["n_obs"] >= 1)
+    r = run("eval", str(ln_path), str(tiny_bag), "--json", str(tmp_path / "e.json"),
+            "--plot", str(tmp_path / "e.png"))
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "e.json").is_file() and (tmp_path / "e.png").stat().st_size > 1000
+    # Bad input: a clear one-line error, no output file.
+    r = run("ln", str(tiny_bag), "--odometry", str(tmp_path / "missing.tum"), "--out",
+            str(tmp_path / "x.geojson"))
+    assert r.returncode == 1 and "missing.tum" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "x.geojson").exists()
+
+
+def _bag_messages(bag: Path):
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    out: dict[str, list] = {}
+    with AnyReader([bag / "rosbag"], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as r:
+        conns = [c for c in r.connections if c.topic.startswith("/stereo/")]
+        for conn, _t, raw in r.messages(connections=conns):
+            out.setdefault(conn.topic, []).append(raw)
+    return out
+
+
+def test_roi_detector_and_ln_builder_nodes_on_tiny(tiny_bag, tmp_path):
+    from nav_msgs.msg import Odometry
+    from rclpy.serialization import deserialize_message
+    from sensor_msgs.msg import CameraInfo, CompressedImage, PointCloud2
+
+    from roi_detector.truth import Truth
+
+    domain = _domain()
+    det = _start(["roi_detector", "--ros-args", "-p", "model_path:=none", "-p", "min_obs:=1",
+                  "--params-file", str(tiny_bag / "rover.yaml")], domain,
+                 tmp_path / "roi_detector.log")
+    lnb = _start(["ln_builder", "--ros-args", "-p", f"ln_path:={tmp_path / 'ln.geojson'}",
+                  "-p", "min_obs:=1"], domain, tmp_path / "ln_builder.log")
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    try:
+        node = rclpy.create_node("roi_test_driver", context=ctx)
+        ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        got = {"det": [], "tracks": [], "ln": [], "status": []}
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        node.create_subscription(PointCloud2, "/rois/detections", got["det"].append, RELIABLE)
+        node.create_subscription(PointCloud2, "/rois/tracks", got["tracks"].append, RELIABLE)
+        node.create_subscription(PointCloud2, "/local_network", got["ln"].append, LATCHED)
+        node.create_subscription(DiagnosticArray, "/rois/status", got["status"].append, 10)
+        pubs = {t: node.create_publisher(CompressedImage if "image" in t else CameraInfo, t,
+                                         BEST_EFFORT)
+                for t in ("/stereo/left/image_raw/compressed",
+                          "/stereo/right/image_raw/compressed",
+                          "/stereo/left/camera_info", "/stereo/right/camera_info")}
+        odom_pub = node.create_publisher(Odometry, "/vo/odometry", RELIABLE)
+
+        def spin_until(cond, timeout):
+            end = time.monotonic() + timeout
+            while not cond() and time.monotonic() < end:
+                assert det.poll() is None, (tmp_path / "roi_detector.log").read_text()
+                ex.spin_once(timeout_sec=0.05)
+            return cond()
+
+        assert spin_until(lambda: all(p.get_subscription_count() > 0 for p in pubs.values())
+                          and odom_pub.get_subscription_count() > 0, 30)
+        msgs = _bag_messages(tiny_bag)
+        lefts = [deserialize_message(bytes(r), CompressedImage)
+                 for r in msgs["/stereo/left/image_raw/compressed"]]
+        rights = [deserialize_message(bytes(r), CompressedImage)
+                  for r in msgs["/stereo/right/image_raw/compressed"]]
+        linfo = deserialize_message(bytes(msgs["/stereo/left/camera_info"][0]), CameraInfo)
+        rinfo = deserialize_message(bytes(msgs["/stereo/right/camera_info"][0]), CameraInfo)
+        odom = Truth.load(tiny_bag).odom_track()
+        gap = set(range(12, 20))  # no odometry for these pairs (24 s): an odometry gap
+        expected = 0
+        for k, (lm, rm) in enumerate(zip(lefts, rights, strict=True)):
+            t = lm.header.stamp.sec + 1e-9 * lm.header.stamp.nanosec
+            if k not in gap:
+                r_ob, p_ob, _ = odom.at(t)
+                from scipy.spatial.transform import Rotation
+
+                o = Odometry()
+                o.header.stamp = lm.header.stamp
+                o.header.frame_id, o.child_frame_id = "odom", "base_link"
+                o.pose.pose.position.x, o.pose.pose.position.y, o.pose.pose.position.z = p_ob
+                q = Rotation.from_matrix(r_ob).as_quat()
+                oo = o.pose.pose.orientation
+                oo.x, oo.y, oo.z, oo.w = q
+                o.pose.covariance = list(np.diag([1e-4, 1e-4, 1e-4, 1e-5, 1e-5, 1e-5]).ravel())
+                odom_pub.publish(o)
+            for p, info in ((pubs["/stereo/left/camera_info"], linfo),
+                            (pubs["/stereo/right/camera_info"], rinfo)):
+                info.header.stamp = lm.header.stamp
+                p.publish(info)
+            if k == 5:  # an undecodable image: counted, skipped
+                lm.data = b"\x00" * 100
+            if k == 8:  # a missing pair half: the right image only, never completed
+                pubs["/stereo/right/image_raw/compressed"].publish(rm)
+                continue
+            pubs["/stereo/left/image_raw/compressed"].publish(lm)
+            pubs["/stereo/right/image_raw/compressed"].publish(rm)
+            if k != 5:
+                expected += 1
+            assert spin_until(lambda e=expected: len(got["det"]) >= e, 60), \
+                (tmp_path / "roi_detector.log").read_text()
+        assert spin_until(lambda: got["ln"] and got["tracks"], 60), (
+            [(kv.key, kv.value) for kv in got["status"][-1].status[0].values],
+            (tmp_path / "roi_detector.log").read_text())
+        spin_until(lambda: False, 1.0)
+        assert len(got["det"]) == expected
+        assert all(m.header.frame_id == "base_link" for m in got["det"])
+        assert all(m.header.frame_id == "odom" for m in got["tracks"])
+        dets = [from_pointcloud2(m) for m in got["det"]]
+        assert sum(len(d) for d in dets) > 0
+        ln = from_pointcloud2(got["ln"][-1])
+        assert len(ln) >= 1 and np.all(ln["n_obs"] >= 1)
+        status = {kv.key: kv.value for kv in got["status"][-1].status[0].values}
+        assert int(status["skipped: undecodable image"]) == 1
+        assert int(status["skipped: odometry gap"]) >= 1
+        assert det.poll() is None and lnb.poll() is None
+        # The LN is on disk; a killed ln_builder restarts with it.
+        saved = read_geojson(tmp_path / "ln.geojson")
+        assert len(saved) == len(ln)
+        lnb.send_signal(signal.SIGKILL)
+        lnb.wait(timeout=10)
+        got["ln"].clear()
+        lnb = _start(["ln_builder", "--ros-args", "-p",
+                      f"ln_path:={tmp_path / 'ln.geojson'}", "-p", "min_obs:=1"], domain,
+                     tmp_path / "ln_builder2.log")
+        late = rclpy.create_node("late_listener", context=ctx)
+        ex.add_node(late)
+        late.create_subscription(PointCloud2, "/local_network", got["ln"].append, LATCHED)
+        assert spin_until(lambda: got["ln"], 20), (tmp_path / "ln_builder2.log").read_text()
+        again = from_pointcloud2(got["ln"][-1])
+        np.testing.assert_array_equal(np.sort(again["id"]), np.sort(ln["id"]))
+        log = (tmp_path / "roi_detector.log").read_text()
+        assert sum("undecodable image" in line for line in log.splitlines()) == 1
+        assert "Traceback" not in log
+    finally:
+        rclpy.shutdown(context=ctx)
+        _stop(det)
+        _stop(lnb)
+
+
+def test_ln_builder_corrupt_saved_ln(tmp_path):
+    from sensor_msgs.msg import PointCloud2
+
+    path = tmp_path / "ln.geojson"
+    path.write_text("{ not json")
+    domain = _domain() + 1
+    proc = _start(["ln_builder", "--ros-args", "-p", f"ln_path:={path}"], domain,
+                  tmp_path / "ln_builder.log")
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    try:
+        node = rclpy.create_node("ln_test_driver", context=ctx)
+        ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        got = []
+        node.create_subscription(PointCloud2, "/local_network", got.append, LATCHED)
+        pub = node.create_publisher(PointCloud2, "/rois/tracks", RELIABLE)
+        end = time.monotonic() + 20
+        while pub.get_subscription_count() == 0 and time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.05)
+        tracks = empty_records(3)
+        tracks["id"] = [1, 2, 3]
+        tracks["x"] = [0.0, 10.0, 20.0]
+        tracks["label"] = ROCK
+        tracks["n_obs"] = [3, 3, 1]
+        tracks["cov_xx"] = tracks["cov_yy"] = 0.04
+        pub.publish(to_pointcloud2(tracks, "odom"))
+        bad = to_pointcloud2(tracks, "map")  # wrong frame: skipped, node lives
+        pub.publish(bad)
+        end = time.monotonic() + 20
+        while not got and time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.05)
+        assert got and len(from_pointcloud2(got[-1])) == 2
+        assert proc.poll() is None
+        assert len(list(tmp_path.glob("ln.geojson.corrupt-*"))) == 1
+        assert len(read_geojson(path)) == 2
+    finally:
+        rclpy.shutdown(context=ctx)
+        _stop(proc)
+    log = (tmp_path / "ln_builder.log").read_text()
+    assert "kept aside" in log and "Traceback" not in log

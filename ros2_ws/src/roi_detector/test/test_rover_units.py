@@ -1,0 +1,253 @@
+"""Rover-side building blocks on small synthetic inputs: geometry, tracking, LN, inputs."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from roi_detector.inputs import BadInput, PoseTrack, decode_image, read_tum, write_tum
+from roi_detector.local_network import LnConfig, LocalNetwork, load_or_fresh
+from roi_detector.rover_candidates import RoverThresholds, measure_region
+from roi_detector.rover_pipeline import observations_in_odom
+from roi_detector.stereo import StereoCamera, local_ground_height
+from roi_detector.tracking import Observation, Tracker, TrackerConfig, tracks_to_records
+from roi_network.geojson import write_geojson
+from roi_network.network import MapFrame, RoiNetwork
+from roi_network.records import OUTCROP, ROCK, empty_records
+
+# The MER-like bench of the simulator: 1.54 m high, 20 deg down, 20 cm baseline.
+TILT = np.radians(20.0)
+R_BC = np.column_stack([[0, -1, 0], np.cross([np.cos(TILT), 0, -np.sin(TILT)], [0, -1, 0]),
+                        [np.cos(TILT), 0, -np.sin(TILT)]])
+EXTRINSIC = [0.4, 0.1, 1.54, *Rotation.from_matrix(R_BC).as_quat()]
+K = [300.0, 0, 159.5, 0, 300.0, 119.5, 0, 0, 1]
+P_RIGHT = [300.0, 0, 159.5, -300.0 * 0.2, 0, 300.0, 119.5, 0, 0, 0, 1, 0]
+
+
+def _camera() -> StereoCamera:
+    return StereoCamera.from_camera_info(K, P_RIGHT, 320, 240, EXTRINSIC)
+
+
+def _scene_points(camera: StereoCamera, box=None) -> np.ndarray:
+    """Base_link points seen by each pixel of a flat ground (z = 0) with an optional box
+    ((x0, x1, y0, y1, height) in base_link) standing on it (its top face only)."""
+    rays = camera.rays_base()
+    o = camera.t_base_cam
+    with np.errstate(divide="ignore"):
+        s = -o[2] / rays[..., 2]
+    pts = o + rays * s[..., None]
+    pts[~(s > 0)] = np.nan
+    if box is not None:
+        x0, x1, y0, y1, h = box
+        st = (h - o[2]) / rays[..., 2]
+        top = o + rays * st[..., None]
+        inside = (st > 0) & (top[..., 0] > x0) & (top[..., 0] < x1) & (top[..., 1] > y0) & \
+            (top[..., 1] < y1)
+        pts[inside] = top[inside]
+    far = np.linalg.norm(pts - o, axis=-1) > 14
+    pts[far] = np.nan
+    return pts
+
+
+def test_camera_model_from_camera_info_and_extrinsic():
+    cam = _camera()
+    assert cam.baseline_m == pytest.approx(0.2)
+    # A ground point straight ahead projects on the image's vertical centre line.
+    uv, z = cam.project_base(np.array([[5.0, 0.1, 0.0]]))
+    assert uv[0, 0] == pytest.approx(159.5, abs=1e-6) and z[0] > 0
+    with pytest.raises(ValueError, match="baseline"):
+        StereoCamera.from_camera_info(K, [300.0, 0, 0, 0.0] + [0] * 8, 320, 240, EXTRINSIC)
+
+
+def test_ground_height_flat_and_box():
+    cam = _camera()
+    flat = local_ground_height(_scene_points(cam))
+    assert np.nanmax(np.abs(flat)) < 0.02
+    pts = _scene_points(cam, box=(5.0, 6.0, -0.5, 0.5, 0.5))
+    h = local_ground_height(pts)
+    on_box = np.abs(pts[..., 2] - 0.5) < 1e-6
+    assert on_box.sum() > 50
+    assert np.nanmedian(h[on_box]) == pytest.approx(0.5, abs=0.05)
+    assert np.nanmedian(np.abs(h[~on_box])) < 0.02
+
+
+def test_measure_region_area_height_centre():
+    cam = _camera()
+    pts = _scene_points(cam, box=(5.0, 6.0, -0.5, 0.5, 0.5))
+    h = local_ground_height(pts)
+    mask = h > 0.25
+    ys, xs = np.nonzero(mask)
+    bbox = (xs.min(), ys.min(), xs.max() + 1, ys.max() + 1)
+    c = measure_region(mask[bbox[1]:bbox[3], bbox[0]:bbox[2]], bbox, ROCK, pts, h, cam,
+                       RoverThresholds())
+    assert c is not None
+    assert c.area_m2 == pytest.approx(1.0, rel=0.15)
+    assert c.height_m == pytest.approx(0.5, abs=0.05)
+    assert np.hypot(c.center[0] - 5.5, c.center[1]) < 0.15
+    # No valid depth: nothing measured.
+    none = measure_region(mask[bbox[1]:bbox[3], bbox[0]:bbox[2]], bbox, ROCK,
+                          np.full_like(pts, np.nan), h, cam, RoverThresholds())
+    assert none is None
+
+
+def _obs(xy, t, label=ROCK, score=1.0, sigma=0.1):
+    return Observation(t, np.asarray(xy, float), 0.0, np.eye(2) * sigma**2,
+                       np.eye(2) * 0.01, label, score, 1.0, 0.5, np.eye(2) * 0.04)
+
+
+def test_tracker_confirms_and_merges_revisit():
+    tracker = Tracker(TrackerConfig(min_obs=3))
+    rng = np.random.default_rng(0)
+    for k in range(4):  # two ROIs 3 m apart, seen 4 times each
+        tracker.update([_obs([10 + rng.normal(0, 0.05), 0], k),
+                        _obs([10, 3 + rng.normal(0, 0.05)], k, OUTCROP)])
+    assert len(tracker.tracks) == 2 and len(tracker.confirmed()) == 2
+    tracker.update([_obs([10.2, 0.1], 500.0)])  # the route passes by again much later
+    assert len(tracker.tracks) == 2
+    rec = tracks_to_records(tracker.tracks)
+    assert sorted(rec["label"].tolist()) == [ROCK, OUTCROP]
+    assert rec["n_obs"].tolist() == [5, 4]
+    # Covariance: the stereo mean shrinks with observations, the odometry part does not.
+    assert 0.01 < rec["cov_xx"][0] < 0.01 + 0.01 / 4
+
+
+def test_tracker_keeps_one_observation_per_track_per_pair():
+    tracker = Tracker(TrackerConfig(gate_m=1.0))
+    tracker.update([_obs([0, 0], 0)])
+    tracker.update([_obs([0.1, 0], 1), _obs([-0.1, 0.2], 1)])
+    assert len(tracker.tracks) == 2
+
+
+def test_observations_rotate_into_odom():
+    rec = empty_records(1)
+    rec["x"], rec["label"], rec["cov_xx"], rec["cov_yy"] = 5.0, ROCK, 0.09, 0.01
+    rec["major_m"] = rec["minor_m"] = 1.0
+    r = Rotation.from_euler("z", np.pi / 2).as_matrix()
+    (o,) = observations_in_odom(rec, 1.0, r, np.array([1.0, 2.0, 0.0]), np.eye(2) * 0.5,
+                                np.zeros(2))
+    np.testing.assert_allclose(o.xy, [1.0, 7.0], atol=1e-9)
+    # The range error (base_link x) is along odom y after a 90 deg turn.
+    assert o.cov[1, 1] == pytest.approx(0.09) and o.cov[0, 0] == pytest.approx(0.01)
+
+
+def _tracks(n_obs, xs):
+    rec = empty_records(len(xs))
+    rec["id"] = np.arange(1, len(xs) + 1)
+    rec["x"] = xs
+    rec["label"] = ROCK
+    rec["n_obs"] = n_obs
+    rec["cov_xx"] = rec["cov_yy"] = 0.04
+    rec["major_m"] = 1.0
+    return rec
+
+
+def test_ln_takes_confirmed_tracks_and_merges_revisits(tmp_path):
+    ln = LocalNetwork(LnConfig(min_obs=3))
+    assert not ln.update(_tracks([1, 2], [0.0, 10.0]))
+    assert ln.update(_tracks([3, 5], [0.0, 10.0])) and len(ln) == 2
+    assert not ln.update(_tracks([3, 5], [0.0, 10.0]))  # nothing new
+    # A second track of the first ROI (re-visit after drift): merged, not added.
+    both = np.concatenate([_tracks([3, 5], [0.0, 10.0]), _tracks([4], [0.3])])
+    both["id"][2] = 7
+    ln.update(both)
+    assert len(ln) == 2
+    merged = ln.records[ln.records["x"] < 5][0]
+    assert merged["n_obs"] == 7 and merged["cov_xx"] < 0.04
+    path = tmp_path / "ln.geojson"
+    ln.save(path)
+    again = LocalNetwork.load(path)
+    np.testing.assert_array_equal(again.records, ln.records)
+    # The restarted LN keeps its ids: a known track updates its node.
+    moved = _tracks([3, 6], [0.0, 10.5])
+    assert again.update(moved) and len(again) == 2
+
+
+def test_corrupt_saved_ln_is_kept_aside(tmp_path):
+    path = tmp_path / "ln.geojson"
+    path.write_text('{"type": "FeatureCollection", "features": [')
+    messages = []
+    ln = load_or_fresh(path, LnConfig(), messages.append)
+    assert len(ln) == 0 and not path.exists()
+    assert len(messages) == 1 and str(path) in messages[0]
+    aside = list(tmp_path.glob("ln.geojson.corrupt-*"))
+    assert len(aside) == 1
+    # A valid GeoJSON that is not an odom LN (a map-frame GN) is refused the same way.
+    write_geojson(RoiNetwork(empty_records(0), "map", MapFrame("EPSG:32719")), path)
+    assert len(load_or_fresh(path, LnConfig(), messages.append)) == 0
+    assert len(messages) == 2 and "odom" in messages[1]
+
+
+def test_bad_input_logged_once_per_kind():
+    lines = []
+    bad = BadInput(lines.append)
+    for _ in range(3):
+        bad("undecodable image", "x")
+    bad("missing pair half", "y")
+    assert bad.counts == {"undecodable image": 3, "missing pair half": 1}
+    assert len(lines) == 2
+    assert decode_image(b"not a jpeg") is None and decode_image(b"") is None
+
+
+def test_pose_track_interpolates_and_reports_gaps(tmp_path):
+    q = Rotation.from_euler("z", [[0.0], [0.2], [0.4], [0.6]]).as_quat()
+    t = [0.0, 0.5, 1.0, 5.0]
+    p = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], float)
+    path = tmp_path / "vo.tum"
+    write_tum(path, t, p, q)
+    track = read_tum(path, max_gap_s=1.0)
+    r, pos, _ = track.at(0.25)
+    assert pos[0] == pytest.approx(0.5)
+    assert Rotation.from_matrix(r).as_euler("xyz")[2] == pytest.approx(0.1)
+    assert track.at(3.0) is None  # inside a 4 s gap
+    assert track.at(6.0) is None  # after the end
+    assert isinstance(track, PoseTrack)
+    bad = tmp_path / "bad.tum"
+    bad.write_text("0 1 2 3\n")
+    with pytest.raises(ValueError, match=r"bad\.tum:1"):
+        read_tum(bad)
+
+
+def test_rover_classifier_round_trip(tmp_path):
+    """Rock Rover / Outcrop Rover trained on separable synthetic candidates, saved,
+    loaded, and applied: dark tall blobs are rocks, pale flat patches outcrops."""
+    from roi_detector.classifier import ModelFileError
+    from roi_detector.rover_candidates import Candidate, metric_images
+    from roi_detector.rover_classifier import (
+        RoverClassifier,
+        features_of,
+        save_rover_model,
+        train_classifiers,
+    )
+
+    rng = np.random.default_rng(1)
+    left = rng.normal(120, 8, (480, 640, 3)).clip(0, 255).astype(np.uint8)
+    cands, labels = [], []
+    for k in range(24):
+        y0, x0 = 20 + (k // 6) * 50, 20 + (k % 6) * 50
+        kind = k % 3  # 0 background, 1 rock (dark, tall), 2 outcrop (pale, flat)
+        if kind == 1:
+            left[2 * y0:2 * y0 + 40, 2 * x0:2 * x0 + 40] = 40
+        elif kind == 2:
+            left[2 * y0:2 * y0 + 40, 2 * x0:2 * x0 + 40] = 230
+        mask = np.ones((20, 20), bool)
+        height = {0: 0.3, 1: 0.8, 2: 0.1}[kind] + rng.normal(0, 0.02)
+        area = {0: 1.0, 1: 1.5, 2: 9.0}[kind] * (1 + rng.normal(0, 0.05))
+        cands.append(Candidate(1, mask, (x0, y0, x0 + 20, y0 + 20), np.zeros(3), area, height,
+                               1.2, 1.0, 0.0, 6.0, 0.1, np.array([1.0, 0.0])))
+        labels.append(kind)
+    gray = left.mean(axis=2).astype(np.uint8)
+    metrics = metric_images(gray)
+    x = features_of(left, cands, metrics, "stereo")
+    clfs = train_classifiers(x, np.array(labels), "stereo", k=3)
+    path = tmp_path / "rover.npz"
+    save_rover_model(path, clfs, {"feature_set": "stereo", "threshold": 0.5, "test": True})
+    model = RoverClassifier.load(path)
+    kept = model.classify(left, cands, metrics)
+    got = {id(c): c.label for c in kept}
+    for c, kind in zip(cands, labels, strict=True):
+        if kind == 0:
+            assert id(c) not in got
+        else:
+            assert got.get(id(c)) == kind
+    (tmp_path / "bad.npz").write_bytes(b"junk")
+    with pytest.raises(ModelFileError, match=r"bad\.npz"):
+        RoverClassifier.load(tmp_path / "bad.npz")
