@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from orbital_gn.raster import OrthoInfo, OrthoWindow
@@ -42,7 +43,7 @@ _CONTRAST_TRUNCATE = 4.0
 
 def entropy_size_px(recipe: Recipe, gsd_m: float) -> int:
     """The odd entropy neighbourhood side in pixels (3..15)."""
-    n = int(round(recipe.entropy_window_m / gsd_m))
+    n = round(recipe.entropy_window_m / gsd_m)
     n = n if n % 2 == 1 else n + 1
     return int(min(max(n, 3), 15))
 
@@ -53,7 +54,7 @@ def metrics_halo_px(recipe: Recipe, gsd_m: float) -> int:
     for sigmas in recipe.hessian_sigmas_m.values():
         halo = max(halo, *(hessian_halo_px(s / gsd_m) for s in sigmas))
     for s in recipe.contrast_sigma_m.values():
-        halo = max(halo, int(math.ceil(_CONTRAST_TRUNCATE * s / gsd_m)) + 1)
+        halo = max(halo, math.ceil(_CONTRAST_TRUNCATE * s / gsd_m) + 1)
     return halo
 
 
@@ -61,13 +62,21 @@ def halo_px(recipe: Recipe, gsd_m: float) -> int:
     """Window halo (pixels) that makes tiled detection equal to whole-raster detection:
     the largest ROI extent, plus the features' context, plus the metrics' context."""
     max_extent = max(r.max_extent_m for r in recipe.rules.rules)
-    return (int(math.ceil(max_extent / gsd_m)) + 1 + feature_halo_px()
+    return (math.ceil(max_extent / gsd_m) + 1 + feature_halo_px()
             + metrics_halo_px(recipe, gsd_m))
 
 
-def class_metrics(gray: np.ndarray, recipe: Recipe, label: int, gsd_m: float
-                  ) -> dict[str, np.ndarray]:
-    """Metric maps the rule of class ``label`` thresholds, for a (H, W) uint8 gray window.
+def paleness(rgb01: np.ndarray) -> np.ndarray:
+    """HSV value minus saturation, x 255: high on pale, unsaturated surfaces (outcrops on
+    reddish soil); equal to the gray level on a 1-band image. (H, W) float32."""
+    hsv = cv2.cvtColor(np.ascontiguousarray(rgb01, dtype=np.float32), cv2.COLOR_RGB2HSV)
+    return (hsv[..., 2] - hsv[..., 1]) * np.float32(255.0)
+
+
+def class_metrics(gray: np.ndarray, recipe: Recipe, label: int, gsd_m: float,
+                  rgb01: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Metric maps the rule of class ``label`` thresholds, for a (H, W) uint8 gray window
+    (and its (H, W, 3) RGB in [0, 1] when the recipe's contrast channel is ``paleness``).
 
     With several Hessian scales, ``hessian_min`` is the strongest dark-blob response over
     them (max of the smaller eigenvalue) and ``hessian_max`` the strongest bright-blob one.
@@ -84,7 +93,9 @@ def class_metrics(gray: np.ndarray, recipe: Recipe, label: int, gsd_m: float
     if "entropy" in used:
         out["entropy"] = weighted_entropy(gray, entropy_size_px(recipe, gsd_m))
     if "contrast" in used:
-        out["contrast"] = local_contrast(gray, recipe.contrast_sigma_m[label] / gsd_m)
+        channel = recipe.contrast_channel.get(label, "gray")
+        image = paleness(rgb01) if channel == "paleness" else gray
+        out["contrast"] = local_contrast(image, recipe.contrast_sigma_m[label] / gsd_m)
     return out
 
 
@@ -98,7 +109,7 @@ def window_moments(win: OrthoWindow, core: tuple[int, int, int, int], recipe: Re
     r0, c0, r1, c1 = core
     out = {}
     for rule in recipe.rules.rules:
-        m = class_metrics(win.gray, recipe, rule.label, gsd_m)
+        m = class_metrics(win.gray, recipe, rule.label, gsd_m, win.rgb01)
         m = {k: v[r0:r1, c0:c1] for k, v in m.items()}
         out[rule.label] = metric_moments(m, win.valid[r0:r1, c0:c1])
     return out
@@ -168,7 +179,7 @@ def window_candidates(win: OrthoWindow, core: tuple[int, int, int, int], info: O
     out = []
     all_regions: list[tuple[int, list[Region]]] = []
     for rule in recipe.rules.rules:
-        m = class_metrics(win.gray, recipe, rule.label, gsd)
+        m = class_metrics(win.gray, recipe, rule.label, gsd, win.rgb01)
         mask = candidate_mask(rule, m, stats[rule.label], win.valid)
         excess = threshold_excess(rule, m, stats[rule.label])
         regions = candidate_regions(mask, rule, info.pixel_area_m2, excess, gsd)
@@ -183,7 +194,8 @@ def window_candidates(win: OrthoWindow, core: tuple[int, int, int, int], info: O
         cols = np.array([r.col + win.col0 for r in regions], np.float64)
         for i, reg in enumerate(regions):
             # Pixel centres are at +0.5 in the affine's corner convention.
-            x, y = t * (cols[i] + 0.5, rows[i] + 0.5)
+            x = t.a * (cols[i] + 0.5) + t.b * (rows[i] + 0.5) + t.c
+            y = t.d * (cols[i] + 0.5) + t.e * (rows[i] + 0.5) + t.f
             major, minor, angle = ellipse_from_cov(jac @ reg.cov_px @ jac.T)
             rec[i]["x"], rec[i]["y"] = x - origin[0], y - origin[1]
             rec[i]["label"] = label

@@ -23,7 +23,7 @@ from orbital_gn.raster import OrthoInfo, open_ortho, sha256_of
 from orbital_gn.recipe import RECIPES, Recipe
 from orbital_gn.tiling import default_tile_px, detect_candidates, raster_stats
 from roi_detector.classifier import BinaryClassifier, load_classifiers
-from roi_network import OUTCROP, ROCK, MapFrame, RoiNetwork, empty_records
+from roi_network import LABEL_NAMES, OUTCROP, ROCK, MapFrame, RoiNetwork, empty_records
 
 log = logging.getLogger("orbital_gn")
 
@@ -63,7 +63,9 @@ def load_model(path: str | os.PathLike[str] | None) -> Model:
 
 def map_origin_of(info: OrthoInfo) -> tuple[float, float]:
     """The map-frame origin: the raster's centre, rounded to the metre."""
-    x, y = info.transform * (info.width / 2.0, info.height / 2.0)
+    t = info.transform
+    x = t.a * info.width / 2.0 + t.b * info.height / 2.0 + t.c
+    y = t.d * info.width / 2.0 + t.e * info.height / 2.0 + t.f
     return float(round(x)), float(round(y))
 
 
@@ -138,16 +140,17 @@ def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None =
             if _flat(stats):
                 warnings.append(f"{info.path}: the image has no texture (constant values); "
                                 "the GN is empty")
-            cands = detect_candidates(info, recipe, stats, origin, tile_px, scheduler,
-                                      workers, progress)
-            kept = [classify(c, model.classifiers, recipe) for c in cands]
-            records = np.concatenate(kept) if kept else empty_records(0)
-            records = assign_ids(suppress_rocks_on_outcrops(records))
-            metadata["candidates"] = {{ROCK: "rock", OUTCROP: "outcrop"}[c.label]:
-                                      int(c.records.size) for c in cands}
+            else:
+                cands = detect_candidates(info, recipe, stats, origin, tile_px, scheduler,
+                                          workers, progress)
+                kept = [classify(c, model.classifiers, recipe) for c in cands]
+                records = np.concatenate(kept) if kept else empty_records(0)
+                records = assign_ids(suppress_rocks_on_outcrops(records))
+                metadata["candidates"] = {LABEL_NAMES[c.label]: int(c.records.size)
+                                          for c in cands}
             metadata["metric_stats"] = {
-                {ROCK: "rock", OUTCROP: "outcrop"}[label]: {
-                    k: [v.mean, v.std] for k, v in s.items()} for label, s in stats.items()}
+                LABEL_NAMES[label]: {k: [v.mean, v.std] for k, v in s.items()}
+                for label, s in stats.items()}
     if records.size == 0 and not warnings:
         warnings.append(f"{info.path}: no ROI found; the GN is empty")
     metadata["tile_px"] = tile_px
@@ -155,7 +158,10 @@ def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None =
 
 
 def _flat(stats) -> bool:
-    return all(all(v.std == 0.0 for v in s.values()) for s in stats.values())
+    # float64 moments leave a rounding residue on a constant image: compare relatively.
+    # The pooled "hessian" mixes two maps whose means differ slightly even then: skip it.
+    return all(all(v.std <= 1e-6 * (1.0 + abs(v.mean)) for k, v in s.items() if k != "hessian")
+               for s in stats.values())
 
 
 def _metadata(info: OrthoInfo, model: Model, origin) -> dict[str, Any]:

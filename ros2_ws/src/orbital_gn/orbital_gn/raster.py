@@ -13,6 +13,7 @@ from __future__ import annotations
 import hashlib
 import math
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,7 +21,7 @@ import numpy as np
 import rasterio
 from affine import Affine
 from pyproj import CRS
-from rasterio.errors import RasterioError
+from rasterio.errors import NotGeoreferencedWarning, RasterioError
 from rasterio.windows import Window
 
 from roi_detector.metrics import to_gray_u8
@@ -76,7 +77,11 @@ def open_ortho(path: str | os.PathLike[str]) -> OrthoInfo:
     if not p.is_file():
         raise OrthoImageError(f"{p}: file not found")
     try:
-        with rasterio.open(p) as ds:
+        with warnings.catch_warnings():
+            # An ungeoreferenced raster is reported below as an error, not a warning.
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            ds = rasterio.open(p)
+        with ds:
             crs, transform = ds.crs, ds.transform
             width, height, count = ds.width, ds.height, ds.count
             dtypes = ds.dtypes
@@ -124,7 +129,7 @@ def _pick_bands(count: int, colorinterp) -> tuple[int, int, int]:
 
 def _stretch(ds, bands: tuple[int, int, int], path: Path) -> tuple[float, float]:
     # A decimated read (at most ~1 Mpx) gives the 0.1 / 99.9 percentiles of the raster.
-    step = max(1, int(math.ceil(math.sqrt(ds.width * ds.height / 1e6))))
+    step = max(1, math.ceil(math.sqrt(ds.width * ds.height / 1e6)))
     shape = (max(1, ds.height // step), max(1, ds.width // step))
     data = ds.read(sorted(set(bands)), out_shape=(len(set(bands)), *shape), masked=True)
     vals = data.compressed().astype(np.float64)
@@ -180,10 +185,11 @@ def read_window(info: OrthoInfo, row0: int, col0: int, height: int, width: int) 
         rgb01 = (raw - lo) / (hi - lo)
     rgb01 = np.clip(np.moveaxis(rgb01, 0, -1), 0.0, 1.0).astype(np.float32)
     gray = to_gray_u8(rgb01, 0.0, 1.0)
-    # Invalid pixels take the mean of the valid ones so that filters see no false edges.
-    if not valid.all() and valid.any():
-        gray[~valid] = int(round(float(gray[valid].mean())))
-        rgb01[~valid] = rgb01[valid].mean(axis=0)
+    # Invalid pixels take mid-grey: a constant, so that every window of a raster sees the
+    # same values there (tiling changes nothing); candidates are masked to valid pixels.
+    if not valid.all():
+        gray[~valid] = 128
+        rgb01[~valid] = 128.0 / 255.0
     return OrthoWindow(r0, c0, rgb01, gray, valid)
 
 

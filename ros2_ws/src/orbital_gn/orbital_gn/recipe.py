@@ -33,6 +33,8 @@ class Recipe:
         entropy_window_m: side of the weighted-entropy neighbourhood, metres (odd pixels).
         contrast_sigma_m: per class label, scale of the local background for the
             ``contrast`` metric, metres (only for rules that use it).
+        contrast_channel: per class label, the image the ``contrast`` metric is taken on:
+            ``"gray"`` or ``"paleness"`` (HSV value minus saturation).
         feature_groups: classifier features (:data:`roi_detector.features.GROUPS`).
         classifier: PCA + kNN hyper-parameters.
         min_probability: a candidate enters the GN when its classifier vote share is at
@@ -46,6 +48,7 @@ class Recipe:
     hessian_sigmas_m: dict[int, tuple[float, ...]]
     entropy_window_m: float = 1.25
     contrast_sigma_m: dict[int, float] = field(default_factory=dict)
+    contrast_channel: dict[int, str] = field(default_factory=dict)
     feature_groups: tuple[str, ...] = GROUPS
     classifier: ClassifierConfig = field(default_factory=ClassifierConfig)
     min_probability: float = 0.5
@@ -71,6 +74,7 @@ class Recipe:
             "hessian_sigmas_m": {str(k): list(v) for k, v in self.hessian_sigmas_m.items()},
             "entropy_window_m": self.entropy_window_m,
             "contrast_sigma_m": {str(k): v for k, v in self.contrast_sigma_m.items()},
+            "contrast_channel": {str(k): v for k, v in self.contrast_channel.items()},
             "feature_groups": list(self.feature_groups),
             "classifier": {"n_components": self.classifier.n_components,
                            "k": self.classifier.k, "weights": self.classifier.weights},
@@ -91,8 +95,8 @@ PAPER: Final = Recipe(
 )
 
 #: Ours: rocks are dark blobs with their shadows (local contrast well below the
-#: background) or strong Hessian blobs over several scales; outcrops are pale plateaus
-#: (contrast above a background wider than the largest outcrop). Candidates are generous;
+#: background) or strong Hessian blobs over several scales; outcrops are pale, unsaturated
+#: surfaces (paleness above its local background). Candidates are generous;
 #: the classifier, with shape features and distance-weighted votes, removes the clutter.
 IMPROVED: Final = Recipe(
     name="improved",
@@ -105,7 +109,8 @@ IMPROVED: Final = Recipe(
     hessian_sigmas_m={ROCK: (blob_sigma_m(0.6), blob_sigma_m(2.0), blob_sigma_m(6.0)),
                       OUTCROP: (blob_sigma_m(8.0),)},
     entropy_window_m=1.25,
-    contrast_sigma_m={ROCK: 2.0, OUTCROP: 5.0},
+    contrast_sigma_m={ROCK: 2.0, OUTCROP: 3.0},
+    contrast_channel={ROCK: "gray", OUTCROP: "paleness"},
     feature_groups=GROUPS,
     classifier=ClassifierConfig(n_components=10, k=7, weights="distance"),
 )

@@ -91,7 +91,8 @@ def _run(tasks: list, scheduler: str | None, workers: int,
          progress: Callable[[str, int], Iterator] | None, what: str) -> list:
     """Compute delayed tasks in order, with a progress bar when ``progress`` is given."""
     if scheduler in (None, "processes", "threads", "sync"):
-        sched = scheduler or "processes"
+        # One task gains nothing from worker processes (and would pay their start-up).
+        sched = "sync" if len(tasks) <= 1 else (scheduler or "processes")
         if progress is None:
             return list(dask.compute(*tasks, scheduler=sched, num_workers=workers))
         from dask.callbacks import Callback
