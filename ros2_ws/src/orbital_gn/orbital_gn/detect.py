@@ -27,13 +27,14 @@ from roi_detector.candidates import (
     threshold_excess,
 )
 from roi_detector.classifier import BinaryClassifier
-from roi_detector.features import candidate_features, feature_halo_px
+from roi_detector.features import candidate_features, entropy_pixels, feature_halo_px
 from roi_detector.metrics import (
     entropy_halo_px,
     hessian_eigenvalues,
     hessian_halo_px,
     local_contrast,
     weighted_entropy,
+    weighted_entropy_at,
 )
 from roi_network import LABEL_NAMES, ROI_DTYPE
 
@@ -116,18 +117,16 @@ def window_moments(win: OrthoWindow, core: tuple[int, int, int, int], recipe: Re
 
 
 def _sparse_entropy(gray: np.ndarray, regions: list[Region], size: int) -> np.ndarray:
-    """Weighted entropy only around the candidates (what the features read)."""
+    """Weighted entropy only where the features read it (around the candidates)."""
     out = np.zeros(gray.shape, np.float32)
-    m = feature_halo_px()
-    halo = entropy_halo_px(size)
-    h, w = gray.shape
-    for reg in regions:
-        r0, c0, r1, c1 = reg.bbox
-        pr0, pc0, pr1, pc1 = max(r0 - m, 0), max(c0 - m, 0), min(r1 + m, h), min(c1 + m, w)
-        er0, ec0, er1, ec1 = (max(pr0 - halo, 0), max(pc0 - halo, 0), min(pr1 + halo, h),
-                              min(pc1 + halo, w))
-        e = weighted_entropy(np.ascontiguousarray(gray[er0:er1, ec0:ec1]), size)
-        out[pr0:pr1, pc0:pc1] = e[pr0 - er0:pr1 - er0, pc0 - ec0:pc1 - ec0]
+    if not regions:
+        return out
+    pix = [entropy_pixels(r, gray.shape) for r in regions]
+    rows = np.concatenate([p[0] for p in pix])
+    cols = np.concatenate([p[1] for p in pix])
+    flat = np.unique(rows * gray.shape[1] + cols)
+    rows, cols = np.divmod(flat, gray.shape[1])
+    out[rows, cols] = weighted_entropy_at(gray, rows, cols, size)
     return out
 
 

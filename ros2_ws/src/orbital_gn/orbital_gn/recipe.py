@@ -52,7 +52,7 @@ class Recipe:
     feature_groups: tuple[str, ...] = GROUPS
     classifier: ClassifierConfig = field(default_factory=ClassifierConfig)
     min_probability: float = 0.5
-    stats_blocks: int = 48
+    stats_blocks: int = 16
 
     def metrics_used(self, label: int) -> set[str]:
         """Names of the metric maps the rule of ``label`` thresholds."""

@@ -32,6 +32,7 @@ from roi_detector.features import (
     GROUPS,
     PAPER_GROUPS,
     candidate_features,
+    entropy_pixels,
     feature_names,
 )
 from roi_detector.metrics import (
@@ -41,6 +42,7 @@ from roi_detector.metrics import (
     sigma_px_from_gsd,
     to_gray_u8,
     weighted_entropy,
+    weighted_entropy_at,
 )
 from roi_network import OUTCROP, ROCK
 
@@ -293,3 +295,25 @@ def test_local_contrast_and_contrast_rule():
         assert any(abs(reg.row - r) < 1 and abs(reg.col - cc) < 1 for reg in regions)
     with pytest.raises(ValueError):
         local_contrast(g, 0)
+
+
+def test_weighted_entropy_at_equals_the_map():
+    g, _ = _scene(2)
+    rng = np.random.default_rng(0)
+    rows, cols = rng.integers(0, g.shape[0], 400), rng.integers(0, g.shape[1], 400)
+    rows[:2], cols[:2] = (0, g.shape[0] - 1), (0, g.shape[1] - 1)  # borders reflect alike
+    for size in (3, 5, 9):
+        np.testing.assert_allclose(weighted_entropy_at(g, rows, cols, size),
+                                   weighted_entropy(g, size)[rows, cols], atol=1e-5)
+    assert weighted_entropy_at(g, np.zeros(0, int), np.zeros(0, int), 5).shape == (0,)
+
+
+def test_entropy_pixels_cover_region_and_ring():
+    regions, _ = _features_of_scene(1)
+    reg = regions[0]
+    rows, cols = entropy_pixels(reg, (120, 160))
+    r0, c0, _, _ = reg.bbox
+    fr, fc = np.nonzero(reg.footprint)
+    got = set(zip(rows.tolist(), cols.tolist(), strict=True))
+    assert {(r + r0, c + c0) for r, c in zip(fr, fc, strict=True)} <= got
+    assert len(got) > reg.n_px
