@@ -15,7 +15,7 @@ BAG ?= bags/quick
 RATE ?= 5
 RUN_ENV := source ./env.sh &&
 
-.PHONY: setup sysdeps test demo lint clean
+.PHONY: setup sysdeps test demo lint clean orbital-model
 setup: sysdeps $(VENV)/.installed $(WS)/install/.built
 
 # Debian packages beyond PyPI (Mesa EGL for the simulator's renderer); a no-op when present.
@@ -46,7 +46,23 @@ demo: setup
 	  $(RUN_ENV) command -v atacama_sim >/dev/null || { \
 	    echo "demo: cannot generate $(BAG): the atacama_sim generator is not built yet (issue 3)"; exit 2; }; \
 	  $(RUN_ENV) atacama_sim generate --preset quick --seed 1 --out $(BAG); fi
+	@# The GN of the bag's orbital image (once per bag), for gn_server and the matcher.
+	@if [ ! -f "$(BAG)/gn.geojson" ] && [ -f "$(BAG)/orbital.tif" ]; then \
+	  $(RUN_ENV) orbital_gn prepare $(BAG)/orbital.tif --out $(BAG)/gn.geojson \
+	    --preview $(BAG)/gn.png; fi
 	$(RUN_ENV) globloc run $(BAG) --out out --rate $(RATE)
+
+# Re-train the committed default orbital classifier model from the training bags (seeds 101
+# and 102, never an evaluation seed), generating them first when missing (about 6 min each).
+TRAIN_BAGS ?= bags
+ORBITAL_MODEL := $(WS)/src/orbital_gn/orbital_gn/models/orbital_default.npz
+orbital-model: setup
+	@for s in 101 102; do \
+	  if [ ! -d "$(TRAIN_BAGS)/train_quick_s$$s/rosbag" ]; then \
+	    $(RUN_ENV) atacama_sim generate --preset quick --seed $$s \
+	      --out $(TRAIN_BAGS)/train_quick_s$$s || exit 1; fi; done
+	$(RUN_ENV) orbital_gn train $(TRAIN_BAGS)/train_quick_s101 $(TRAIN_BAGS)/train_quick_s102 \
+	  --out $(ORBITAL_MODEL)
 
 clean:
 	rm -rf $(WS)/build $(WS)/install $(WS)/log $(WS)/build.log
