@@ -227,3 +227,28 @@ def test_paths_in_metadata(tmp_path, bags):
     gn, _ = prepare_gn(bags[0] / "orbital.tif", Model(PAPER), scheduler="sync")
     assert Path(gn.metadata["source_image"]).name == "orbital.tif"
     assert gn.metadata["recipe"]["name"] == "paper"
+
+
+def test_distributed_scheduler_gives_the_same_gn(bags):
+    from distributed import LocalCluster
+
+    ortho = bags[0] / "orbital.tif"
+    local, _ = prepare_gn(ortho, Model(IMPROVED), tile_px=128, scheduler="sync")
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                      dashboard_address=None) as cluster:
+        seen = []
+
+        class Bar:
+            def __init__(self, what, total):
+                seen.append((what, total))
+
+            def update(self, n):
+                seen.append(n)
+
+            def close(self):
+                pass
+
+        remote, _ = prepare_gn(ortho, Model(IMPROVED), tile_px=128,
+                               scheduler=cluster.scheduler_address, progress=Bar)
+    np.testing.assert_allclose(_key(remote), _key(local), rtol=0, atol=1e-6)
+    assert ("detection", 9) in seen and seen.count(1) >= 9
