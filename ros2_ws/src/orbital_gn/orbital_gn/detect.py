@@ -209,16 +209,15 @@ def classify(cands: Candidates, classifiers: dict[str, BinaryClassifier],
              recipe: Recipe) -> np.ndarray:
     """Records of the candidates the class' binary classifier accepts, scored by its vote.
 
-    Without a classifier for the class (``classifiers`` empty), every candidate is kept
-    with score 1 (candidate-only mode, for evaluating the detector alone).
+    Without a classifier for the class (``classifiers`` empty: candidate-only mode, for
+    evaluating the detector alone; or a class the model could not train), every candidate
+    is kept with score 1.
     """
     name = f"{LABEL_NAMES[cands.label]}_orbital"
-    if not classifiers:
+    if name not in classifiers:  # candidate-only mode, or a class the model could not train
         rec = cands.records.copy()
         rec["score"] = 1.0
         return rec
-    if name not in classifiers:
-        raise KeyError(f"model has no classifier '{name}' (has {sorted(classifiers)})")
     proba = classifiers[name].predict_proba(cands.features)
     keep = proba >= recipe.min_probability
     rec = cands.records[keep].copy()

@@ -72,9 +72,12 @@ def train_model(bags: list[str | os.PathLike[str]], recipe: Recipe, out: str | o
     Returns:
         The provenance written into the model (bags, seeds, sample counts).
 
+    A class whose candidates all carry one label gets no classifier (recorded in the
+    provenance); ``prepare`` then keeps all its candidates.
+
     Raises:
-        TrainingError: a bag is missing files, has an evaluation seed, or gives a class no
-            positive or no negative sample.
+        TrainingError: a bag is missing files or has an evaluation seed, or no class could
+            be trained.
     """
     feats: dict[int, list[np.ndarray]] = {}
     labels: dict[int, list[np.ndarray]] = {}
@@ -94,11 +97,16 @@ def train_model(bags: list[str | os.PathLike[str]], recipe: Recipe, out: str | o
     for label in feats:
         x, y = np.concatenate(feats[label]), np.concatenate(labels[label])
         name = f"{LABEL_NAMES[label]}_orbital"
-        try:
-            classifiers[name] = BinaryClassifier(name, names, recipe.classifier).fit(x, y)
-        except ValueError as exc:
-            raise TrainingError(f"{name}: {exc}") from exc
         counts[name] = {"samples": int(y.size), "positive": int(y.sum())}
+        if y.size and 0 < y.sum() < y.size:
+            classifiers[name] = BinaryClassifier(name, names, recipe.classifier).fit(x, y)
+        else:
+            # One class only (e.g. the paper's outcrop rule finds few candidates): no
+            # classifier; prepare then keeps every candidate of the class (recorded).
+            counts[name]["untrained"] = "candidates of one label only"
+    if not classifiers:
+        raise TrainingError(f"no classifier could be trained from {list(map(str, bags))}: "
+                            f"{counts}")
     provenance = {
         "recipe": recipe.to_dict(),
         "training": {"bags": [str(Path(b).resolve()) for b in bags], "seeds": seeds,
