@@ -252,3 +252,11 @@ def test_distributed_scheduler_gives_the_same_gn(bags):
                                scheduler=cluster.scheduler_address, progress=Bar)
     np.testing.assert_allclose(_key(remote), _key(local), rtol=0, atol=1e-6)
     assert ("detection", 9) in seen and seen.count(1) >= 9
+
+
+def test_bad_input_no_roi(tmp_path, capsys):
+    # Fine soil grain only: no dark or pale region reaches the smallest ROI's area.
+    rng = np.random.default_rng(0)
+    soil = np.clip(130 + rng.normal(0, 3.0, (96, 96, 1)) * np.ones(3), 0, 255).astype(np.uint8)
+    p = write_tif(tmp_path / "soil.tif", soil)
+    _assert_empty_with_warning(*_prepare(tmp_path, p, capsys), "no ROI found")
