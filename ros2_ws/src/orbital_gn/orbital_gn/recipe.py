@@ -76,7 +76,8 @@ class Recipe:
             "contrast_sigma_m": {str(k): v for k, v in self.contrast_sigma_m.items()},
             "contrast_channel": {str(k): v for k, v in self.contrast_channel.items()},
             "feature_groups": list(self.feature_groups),
-            "classifier": {"n_components": self.classifier.n_components,
+            "classifier": {"kind": self.classifier.kind,
+                           "n_components": self.classifier.n_components,
                            "k": self.classifier.k, "weights": self.classifier.weights},
             "min_probability": self.min_probability,
         }
@@ -97,8 +98,11 @@ PAPER: Final = Recipe(
 #: Ours: rocks are dark blobs with their shadows (local contrast well below the
 #: background; a Hessian term OR'd in over three scales added 2 % candidates and no recall
 #: on the tiny bag, so it is left out); outcrops are pale, unsaturated surfaces (paleness
-#: above its local background). Candidates are generous; the classifier, with shape
-#: features and distance-weighted votes, removes the clutter.
+#: above its local background). Candidates are generous (true ROIs are ~1 % of them in the
+#: bags); gradient-boosted trees with class weights and shape features remove the clutter
+#: (2-fold spatial cross-validation on train_quick_s101: rocks P 0.97 / R 0.79, outcrops
+#: 0.93 / 0.93, against 1.00 / 0.26 and 1.00 / 0.29 for the paper's kNN on the same
+#: candidates).
 IMPROVED: Final = Recipe(
     name="improved",
     rules=RuleSet("orbital_improved", (
@@ -112,7 +116,7 @@ IMPROVED: Final = Recipe(
     contrast_sigma_m={ROCK: 2.0, OUTCROP: 3.0},
     contrast_channel={ROCK: "gray", OUTCROP: "paleness"},
     feature_groups=GROUPS,
-    classifier=ClassifierConfig(n_components=10, k=7, weights="distance"),
+    classifier=ClassifierConfig(kind="gradient_boosting"),
 )
 
 RECIPES: Final = {"paper": PAPER, "improved": IMPROVED}

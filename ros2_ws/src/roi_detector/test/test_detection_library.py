@@ -317,3 +317,19 @@ def test_entropy_pixels_cover_region_and_ring():
     got = set(zip(rows.tolist(), cols.tolist(), strict=True))
     assert {(r + r0, c + c0) for r, c in zip(fr, fc, strict=True)} <= got
     assert len(got) > reg.n_px
+
+
+def test_gradient_boosting_classifier_round_trips(tmp_path):
+    x, y = _toy_data(4, n=200)
+    names = tuple(f"f{i}" for i in range(6))
+    cfg = ClassifierConfig(kind="gradient_boosting")
+    clf = BinaryClassifier("outcrop_orbital", names, cfg).fit(x, y)
+    xt, yt = _toy_data(5, n=200)
+    assert (clf.predict(xt) == yt.astype(bool)).mean() > 0.9
+    save_classifiers(tmp_path / "g.npz", {"outcrop_orbital": clf}, {})
+    loaded, meta = load_classifiers(tmp_path / "g.npz")
+    assert meta["classifiers"]["outcrop_orbital"]["config"]["kind"] == "gradient_boosting"
+    np.testing.assert_array_equal(loaded["outcrop_orbital"].predict_proba(xt),
+                                  clf.predict_proba(xt))
+    with pytest.raises(ValueError, match="kind"):
+        ClassifierConfig(kind="svm")
