@@ -175,12 +175,12 @@ def cmd_scale(args) -> None:
     out_json = RESULTS / "orbital_gn_scale.json"
     results = {"machine": ("2 cores shared with other helpers' jobs (load average "
                            f"{psutil.getloadavg()[0]:.1f} at start); 2 dask worker processes"),
-               "source": str(args.ortho), "runs": []}
+               "source": str(args.ortho), "tile_px": args.tile_px, "runs": []}
     for k in args.tiles:
         vrt = _vrt_mosaic(Path(args.ortho).resolve(), k, WORK / f"mosaic_{k}x{k}.vrt")
         gn = WORK / f"mosaic_{k}x{k}.geojson"
         cmd = [_exe("orbital_gn"), "prepare", str(vrt), "--out", str(gn), "--no-progress",
-               "--workers", "2"]
+               "--workers", "2", "--tile-px", str(args.tile_px)]
         print(" ".join(cmd), flush=True)
         m = run_measured(cmd)
         mpx = raster_mpx(str(vrt))
@@ -192,7 +192,7 @@ def cmd_scale(args) -> None:
         print(f"  {mpx:.0f} Mpx: {m['wall_s']} s, peak RSS {m['peak_rss_mib']} MiB", flush=True)
     lines = ["# orbital_gn memory and speed against raster size (bench/orbital_gn_bench.py "
              "scale)", "", f"Machine: {results['machine']}. Source: {results['source']} "
-             "tiled k x k in a GDAL VRT.", "",
+             f"tiled k x k in a GDAL VRT; window core {args.tile_px} px for every size.", "",
              "| mosaic | Mpx | time s | Mpx/s | peak RSS MiB (process tree) |",
              "|---|---|---|---|---|"]
     for r in results["runs"]:
@@ -316,6 +316,7 @@ def main() -> None:
     s = sub.add_parser("scale")
     s.add_argument("--ortho", required=True)
     s.add_argument("--tiles", type=int, nargs="+", default=[1, 2, 3])
+    s.add_argument("--tile-px", type=int, default=1024, help="window core (fixed across sizes)")
     s.set_defaults(func=cmd_scale)
     m = sub.add_parser("matcher")
     m.add_argument("--bag", required=True, help="bag of the GN (its truth for reference)")
