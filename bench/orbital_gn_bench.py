@@ -296,6 +296,46 @@ def cmd_matcher(args) -> None:
     (RESULTS / f"orbital_gn_matcher_{bag.name}.md").write_text("\n".join(lines) + "\n")
 
 
+def cmd_figure(args) -> None:
+    """A full-resolution crop (x2) around the densest GN area: detections (rocks red,
+    outcrops cyan) and truth ROIs (green), ellipses; bench/results/orbital_gn_<bag>_crop.png."""
+    import cv2
+    import numpy as np
+    import rasterio
+    from rasterio.windows import Window
+
+    from roi_network.geojson import read_geojson
+
+    bag = Path(args.bag)
+    gn = read_geojson(args.gn)
+    truth = read_geojson(bag / "truth" / "rois.geojson")
+    with rasterio.open(bag / "orbital.tif") as ds:
+        inv, t = ~ds.transform, ds.transform
+        ox, oy = gn.map_frame.origin
+        cols, rows = zip(*[inv * (x + ox, y + oy) for x, y in zip(gn.records["x"],
+                                                                   gn.records["y"], strict=True)],
+                         strict=True)
+        h, _, _ = np.histogram2d(rows, cols, bins=ds.height // args.size,
+                                 range=[[0, ds.height], [0, ds.width]])
+        i, j = np.unravel_index(np.argmax(h), h.shape)
+        r0, c0 = int(i * args.size), int(j * args.size)
+        img = ds.read([1, 2, 3], window=Window(c0, r0, args.size, args.size))
+    img = np.ascontiguousarray(np.moveaxis(img, 0, -1)[..., ::-1])
+    img = cv2.resize(img, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
+    for net, colours in ((truth, {1: (0, 220, 0), 2: (0, 220, 0)}),
+                         (gn, {1: (40, 40, 255), 2: (255, 255, 0)})):
+        nox, noy = net.map_frame.origin
+        for r in net.records:
+            c, rr = inv * (r["x"] + nox, r["y"] + noy)
+            centre = (round((c - c0) * 2), round((rr - r0) * 2))
+            axes = (max(1, round(r["major_m"] / t.a)), max(1, round(r["minor_m"] / t.a)))
+            cv2.ellipse(img, centre, axes, -np.degrees(r["angle_rad"]), 0, 360,
+                        colours[int(r["label"])], 1, cv2.LINE_AA)
+    out = RESULTS / f"orbital_gn_{bag.name}_crop.png"
+    cv2.imwrite(str(out), img)
+    print(out)
+
+
 def _write(path: Path, doc: dict) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
@@ -324,6 +364,11 @@ def main() -> None:
     m.add_argument("--length", type=float, default=400.0, help="LN route stretch, m")
     m.add_argument("--step", type=float, default=20.0, help="between LN starts, m")
     m.set_defaults(func=cmd_matcher)
+    f = sub.add_parser("figure")
+    f.add_argument("--bag", required=True)
+    f.add_argument("--gn", required=True)
+    f.add_argument("--size", type=int, default=320, help="crop side, raster pixels")
+    f.set_defaults(func=cmd_figure)
     args = p.parse_args()
     WORK.mkdir(parents=True, exist_ok=True)
     args.func(args)
