@@ -27,6 +27,10 @@ from rasterio.windows import Window
 from roi_detector.metrics import to_gray_u8
 
 
+#: GDAL block cache per process while reading windows, MiB.
+GDAL_CACHE_MB = 64
+
+
 class OrthoImageError(ValueError):
     """An orthoimage cannot be used; the message names the file and says what to do."""
 
@@ -168,7 +172,9 @@ def read_window(info: OrthoInfo, row0: int, col0: int, height: int, width: int) 
     r1, c1 = min(row0 + height, info.height), min(col0 + width, info.width)
     win = Window(c0, r0, c1 - c0, r1 - r0)
     try:
-        with rasterio.open(info.path) as ds:
+        # A small GDAL block cache: each window is read once, and GDAL's default cache (5 %
+        # of RAM per process) would otherwise grow with the raster in every worker.
+        with rasterio.Env(GDAL_CACHEMAX=GDAL_CACHE_MB), rasterio.open(info.path) as ds:
             data = ds.read(list(info.bands), window=win, masked=True)
     except (RasterioError, OSError) as exc:
         raise OrthoImageError(f"{info.path}: cannot read window rows {r0}-{r1}, cols "
