@@ -26,7 +26,6 @@ from rasterio.windows import Window
 
 from roi_detector.metrics import to_gray_u8
 
-
 #: GDAL block cache per process while reading windows, MiB.
 GDAL_CACHE_MB = 64
 

@@ -16,7 +16,11 @@ path). ``scheduler="sync"`` runs in-process (tests, debugging).
 from __future__ import annotations
 
 import math
+import multiprocessing
+import os
 from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import dask
@@ -37,6 +41,8 @@ from roi_network import empty_records
 
 #: Side of a statistics block, pixels (fixed: the thresholds must not depend on tiling).
 STATS_BLOCK_PX = 512
+#: Windows a local worker process handles before it is replaced.
+WINDOWS_PER_WORKER = 2
 
 
 @dataclass(frozen=True)
@@ -93,21 +99,49 @@ def _run(tasks: list, scheduler: str | None, workers: int,
     if scheduler in (None, "processes", "threads", "sync"):
         # One task gains nothing from worker processes (and would pay their start-up).
         sched = "sync" if len(tasks) <= 1 else (scheduler or "processes")
-        if progress is None:
-            return list(dask.compute(*tasks, scheduler=sched, num_workers=workers))
-        from dask.callbacks import Callback
+        if sched == "processes":
+            with _worker_pool(workers) as pool:
+                return _compute_local(tasks, sched, workers, progress, what, pool)
+        return _compute_local(tasks, sched, workers, progress, what, None)
+    return _compute_distributed(tasks, scheduler, progress, what)
 
-        bar = progress(what, len(tasks))
 
-        class _Bar(Callback):
-            def _posttask(self, key, result, dsk, state, worker_id):
-                if str(key).startswith(("_moments_task", "_candidates_task")):
-                    bar.update(1)
+@contextmanager
+def _worker_pool(workers: int):
+    """Worker processes that are replaced after a few windows: what a long-lived Python
+    process keeps of its freed arrays (allocator fragmentation) would otherwise grow with
+    the number of windows, i.e. with the raster."""
+    os.environ.setdefault("PYTHONHASHSEED", "6640")  # as dask's own pool: stable hashing
+    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                               max_tasks_per_child=WINDOWS_PER_WORKER)
+    try:
+        yield pool
+    finally:
+        pool.shutdown()
 
-        with _Bar():
-            out = list(dask.compute(*tasks, scheduler=sched, num_workers=workers))
-        bar.close()
-        return out
+
+def _compute_local(tasks: list, sched: str, workers: int, progress, what: str, pool) -> list:
+    kwargs = {"scheduler": sched, "num_workers": workers}
+    if pool is not None:
+        kwargs["pool"] = pool
+    if progress is None:
+        return list(dask.compute(*tasks, **kwargs))
+    from dask.callbacks import Callback
+
+    bar = progress(what, len(tasks))
+
+    class _Bar(Callback):
+        def _posttask(self, key, result, dsk, state, worker_id):
+            if str(key).startswith(("_moments_task", "_candidates_task")):
+                bar.update(1)
+
+    with _Bar():
+        out = list(dask.compute(*tasks, **kwargs))
+    bar.close()
+    return out
+
+
+def _compute_distributed(tasks: list, scheduler: str, progress, what: str) -> list:
     from distributed import Client, as_completed
 
     with Client(scheduler) as client:
