@@ -19,7 +19,7 @@ RUN_ID := $(shell date +%Y%m%d-%H%M%S)
 endif
 RUN_ENV := source ./env.sh &&
 
-.PHONY: setup sysdeps test demo lint clean rover-model
+.PHONY: setup sysdeps test demo lint clean training-bags orbital-model rover-model models
 setup: sysdeps $(VENV)/.installed $(WS)/install/.built
 
 # Debian packages beyond PyPI (Mesa EGL for the simulator's renderer); a no-op when present.
@@ -50,17 +50,35 @@ demo: setup
 	  $(RUN_ENV) command -v atacama_sim >/dev/null || { \
 	    echo "demo: cannot generate $(BAG): the atacama_sim generator is not built yet (issue 3)"; exit 2; }; \
 	  $(RUN_ENV) atacama_sim generate --preset quick --seed 1 --out $(BAG); fi
+	@# The GN of the bag's orbital image (once per bag), for gn_server and the matcher.
+	@if [ ! -f "$(BAG)/gn.geojson" ] && [ -f "$(BAG)/orbital.tif" ]; then \
+	  $(RUN_ENV) orbital_gn prepare $(BAG)/orbital.tif --out $(BAG)/gn.geojson \
+	    --preview $(BAG)/gn.png; fi
 	$(RUN_ENV) globloc run $(BAG) --out out --rate $(RATE) --run-id $(RUN_ID)
 	$(RUN_ENV) globloc eval out/$(notdir $(patsubst %/,%,$(BAG)))/$(RUN_ID)
 
-# The committed rover classifiers (Rock Rover, Outcrop Rover), re-trained on the training
-# seeds (never an evaluation seed): generates the training bags if missing.
-TRAIN_BAGS ?= bags/train_quick_s101 bags/train_quick_s102
-ROVER_MODEL := ros2_ws/src/roi_detector/roi_detector/models/rover.npz
-rover-model: setup
-	@for b in $(TRAIN_BAGS); do [ -d "$$b/rosbag" ] || { s=$${b##*_s}; \
-	  $(RUN_ENV) atacama_sim generate --preset quick --seed $$s --out $$b; }; done
+# The committed classifier models are trained on bags of the training seeds (never an
+# evaluation seed); the bags are generated first when missing (about 6 min each).
+TRAIN_DIR ?= bags
+TRAIN_SEEDS ?= 101 102
+TRAIN_BAGS := $(foreach s,$(TRAIN_SEEDS),$(TRAIN_DIR)/train_quick_s$(s))
+training-bags: setup
+	@for s in $(TRAIN_SEEDS); do \
+	  if [ ! -d "$(TRAIN_DIR)/train_quick_s$$s/rosbag" ]; then \
+	    $(RUN_ENV) atacama_sim generate --preset quick --seed $$s \
+	      --out $(TRAIN_DIR)/train_quick_s$$s || exit 1; fi; done
+
+# Re-train the committed default orbital classifiers (Rock Orbital, Outcrop Orbital).
+ORBITAL_MODEL := $(WS)/src/orbital_gn/orbital_gn/models/orbital_default.npz
+orbital-model: training-bags
+	$(RUN_ENV) orbital_gn train $(TRAIN_BAGS) --out $(ORBITAL_MODEL)
+
+# Re-train the rover classifiers (Rock Rover, Outcrop Rover).
+ROVER_MODEL := $(WS)/src/roi_detector/roi_detector/models/rover.npz
+rover-model: training-bags
 	$(RUN_ENV) roi_detector train $(TRAIN_BAGS) --out $(ROVER_MODEL)
+
+models: orbital-model rover-model
 
 clean:
 	rm -rf $(WS)/build $(WS)/install $(WS)/log $(WS)/build.log

@@ -8,6 +8,8 @@ setup(
     name=package_name,
     version='0.1.0',
     packages=find_packages(exclude=['test']),
+    # The committed default model (npz + JSON provenance, no pickle).
+    package_data={package_name: ['models/*.npz', 'models/*.json']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
@@ -23,6 +25,8 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
+            'orbital_gn = orbital_gn.cli:main',
+            'gn_server = orbital_gn.gn_server:main',
         ],
     },
 )

@@ -1,11 +1,12 @@
-"""The paper's binary ROI classifiers (Sec. 4.3): standardisation, PCA, k-nearest neighbours.
+"""The paper's binary ROI classifiers (Sec. 4.3): standardisation, PCA, k-nearest neighbours
+(and, as an alternative, gradient-boosted trees).
 
 One :class:`BinaryClassifier` per class and imagery ("Rock Orbital", "Outcrop Orbital",
 "Rock Rover", "Outcrop Rover"), built on scikit-learn. A set of them is saved as one
 ``.npz`` file of plain arrays plus a JSON provenance string (training seeds, feature names,
 library versions): no pickle, so loading a model file runs no code. A kNN model *is* its
 training set, so the file stores the training features and labels and loading re-fits the
-(deterministic) pipeline on them.
+(deterministic: fixed seed) pipeline on them; the same holds for the boosted trees.
 """
 
 from __future__ import annotations
@@ -20,9 +21,11 @@ from typing import Any, Final
 import numpy as np
 import sklearn
 from sklearn.decomposition import PCA
+from sklearn.ensemble import HistGradientBoostingClassifier
 from sklearn.neighbors import KNeighborsClassifier
 from sklearn.pipeline import Pipeline
 from sklearn.preprocessing import StandardScaler
+from threadpoolctl import threadpool_limits
 
 MODEL_FORMAT: Final = "globloc-roi-classifiers/1"
 
@@ -39,16 +42,26 @@ class ClassifierConfig:
         n_components: PCA dimensions kept (capped by the feature and sample counts).
         k: neighbours voting.
         weights: ``"uniform"`` (the paper's plain vote) or ``"distance"``.
+        kind: ``"knn"`` (the paper's: standardise, PCA, kNN) or ``"gradient_boosting"``
+            (not the paper's: scikit-learn's histogram gradient boosting on the standardised
+            features, classes weighted by their inverse frequency, fixed seed; for
+            candidate sets where true ROIs are a few percent).
     """
 
     n_components: int = 8
     k: int = 5
     weights: str = "uniform"
+    kind: str = "knn"
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("knn", "gradient_boosting"):
+            raise ValueError(f"ClassifierConfig.kind: {self.kind!r} not knn/gradient_boosting")
 
 
 @dataclass
 class BinaryClassifier:
-    """Standardise -> PCA -> kNN, deciding "is this candidate of the class" (1) or not (0).
+    """Standardise -> PCA -> kNN (or boosted trees), deciding "is this candidate of the
+    class" (1) or not (0).
 
     Attributes:
         name: e.g. ``"rock_orbital"``.
@@ -78,16 +91,30 @@ class BinaryClassifier:
             raise ValueError(f"{self.name}: labels must be ({x.shape[0]},), got {y.shape}")
         if not np.isfinite(x).all():
             raise ValueError(f"{self.name}: training features hold non-finite values")
+        # The model file stores the training set as float16 (half the size): train on that
+        # precision here too, so that a loaded model is the very one that was saved.
+        x = _half(x).astype(np.float32)
         if len(np.unique(y)) < 2:
             raise ValueError(f"{self.name}: training labels need both classes, got only "
                              f"{np.unique(y).tolist()} ({len(y)} samples)")
-        n_comp = max(1, min(self.config.n_components, x.shape[1], x.shape[0] - 1))
-        k = max(1, min(self.config.k, x.shape[0]))
-        self._pipeline = Pipeline([
-            ("scale", StandardScaler()),
-            ("pca", PCA(n_components=n_comp, svd_solver="full")),
-            ("knn", KNeighborsClassifier(n_neighbors=k, weights=self.config.weights)),
-        ]).fit(x, y)
+        if self.config.kind == "gradient_boosting":
+            # One OpenMP thread: on a shared machine, scikit-learn's default (all cores)
+            # made this 30x slower under contention; the fit is small.
+            with threadpool_limits(1):
+                self._pipeline = Pipeline([
+                    ("scale", StandardScaler()),
+                    ("gbt", HistGradientBoostingClassifier(
+                        max_iter=200, learning_rate=0.1, class_weight="balanced",
+                        early_stopping=False, random_state=0)),
+                ]).fit(x, y)
+        else:
+            n_comp = max(1, min(self.config.n_components, x.shape[1], x.shape[0] - 1))
+            k = max(1, min(self.config.k, x.shape[0]))
+            self._pipeline = Pipeline([
+                ("scale", StandardScaler()),
+                ("pca", PCA(n_components=n_comp, svd_solver="full")),
+                ("knn", KNeighborsClassifier(n_neighbors=k, weights=self.config.weights)),
+            ]).fit(x, y)
         self._x, self._y = x, y
         return self
 
@@ -96,7 +123,7 @@ class BinaryClassifier:
         return self._pipeline is not None
 
     def predict_proba(self, x: np.ndarray) -> np.ndarray:
-        """(N,) probability in [0, 1] that each candidate is of the class (vote share)."""
+        """(N,) probability in [0, 1] that each candidate is of the class (kNN: vote share)."""
         if self._pipeline is None:
             raise RuntimeError(f"{self.name}: classifier is not trained")
         x = np.asarray(x, dtype=np.float32)
@@ -110,12 +137,19 @@ class BinaryClassifier:
         proba = np.zeros(x.shape[0], np.float64)
         if ok.any():
             classes = list(self._pipeline.classes_)
-            proba[ok] = self._pipeline.predict_proba(x[ok])[:, classes.index(1)]
+            with threadpool_limits(1):
+                proba[ok] = self._pipeline.predict_proba(x[ok])[:, classes.index(1)]
         return proba
 
     def predict(self, x: np.ndarray, threshold: float = 0.5) -> np.ndarray:
         """(N,) bool: probability above ``threshold``."""
         return self.predict_proba(x) > threshold
+
+
+def _half(x: np.ndarray) -> np.ndarray:
+    """float16 copy, clipped to its finite range."""
+    lim = np.finfo(np.float16).max
+    return np.clip(x, -lim, lim).astype(np.float16)
 
 
 def library_versions() -> dict[str, str]:
@@ -144,12 +178,12 @@ def save_classifiers(path: str | os.PathLike[str], classifiers: dict[str, Binary
     for name, clf in classifiers.items():
         if clf._x is None or clf._y is None:
             raise ValueError(f"save_classifiers: classifier '{name}' is not trained")
-        arrays[f"{name}__x"] = clf._x
+        arrays[f"{name}__x"] = _half(clf._x)
         arrays[f"{name}__y"] = clf._y
         meta["classifiers"][name] = {
             "feature_names": list(clf.feature_names),
             "config": {"n_components": clf.config.n_components, "k": clf.config.k,
-                       "weights": clf.config.weights},
+                       "weights": clf.config.weights, "kind": clf.config.kind},
             "n_samples": int(clf._y.size), "n_positive": int(clf._y.sum()),
         }
     arrays["meta_json"] = np.frombuffer(json.dumps(meta, sort_keys=True).encode(), np.uint8)

@@ -74,6 +74,21 @@ def feature_halo_px() -> int:
     return int(np.ceil(2.5 * sigma)) + RING_PX + 2
 
 
+def entropy_pixels(region: Region, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, cols) of the pixels whose entropy :func:`region_features` reads (the region
+    and its ring), so that a caller can compute the entropy there only
+    (:func:`roi_detector.metrics.weighted_entropy_at`)."""
+    h, w = shape
+    m = RING_PX + 2
+    r0, c0, r1, c1 = region.bbox
+    pr0, pc0, pr1, pc1 = max(r0 - m, 0), max(c0 - m, 0), min(r1 + m, h), min(c1 + m, w)
+    inside = np.zeros((pr1 - pr0, pc1 - pc0), bool)
+    inside[r0 - pr0:r1 - pr0, c0 - pc0:c1 - pc0] = region.footprint
+    near = ndimage.binary_dilation(inside, np.ones((3, 3), bool), iterations=RING_PX + 1)
+    rr, cc = np.nonzero(near)
+    return rr + pr0, cc + pc0
+
+
 def _hsv(rgb01: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(rgb01.astype(np.float32), cv2.COLOR_RGB2HSV)  # H deg, S, V in [0,1]
 

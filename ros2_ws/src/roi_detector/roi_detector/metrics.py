@@ -164,6 +164,51 @@ def weighted_entropy(gray_u8: np.ndarray, size_px: int,
     return out
 
 
+def weighted_entropy_at(gray_u8: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                        size_px: int, sigma_e2: float = PAPER_SIGMA_E2) -> np.ndarray:
+    """:func:`weighted_entropy` at chosen pixels only (the same values, Eq. 2).
+
+    For a few scattered pixels (the candidates' own and surrounding pixels, which the
+    features read) this is much cheaper than the whole map: each pixel's neighbourhood is
+    compared with itself, so that p(g_q) = count(g == g_q) / n and
+    LE^w = -(1/n) sum_q w(g_q) log2 p(g_q) over the n neighbours q.
+
+    Args:
+        gray_u8: (H, W) uint8 image.
+        rows, cols: (N,) integer pixel coordinates inside the image.
+        size_px: odd neighbourhood side, pixels (3..15).
+        sigma_e2: variance of the weight's Gaussian, grey levels^2.
+
+    Returns:
+        (N,) float32, bits. Borders use reflection, as :func:`weighted_entropy`.
+    """
+    g = np.asarray(gray_u8)
+    if g.dtype != np.uint8 or g.ndim != 2:
+        raise ValueError(f"gray_u8 must be a 2-D uint8 array, got {g.dtype} {g.shape}")
+    if size_px % 2 != 1 or not 3 <= size_px <= 15:
+        raise ValueError(f"size_px must be odd and in [3, 15], got {size_px}")
+    rows, cols = np.asarray(rows, np.intp), np.asarray(cols, np.intp)
+    if rows.size == 0:
+        return np.zeros(0, np.float32)
+    half = size_px // 2
+    padded = np.pad(g, half, mode="reflect")
+    dr, dc = np.mgrid[0:size_px, 0:size_px]
+    dr, dc = dr.ravel()[None, :], dc.ravel()[None, :]
+    n = size_px * size_px
+    out = np.empty(rows.size, np.float32)
+    # Chunks keep the (chunk, n, n) comparison cube small (cache-sized).
+    chunk = max(1, 1_000_000 // (n * n))
+    for i in range(0, rows.size, chunk):
+        nb = padded[rows[i:i + chunk, None] + dr, cols[i:i + chunk, None] + dc]
+        counts = (nb[:, :, None] == nb[:, None, :]).sum(axis=2)
+        # The neighbourhood mean rounded as in weighted_entropy (no ties: n is odd).
+        mean = np.rint(nb.sum(axis=1, dtype=np.float32) * np.float32(1.0 / n))
+        d = nb.astype(np.float32) - mean[:, None]
+        w = 1.0 - np.exp(-(d * d) / np.float32(2.0 * sigma_e2))
+        out[i:i + chunk] = -(w * np.log2(counts * np.float32(1.0 / n))).sum(axis=1) / n
+    return out
+
+
 def entropy_halo_px(size_px: int) -> int:
     """Pixels of context :func:`weighted_entropy` needs so that a window's core is exact."""
     return size_px // 2 + 1

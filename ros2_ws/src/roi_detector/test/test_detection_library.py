@@ -32,6 +32,7 @@ from roi_detector.features import (
     GROUPS,
     PAPER_GROUPS,
     candidate_features,
+    entropy_pixels,
     feature_names,
 )
 from roi_detector.metrics import (
@@ -41,6 +42,7 @@ from roi_detector.metrics import (
     sigma_px_from_gsd,
     to_gray_u8,
     weighted_entropy,
+    weighted_entropy_at,
 )
 from roi_network import OUTCROP, ROCK
 
@@ -293,3 +295,41 @@ def test_local_contrast_and_contrast_rule():
         assert any(abs(reg.row - r) < 1 and abs(reg.col - cc) < 1 for reg in regions)
     with pytest.raises(ValueError):
         local_contrast(g, 0)
+
+
+def test_weighted_entropy_at_equals_the_map():
+    g, _ = _scene(2)
+    rng = np.random.default_rng(0)
+    rows, cols = rng.integers(0, g.shape[0], 400), rng.integers(0, g.shape[1], 400)
+    rows[:2], cols[:2] = (0, g.shape[0] - 1), (0, g.shape[1] - 1)  # borders reflect alike
+    for size in (3, 5, 9):
+        np.testing.assert_allclose(weighted_entropy_at(g, rows, cols, size),
+                                   weighted_entropy(g, size)[rows, cols], atol=1e-5)
+    assert weighted_entropy_at(g, np.zeros(0, int), np.zeros(0, int), 5).shape == (0,)
+
+
+def test_entropy_pixels_cover_region_and_ring():
+    regions, _ = _features_of_scene(1)
+    reg = regions[0]
+    rows, cols = entropy_pixels(reg, (120, 160))
+    r0, c0, _, _ = reg.bbox
+    fr, fc = np.nonzero(reg.footprint)
+    got = set(zip(rows.tolist(), cols.tolist(), strict=True))
+    assert {(r + r0, c + c0) for r, c in zip(fr, fc, strict=True)} <= got
+    assert len(got) > reg.n_px
+
+
+def test_gradient_boosting_classifier_round_trips(tmp_path):
+    x, y = _toy_data(4, n=200)
+    names = tuple(f"f{i}" for i in range(6))
+    cfg = ClassifierConfig(kind="gradient_boosting")
+    clf = BinaryClassifier("outcrop_orbital", names, cfg).fit(x, y)
+    xt, yt = _toy_data(5, n=200)
+    assert (clf.predict(xt) == yt.astype(bool)).mean() > 0.9
+    save_classifiers(tmp_path / "g.npz", {"outcrop_orbital": clf}, {})
+    loaded, meta = load_classifiers(tmp_path / "g.npz")
+    assert meta["classifiers"]["outcrop_orbital"]["config"]["kind"] == "gradient_boosting"
+    np.testing.assert_array_equal(loaded["outcrop_orbital"].predict_proba(xt),
+                                  clf.predict_proba(xt))
+    with pytest.raises(ValueError, match="kind"):
+        ClassifierConfig(kind="svm")

@@ -251,6 +251,7 @@ def run(options: RunOptions) -> int:
         GloblocError: Bad bag, graph or params file, or a missing executable (before anything
             is started).
     """
+    prepare_gn_if_missing(locate_bag(options.bag).root)
     plan = _prepare(options)
     run_dir = _new_run_dir(options.out, plan.location, options.run_id)
     variables = {
@@ -412,3 +413,34 @@ def _node_entry(r: Resolved, proc: ManagedProcess | None, run_dir: Path) -> dict
     entry['status'] = 'crashed' if proc.crashed else 'ran'
     entry.update(_proc_entry(proc, run_dir))
     return entry
+
+
+# --- GN preparation hook (orbital_gn) ---------------------------------------------------------
+# gn_server and darces_matcher need <bag>/gn.geojson; a bag from the simulator (or the field)
+# comes with orbital.tif only. The GN is prepared once, offline, by the orbital_gn CLI (a
+# separate process: rover_bringup does not import orbital_gn), and kept next to the bag.
+
+def prepare_gn_if_missing(bag_root: Path) -> None:
+    """Run ``orbital_gn prepare <bag>/orbital.tif --out <bag>/gn.geojson`` when the GN is
+    missing. A no-op when the GN exists, when the bag has no orbital.tif, or when orbital_gn
+    is not built; a failure is a warning (the nodes needing the GN are then skipped)."""
+    import shutil
+    import subprocess
+
+    gn, ortho = bag_root / 'gn.geojson', bag_root / 'orbital.tif'
+    if gn.exists() or not ortho.is_file():
+        return
+    exe = shutil.which('orbital_gn')
+    for prefix in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep):
+        candidate = Path(prefix) / 'lib' / 'orbital_gn' / 'orbital_gn'
+        if prefix and candidate.is_file():
+            exe = str(candidate)
+            break
+    if exe is None:
+        _warn(f'{gn} is missing and orbital_gn is not built: the GN is not prepared')
+        return
+    _info(f'preparing {gn} from {ortho} (orbital_gn prepare, once per bag)')
+    result = subprocess.run([exe, 'prepare', str(ortho), '--out', str(gn), '--preview',
+                             str(bag_root / 'gn.png'), '--no-progress'], check=False)
+    if result.returncode != 0:
+        _warn(f'orbital_gn prepare failed (exit status {result.returncode}): {gn} not prepared')

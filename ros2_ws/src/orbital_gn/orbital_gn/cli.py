@@ -1,0 +1,165 @@
+"""``orbital_gn``: offline GN preparation (train, prepare, eval).
+
+    orbital_gn train  BAG_DIR... --out models/orbital.npz [--recipe improved]
+    orbital_gn prepare ORTHO.tif --out GN.geojson [--model M] [--preview GN.png]
+                                 [--scheduler ADDR] [--workers N] [--tile-px N]
+    orbital_gn eval   --gn GN.geojson --truth BAG_DIR/truth/rois.geojson [--json OUT]
+
+Errors are one line on stderr naming the file, exit status 2; no partial output file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+from orbital_gn.raster import OrthoImageError
+from orbital_gn.recipe import RECIPES
+from roi_detector.classifier import ModelFileError
+from roi_network.geojson import GeoJsonFormatError
+
+
+def _progress_factory(enabled: bool):
+    if not enabled:
+        return None
+    from tqdm import tqdm
+
+    def make(what: str, total: int):
+        return tqdm(total=total, desc=what, unit="tile", file=sys.stderr, leave=False)
+
+    return make
+
+
+def _write_json_atomic(doc, path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(doc, indent=2) + "\n")
+    tmp.replace(path)
+
+
+def cmd_prepare(args) -> int:
+    from orbital_gn.prepare import Model, load_model, prepare_gn
+    from roi_network.geojson import write_geojson
+
+    model = Model(RECIPES[args.recipe]) if args.model == "none" else load_model(args.model)
+    t0 = time.perf_counter()
+    gn, warnings = prepare_gn(args.ortho, model, tile_px=args.tile_px, scheduler=args.scheduler,
+                              workers=args.workers,
+                              progress=_progress_factory(not args.no_progress),
+                              origin=tuple(args.origin) if args.origin else None)
+    elapsed = time.perf_counter() - t0
+    for w in warnings:
+        print(f"orbital_gn prepare: warning: {w}", file=sys.stderr)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    gn.metadata["elapsed_s"] = round(elapsed, 2)
+    write_geojson(gn, out)
+    n_rock = int((gn.records["label"] == 1).sum())
+    print(f"{out}: {len(gn)} ROIs ({n_rock} rocks, {len(gn) - n_rock} outcrops) from "
+          f"{args.ortho} in {elapsed:.1f} s (recipe {model.recipe.name})")
+    if args.preview:
+        from orbital_gn.preview import draw_preview
+
+        draw_preview(args.ortho, gn, args.preview)
+        print(f"{args.preview}: preview")
+    return 0
+
+
+def cmd_train(args) -> int:
+    from orbital_gn.train import train_model
+
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    prov = train_model(args.bags, RECIPES[args.recipe], out, scheduler=args.scheduler,
+                       workers=args.workers)
+    size = out.stat().st_size
+    print(f"{out}: recipe {args.recipe}, seeds {prov['training']['seeds']}, "
+          f"{json.dumps(prov['training']['samples'])}, {size / 1024:.0f} KiB")
+    return 0
+
+
+def cmd_eval(args) -> int:
+    from orbital_gn.evaluate import evaluate, route_xy
+    from roi_network.geojson import read_geojson
+
+    gn = read_geojson(args.gn)
+    truth = read_geojson(args.truth)
+    traj = Path(args.trajectory) if args.trajectory else Path(args.truth).parent / "trajectory.tum"
+    route = route_xy(traj, truth) if traj.is_file() else None
+    result = evaluate(gn, truth, route)
+    result["gn"], result["truth_file"] = str(args.gn), str(args.truth)
+    if args.json:
+        _write_json_atomic(result, Path(args.json))
+    for name in ("rock", "rock_ge_1m2", "outcrop"):
+        r = result[name]
+        p = "n/a" if r["precision"] is None else f"{100 * r['precision']:.1f} %"
+        rc = "n/a" if r["recall"] is None else f"{100 * r['recall']:.1f} %"
+        print(f"{name:12s} precision {p:>8s} ({r['true_positives']}/{r['detections']})  "
+              f"recall {rc:>8s} ({r['found']}/{r['truth']})")
+    for b, r in result.get("rock_bins_m2", {}).items():
+        rc = "n/a" if r["recall"] is None else f"{100 * r['recall']:.1f} %"
+        p = "n/a" if r["precision"] is None else f"{100 * r['precision']:.1f} %"
+        print(f"  rock {b:>6s} m^2  precision {p:>8s}  recall {rc:>8s} ({r['found']}/{r['truth']})")
+    if "near_route" in result:
+        nr = result["near_route"]
+        f = "n/a" if nr["fraction"] is None else f"{100 * nr['fraction']:.1f} %"
+        print(f"truth ROIs within {nr['radius_m']:g} m of the route held by the GN: {f} "
+              f"({nr['in_gn']}/{nr['truth']})")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="orbital_gn", description=__doc__.split("\n")[0])
+    sub = p.add_subparsers(dest="cmd", required=True)
+    pr = sub.add_parser("prepare", help="the GN of a georeferenced orthoimage")
+    pr.add_argument("ortho", help="orthoimage (GeoTIFF or any raster GDAL reads)")
+    pr.add_argument("--out", required=True, help="output GN GeoJSON")
+    pr.add_argument("--model", default=None,
+                    help="model file (default: the committed one); 'none': candidates only")
+    pr.add_argument("--recipe", choices=sorted(RECIPES), default="improved",
+                    help="recipe with --model none (a model file carries its own)")
+    pr.add_argument("--preview", help="PNG of the GN drawn over the image")
+    pr.add_argument("--scheduler", help="dask.distributed scheduler address (default: "
+                    "local processes); 'sync' runs in-process")
+    pr.add_argument("--workers", type=int, default=2, help="local worker processes")
+    pr.add_argument("--tile-px", type=int, default=None, help="window core side, pixels")
+    pr.add_argument("--origin", type=float, nargs=2, metavar=("EASTING", "NORTHING"),
+                    help="map-frame origin (default: raster centre rounded to 1 m)")
+    pr.add_argument("--no-progress", action="store_true")
+    pr.set_defaults(func=cmd_prepare)
+    tr = sub.add_parser("train", help="train the classifiers from training bags")
+    tr.add_argument("bags", nargs="+", help="bag directories (orbital.tif + truth/)")
+    tr.add_argument("--out", required=True, help="model file (.npz)")
+    tr.add_argument("--recipe", choices=sorted(RECIPES), default="improved")
+    tr.add_argument("--scheduler")
+    tr.add_argument("--workers", type=int, default=2)
+    tr.set_defaults(func=cmd_train)
+    ev = sub.add_parser("eval", help="detection quality against a truth catalogue")
+    ev.add_argument("--gn", required=True)
+    ev.add_argument("--truth", required=True, help="BAG_DIR/truth/rois.geojson")
+    ev.add_argument("--trajectory", help="route (TUM); default: truth/trajectory.tum beside it")
+    ev.add_argument("--json", help="write the figures as JSON")
+    ev.set_defaults(func=cmd_eval)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
+    try:
+        return args.func(args)
+    except (OrthoImageError, ModelFileError, GeoJsonFormatError, FileNotFoundError,
+            ValueError, KeyError, OSError) as exc:
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f"orbital_gn {args.cmd}: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"orbital_gn {args.cmd}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

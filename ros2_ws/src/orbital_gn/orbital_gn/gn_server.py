@@ -1,0 +1,85 @@
+"""The gn_server node: loads the GN file and publishes /global_network once.
+
+/global_network is a sensor_msgs/PointCloud2 of ROI records (roi_network's codec) in the
+``map`` frame, reliable and transient local, so that a late subscriber (the matcher, a
+Foxglove session) gets it. A missing or malformed GN file makes the node exit with status 2
+and a one-line error naming the file and the reason.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from roi_network.geojson import GeoJsonFormatError, read_geojson
+
+#: Exit status of a bad GN file.
+EXIT_BAD_GN = 2
+
+
+def load_gn(path: str):
+    """Read the GN file; raise ValueError('<path>: <reason>') on any problem."""
+    if not path:
+        raise ValueError("parameter 'gn_path' is not set (the GN GeoJSON file)")
+    try:
+        gn = read_geojson(path)
+    except FileNotFoundError as exc:
+        raise ValueError(f"{path}: GN file not found") from exc
+    except GeoJsonFormatError as exc:
+        raise ValueError(str(exc)) from exc
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read the GN file ({exc})") from exc
+    if gn.frame_id != "map":
+        raise ValueError(f"{path}: field 'metadata.frame_id' is '{gn.frame_id}', expected 'map'")
+    return gn
+
+
+def main(args=None) -> int:
+    import rclpy
+    from rcl_interfaces.msg import ParameterDescriptor
+    from rclpy.executors import ExternalShutdownException
+    from rclpy.node import Node
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+
+    from roi_network.pointcloud import to_pointcloud2
+    from roi_network.spin import spin_until_shutdown
+
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+    class GnServer(Node):
+        """Publishes the GN on /global_network (latched) once at start-up."""
+
+        def __init__(self) -> None:
+            super().__init__("gn_server")
+            path = self.declare_parameter(
+                "gn_path", "", ParameterDescriptor(
+                    description="GN GeoJSON file (orbital_gn prepare), map frame")).value
+            self.gn = load_gn(path)
+            self.pub = self.create_publisher(PointCloud2, "/global_network", latched)
+            msg = to_pointcloud2(self.gn.records, "map", self.get_clock().now().to_msg())
+            self.pub.publish(msg)
+            origin = self.gn.map_frame.origin if self.gn.map_frame else (0.0, 0.0)
+            self.get_logger().info(
+                f"/global_network: {len(self.gn)} ROIs from {path} "
+                f"(CRS {self.gn.map_frame.crs if self.gn.map_frame else '?'}, "
+                f"map origin {origin[0]:.1f}, {origin[1]:.1f})")
+
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = GnServer()
+        spin_until_shutdown(node)
+    except ValueError as exc:
+        print(f"gn_server: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_GN
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+if __name__ == "__main__":
+    sys.exit(main())
