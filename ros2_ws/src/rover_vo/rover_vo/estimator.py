@@ -301,7 +301,8 @@ class VoEstimator:
         yaw = np.arctan2(R[1, 0], R[0, 0])
         return Rotation.from_euler("z", -yaw).as_matrix() @ R
 
-    def _initialize(self, t: float, image: np.ndarray, left: np.ndarray, right: np.ndarray) -> VoOutput:
+    def _initialize(self, t: float, image: np.ndarray, left: np.ndarray,
+                    right: np.ndarray) -> VoOutput:
         R0 = np.eye(3)
         if self.cfg.imu.use_imu and self.propagator is not None:
             iv = self.propagator.interval(t - 1.0, t)
@@ -385,7 +386,7 @@ class VoEstimator:
         T = self.rig.base_T_left
         return T[:3, :3], T[:3, 3]
 
-    def _cur_T_kf(self, odom_R_b: np.ndarray, odom_p_b: np.ndarray
+    def _camera_from_keyframe(self, odom_R_b: np.ndarray, odom_p_b: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray]:
         """Left-camera transform keyframe -> a body pose (``x_cur = R x_kf + t``)."""
         R_bc, p_bc = self._cam()
@@ -400,7 +401,7 @@ class VoEstimator:
         R_bc, p_bc = self._cam()
         dR, dp = self._predict(iv)
         pred_R, pred_p = self.state.R @ dR, self.state.p + self.state.R @ dp
-        R_guess, t_guess = self._cur_T_kf(pred_R, pred_p)
+        R_guess, t_guess = self._camera_from_keyframe(pred_R, pred_p)
         idx = np.flatnonzero(kf.alive)
         X = kf.points[idx]
         # Tracking: LK from the last image, starting where the predicted motion puts each
@@ -431,13 +432,14 @@ class VoEstimator:
             prior = prior_cov = None
             if iv is not None:
                 prior, prior_cov = self._gyro_prior(kf.state.t, t)
-            est_vo = estimate_motion(X[ok], uv[ok], uv_r, rig.K, rig.baseline_m, cfg.motion,
+            K = rig.camera_matrix
+            est_vo = estimate_motion(X[ok], uv[ok], uv_r, K, rig.baseline_m, cfg.motion,
                                      R_guess, t_guess)
             est = est_vo
             if est_vo is not None and prior is not None:
                 # VO + IMU fusion: the same inliers, the gyro rotation as a prior.
                 inl = est_vo.inliers
-                est = refine_motion(X[ok][inl], uv[ok][inl], uv_r[inl], rig.K, rig.baseline_m,
+                est = refine_motion(X[ok][inl], uv[ok][inl], uv_r[inl], K, rig.baseline_m,
                                     est_vo.R, est_vo.t, cfg.motion, prior, prior_cov)
                 est.inliers = inl
         if est is None:

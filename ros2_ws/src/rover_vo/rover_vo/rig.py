@@ -56,7 +56,7 @@ class StereoRig:
     base_R_imu: np.ndarray
 
     @property
-    def K(self) -> np.ndarray:
+    def camera_matrix(self) -> np.ndarray:
         """3x3 camera matrix (px)."""
         return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
 
