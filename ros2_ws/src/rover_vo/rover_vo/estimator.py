@@ -190,6 +190,9 @@ class VoEstimator:
             complete = pair.left is not None and pair.right is not None
             if not complete and not newer and not force:
                 break  # the other image may still come
+            if (complete and not force and not newer
+                    and (self.info["left"] is None or self.info["right"] is None)):
+                break  # camera infos are written just after their images
             latest = self.propagator.latest if self.propagator else None
             if (complete and not force and not newer and self.cfg.imu.use_imu
                     and (latest is None or latest < t_ns * 1e-9)):
@@ -395,30 +398,53 @@ class VoEstimator:
         Rc, pc = odom_R_b @ R_bc, odom_R_b @ p_bc + odom_p_b
         return Rc.T @ Rk, Rc.T @ (pk - pc)
 
+    def _predict_pixels(self, X: np.ndarray, idx: np.ndarray, dR: np.ndarray, dp: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Where keyframe points ``X`` land if the body moves by ``(dR, dp)`` from the last
+        state: ``(cur_R_kf, cur_t_kf, points in the current camera, pixels)``."""
+        rig = self.rig
+        R_guess, t_guess = self._camera_from_keyframe(self.state.R @ dR,
+                                                      self.state.p + self.state.R @ dp)
+        Xp = X @ R_guess.T + t_guess
+        in_front = Xp[:, 2] > 0.1
+        predicted = self.kf.tracked[idx].copy()
+        predicted[in_front] = (Xp[in_front, :2] / Xp[in_front, 2:]) * [rig.fx, rig.fy] + [
+            rig.cx, rig.cy]
+        return R_guess, t_guess, Xp, predicted
+
     def _vision(self, t: float, iv: ImuInterval | None, images: tuple) -> VoOutput:
         cfg, rig, kf = self.cfg, self.rig, self.kf
         image, left, right = images
         R_bc, p_bc = self._cam()
         dR, dp = self._predict(iv)
-        pred_R, pred_p = self.state.R @ dR, self.state.p + self.state.R @ dp
-        R_guess, t_guess = self._camera_from_keyframe(pred_R, pred_p)
         idx = np.flatnonzero(kf.alive)
         X = kf.points[idx]
-        # Tracking: LK from the last image, starting where the predicted motion puts each
-        # keyframe point; without prediction if that loses most of them.
-        Xp = X @ R_guess.T + t_guess
-        in_front = Xp[:, 2] > 0.1
-        predicted = kf.tracked[idx].copy()
-        predicted[in_front] = (Xp[in_front, :2] / Xp[in_front, 2:]) * [rig.fx, rig.fy] + [
-            rig.cx, rig.cy]
         if cfg.window.track_from_keyframe:
             # From the keyframe's own image: no tracking drift accumulates over the span.
             src_img, src_uv = kf.image, kf.corners[idx]
         else:
             src_img, src_uv = self.last_image, kf.tracked[idx]
+        need = cfg.motion.min_inliers
+        # Tracking: LK starting where the predicted motion puts each keyframe point.
+        R_guess, t_guess, Xp, predicted = self._predict_pixels(X, idx, dR, dp)
         uv, ok = track(src_img, left, src_uv, cfg.features, predicted)
-        if ok.sum() < cfg.motion.min_inliers:
+        # Fallbacks: from the last image (a shorter hop); without a gyro, a few turn rates
+        # around the last one (a turn starting is what the last step cannot predict); then
+        # with no prediction at all.
+        if ok.sum() < need and cfg.window.track_from_keyframe:
+            uv, ok = track(self.last_image, left, kf.tracked[idx], cfg.features, predicted)
+        if ok.sum() < need and iv is None:
+            for yaw in np.radians([-5.0, 5.0, -10.0, 10.0, -15.0, 15.0]):
+                turn = Rotation.from_euler("z", yaw).as_matrix() @ dR
+                guess = self._predict_pixels(X, idx, turn, dp)
+                uv2, ok2 = track(self.last_image, left, kf.tracked[idx], cfg.features, guess[3])
+                if ok2.sum() >= need:
+                    uv, ok = uv2, ok2
+                    R_guess, t_guess, Xp, predicted = guess
+                    break
+        if ok.sum() < need:
             uv, ok = track(self.last_image, left, kf.tracked[idx], cfg.features)
+        in_front = Xp[:, 2] > 0.1
         self.stats.tracked = int(ok.sum())
         est = None
         if ok.sum() >= cfg.motion.min_inliers:
