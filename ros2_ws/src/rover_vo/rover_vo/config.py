@@ -86,6 +86,7 @@ class CovarianceOptions:
     translation_sigma_per_m: float = 0.01  #: 1-sigma translation error per metre driven
     rotation_sigma_deg_per_sqrt_m: float = 0.02  #: 1-sigma heading random walk (deg/sqrt m)
     propagation_translation_sigma: float = 0.5  #: per metre, when vision is unavailable
+    propagation_floor_m: float = 0.05  #: per frame without vision, even with no step
 
 
 @dataclass

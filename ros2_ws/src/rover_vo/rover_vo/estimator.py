@@ -380,8 +380,12 @@ class VoEstimator:
         step = float(np.linalg.norm(dp))
         Q = step_noise(step, cov.propagation_translation_sigma,
                        cov.rotation_sigma_deg_per_sqrt_m * 10.0)
+        # Unseen, the rover may also have moved when the last step says it stood still.
+        Q[:3, :3] += np.eye(3) * cov.propagation_floor_m**2
         if iv is None:
             Q[3:, 3:] += np.eye(3) * np.radians(1.0) ** 2  # no gyro: rotation guessed
+        else:
+            Q[3:, 3:] += iv.cov  # the gyro's own integration noise and bias uncertainty
         new = self.state.compose(t, dR, dp, Q)
         return self._output(new, "imu_propagation", moving=False)
 
