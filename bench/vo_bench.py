@@ -2,7 +2,7 @@
 third-party odometry (KISS-ICP on the stereo point clouds) on the same bags, in one run.
 
 For each bag: ``rover_vo odometry BAG --mode M --threads 1`` in its own process (with
-OMP_NUM_THREADS=1) for M in paper, vo, vo_imu; then KISS-ICP 1.3.0 on the point clouds
+OMP_NUM_THREADS=1) for M in paper, vo, keyframes; then KISS-ICP 1.3.0 on the point clouds
 of OpenCV SGBM disparities of the same stereo pairs (base_link); then every trajectory
 through ``rover_vo.evaluation.evaluate`` (evo: KITTI-style drift over 100..800 m,
 heading drift per 100 m, aligned APE, final error), and for rover_vo the covariance
@@ -33,7 +33,7 @@ from rover_vo.evaluation import evaluate, plot_trajectories
 from rover_vo.tum import read_tum_array, write_atomic
 
 RESULTS = Path(__file__).resolve().parent / "results"
-MODES = ("paper", "vo", "vo_imu")
+MODES = ("paper", "vo", "keyframes")
 ONE_CORE = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
@@ -222,8 +222,9 @@ def markdown(summaries: list[dict], meta: dict) -> str:
                 f"{m['ape_rmse_m']:.2f} | {m['final_error_pct']:.3f} | {speed} | "
                 f"{r.get('peak_rss_mb', '')} | {h.get('mean_nees_2dof', '')} | "
                 f"{h.get('share_in_95pct_ellipse', '')} |")
-    lines += ["", "Methods: `paper` = frame to frame + IMU (the paper's mode); `vo` = keyframes,"
-              " vision alone; `vo_imu` = keyframes + IMU (default); `kiss_icp` = KISS-ICP 1.3.0"
+    lines += ["", "Methods: `paper` = frame to frame + IMU (the paper's mode, the default); `vo` ="
+              " frame to frame, vision alone; `keyframes` = keyframes + IMU; `kiss_icp` = KISS-ICP"
+              " 1.3.0"
               " on SGBM stereo point clouds of the same pairs. pairs/CPU s counts reading the"
               " bag (rosbags deserialisation of 50 Hz IMU); in brackets the estimator alone.",
               ""]

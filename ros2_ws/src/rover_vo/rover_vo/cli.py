@@ -1,6 +1,6 @@
 """``rover_vo``: offline visual odometry on a bag directory and its evaluation.
 
-    rover_vo odometry BAG_DIR --out DIR [--params FILE] [--mode paper|vo|vo_imu]
+    rover_vo odometry BAG_DIR --out DIR [--params FILE] [--mode paper|vo|keyframes]
         -> DIR/vo.tum (TUM: t x y z qx qy qz qw, base_link in odom), DIR/vo_report.json,
            DIR/vo_covariance.txt (each pose's 6x6 covariance)
     rover_vo eval DIR/vo.tum BAG_DIR/truth/trajectory.tum [--json OUT] [--plot OUT.png]
@@ -22,7 +22,13 @@ from pathlib import Path
 import numpy as np
 
 from rover_vo.bag import BagError, read_messages, rover_params
-from rover_vo.config import VoConfig, config_from_flat, flat_parameters, read_ros_params
+from rover_vo.config import (
+    MODES,
+    VoConfig,
+    config_from_flat,
+    flat_parameters,
+    read_ros_params,
+)
 from rover_vo.estimator import VoEstimator
 from rover_vo.tum import write_atomic, write_tum
 
@@ -150,7 +156,7 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("bag_dir", help="bag directory (with rosbag/ and rover.yaml)")
     o.add_argument("--out", required=True, help="output directory")
     o.add_argument("--params", help="ROS params YAML (rover_vo: ros__parameters: ...)")
-    o.add_argument("--mode", choices=("paper", "vo", "vo_imu"), help="overrides the params")
+    o.add_argument("--mode", choices=MODES, help="overrides the params (default: paper)")
     o.add_argument("--progress", action="store_true", help="print progress to stderr")
     o.add_argument("--threads", type=int, default=0,
                    help="OpenCV threads (0: OpenCV's default); set OMP_NUM_THREADS too")

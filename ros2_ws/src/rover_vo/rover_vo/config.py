@@ -6,9 +6,11 @@ reads (``rover_vo: {ros__parameters: {...}}``), so one file configures both.
 
 Three modes are compared in ``bench/vo_bench.py``:
 
-* ``paper``: frame to frame only (the paper's rovers had no bundle adjustment), IMU fused;
-* ``vo``: keyframes, no IMU (vision alone);
-* ``vo_imu`` (default): keyframes + IMU.
+* ``paper`` (default): frame to frame only (the paper's rovers had no bundle adjustment),
+  with VO + IMU fusion (gyro rotation prior, gyro bias, gravity for roll and pitch);
+* ``vo``: frame to frame, vision alone (no IMU at all);
+* ``keyframes``: each frame measured against a keyframe, tracked from the keyframe's image
+  (beyond the paper), with the IMU.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from typing import Any
 
 import yaml
 
-MODES = ("paper", "vo", "vo_imu")
+MODES = ("paper", "vo", "keyframes")
 
 
 @dataclass
@@ -93,7 +95,7 @@ class CovarianceOptions:
 class VoConfig:
     """All options of the estimator. ``mode`` selects a preset applied on top (see module)."""
 
-    mode: str = "vo_imu"
+    mode: str = "paper"
     features: FeatureOptions = field(default_factory=FeatureOptions)
     motion: MotionOptions = field(default_factory=MotionOptions)
     window: WindowOptions = field(default_factory=WindowOptions)
@@ -110,9 +112,9 @@ class VoConfig:
             self, features=dataclasses.replace(self.features),
             motion=dataclasses.replace(self.motion), window=dataclasses.replace(self.window),
             imu=dataclasses.replace(self.imu), covariance=dataclasses.replace(self.covariance))
-        if cfg.mode == "paper":
+        if cfg.mode in ("paper", "vo"):
             cfg.window.frame_to_frame = True
-        elif cfg.mode == "vo":
+        if cfg.mode == "vo":
             cfg.imu.use_imu = False
         return cfg
 

@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from rover_vo.bag import read_messages, rover_params
+from rover_vo.testing import run
 
 SEED = 7  # neither an evaluation (1-3) nor a training (101, 102) seed
 
@@ -35,6 +36,12 @@ def tiny_messages(tiny_bag: Path) -> list:
 def tiny_params(tiny_bag: Path) -> dict:
     """The tiny bag's rover.yaml parameters."""
     return rover_params(tiny_bag)
+
+
+@pytest.fixture(scope="session")
+def clean_run(tiny_messages, tiny_params):
+    """``(estimator, outputs, logs)`` of the estimator over the unmodified tiny stream."""
+    return run(tiny_messages, tiny_params)
 
 
 @pytest.fixture

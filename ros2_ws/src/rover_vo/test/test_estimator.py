@@ -13,18 +13,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from rover_vo import messages as m
-from rover_vo.config import VoConfig
-from rover_vo.estimator import BAD_INPUT_KINDS, VoEstimator
-
-
-def run(messages, params, config=None):
-    logs: list[tuple[int, str]] = []
-    est = VoEstimator(config or VoConfig(), params, lambda lvl, text: logs.append((lvl, text)))
-    outputs = []
-    for topic, msg in messages:
-        outputs += est.feed(topic, msg)
-    outputs += est.finish()
-    return est, outputs, logs
+from rover_vo.estimator import BAD_INPUT_KINDS
+from rover_vo.testing import run
 
 
 def pair_stamps(messages):
@@ -49,12 +39,6 @@ def imu_msg(template, t_ns, gyro, accel):
     w.x, w.y, w.z = (float(v) for v in gyro)
     a.x, a.y, a.z = (float(v) for v in accel)
     return out
-
-
-@pytest.fixture(scope="module")
-def clean_run(tiny_messages, tiny_params):
-    """The estimator over the unmodified tiny stream."""
-    return run(tiny_messages, tiny_params)
 
 
 @pytest.fixture(scope="module")
