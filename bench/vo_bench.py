@@ -8,8 +8,9 @@ through ``rover_vo.evaluation.evaluate`` (evo: KITTI-style drift over 100..800 m
 heading drift per 100 m, aligned APE, final error), and for rover_vo the covariance
 against the actual error (is it honest?).
 
-Per-bag results are cached in bench/results/vo_runs/<bag>/ (rerun with --force);
-the summary goes to bench/results/vo_bench.{json,md}.
+Each method's run on each bag is cached in bench/results/vo_runs/<bag>/<method>/ (rerun
+with --force); the summary of every cached run of the given bags goes to
+bench/results/vo_bench.{json,md}.
 
 Usage (repository root, after ``source env.sh``)::
 
@@ -161,38 +162,46 @@ def covariance_honesty(run: Path, truth: Path) -> dict:
             "final_error_xy_m": round(float(np.linalg.norm(err[-1])), 3)}
 
 
-def bench_bag(bag: Path, force: bool, kiss: bool) -> dict:
-    name = bag.name
-    base = RESULTS / "vo_runs" / name
+def bench_method(bag: Path, method: str, force: bool) -> dict:
+    """One method on one bag, cached in bench/results/vo_runs/<bag>/<method>/row.json."""
+    out = RESULTS / "vo_runs" / bag.name / method
     truth = bag / "truth" / "trajectory.tum"
-    summary_path = base / "summary.json"
-    if summary_path.is_file() and not force:
-        return json.loads(summary_path.read_text())
+    row_path = out / "row.json"
+    if row_path.is_file() and not force:
+        return json.loads(row_path.read_text())
+    print(f"[vo_bench] {bag.name}: {method}", file=sys.stderr)
+    # A finished run whose summary was not written (an interrupted bench) is reused.
+    done = (out / "vo.tum").is_file() and (out / "vo_report.json").is_file() and not force
+    if method == "kiss_icp":
+        report = (json.loads((out / "vo_report.json").read_text()) if done
+                  else kiss_icp_odometry(bag, out))
+        row = {"metrics": evaluate(out / "vo.tum", truth).as_dict(), "report": report}
+    else:
+        report = (json.loads((out / "vo_report.json").read_text()) if done
+                  else run_mode(bag, method, out))
+        report.setdefault("process_wall_s", None)
+        row = {"metrics": evaluate(out / "vo.tum", truth).as_dict(),
+               "honesty": covariance_honesty(out, truth),
+               "report": {k: report[k] for k in (
+                   "pairs", "distance_m", "cpu_s", "pairs_per_cpu_s",
+                   "estimator_pairs_per_cpu_s", "peak_rss_mb", "rss_mb_first_last",
+                   "sources", "process_wall_s")},
+               "bad_input": {k: v for k, v in report["status"].items()
+                             if k.startswith("bad_input.") and v}}
+    plot_trajectories(out / "vo.tum", truth, out / "trajectory.png",
+                      title=f"{method} on {bag.name}")
+    write_atomic(row_path, json.dumps(row, indent=2) + "\n")
+    return row
+
+
+def collect(bag: Path) -> dict:
+    """Every cached method row of a bag."""
     rows = {}
-    for mode in MODES:
-        out = base / mode
-        print(f"[vo_bench] {name}: rover_vo --mode {mode}", file=sys.stderr)
-        report = run_mode(bag, mode, out)
-        metrics = evaluate(out / "vo.tum", truth).as_dict()
-        rows[mode] = {"metrics": metrics, "honesty": covariance_honesty(out, truth),
-                      "report": {k: report[k] for k in (
-                          "pairs", "distance_m", "cpu_s", "pairs_per_cpu_s",
-                          "estimator_pairs_per_cpu_s", "peak_rss_mb", "rss_mb_first_last",
-                          "sources", "process_wall_s")},
-                      "bad_input": {k: v for k, v in report["status"].items()
-                                    if k.startswith("bad_input.") and v}}
-        plot_trajectories(out / "vo.tum", truth, out / "trajectory.png",
-                          title=f"rover_vo {mode} on {name}")
-    if kiss:
-        out = base / "kiss_icp"
-        print(f"[vo_bench] {name}: KISS-ICP", file=sys.stderr)
-        report = kiss_icp_odometry(bag, out)
-        rows["kiss_icp"] = {"metrics": evaluate(out / "vo.tum", truth).as_dict(),
-                            "report": report}
-    summary = {"bag": str(bag), "rows": rows}
-    base.mkdir(parents=True, exist_ok=True)
-    write_atomic(summary_path, json.dumps(summary, indent=2) + "\n")
-    return summary
+    for method in (*MODES, "kiss_icp"):
+        row_path = RESULTS / "vo_runs" / bag.name / method / "row.json"
+        if row_path.is_file():
+            rows[method] = json.loads(row_path.read_text())
+    return {"bag": str(bag), "rows": rows}
 
 
 def markdown(summaries: list[dict], meta: dict) -> str:
@@ -234,10 +243,16 @@ def markdown(summaries: list[dict], meta: dict) -> str:
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--bags", nargs="+", required=True, type=Path)
-    p.add_argument("--force", action="store_true", help="recompute cached bags")
-    p.add_argument("--no-kiss", action="store_true", help="skip KISS-ICP")
+    p.add_argument("--methods", nargs="+", default=[*MODES, "kiss_icp"],
+                   choices=[*MODES, "kiss_icp"], help="methods to run (cached ones are reused)")
+    p.add_argument("--force", action="store_true", help="recompute cached runs")
+    p.add_argument("--summary-only", action="store_true", help="only rebuild the summary")
     args = p.parse_args()
-    summaries = [bench_bag(b, args.force, not args.no_kiss) for b in args.bags]
+    if not args.summary_only:
+        for bag in args.bags:
+            for method in args.methods:
+                bench_method(bag, method, args.force)
+    summaries = [collect(b) for b in args.bags]
     meta = {"command": "python bench/vo_bench.py --bags " + " ".join(str(b) for b in args.bags),
             "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
             "machine": f"{platform.machine()}, {os.cpu_count()} cores",

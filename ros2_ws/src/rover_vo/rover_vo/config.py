@@ -89,6 +89,7 @@ class CovarianceOptions:
     rotation_sigma_deg_per_sqrt_m: float = 0.02  #: 1-sigma heading random walk (deg/sqrt m)
     propagation_translation_sigma: float = 0.5  #: per metre, when vision is unavailable
     propagation_floor_m: float = 0.05  #: per frame without vision, even with no step
+    unseen_rotation_sigma_deg: float = 10.0  #: per frame with neither vision nor gyro
 
 
 @dataclass

@@ -383,7 +383,8 @@ class VoEstimator:
         # Unseen, the rover may also have moved when the last step says it stood still.
         Q[:3, :3] += np.eye(3) * cov.propagation_floor_m**2
         if iv is None:
-            Q[3:, 3:] += np.eye(3) * np.radians(1.0) ** 2  # no gyro: rotation guessed
+            # No gyro: the rotation is the last step's guess; a turn may have started.
+            Q[3:, 3:] += np.eye(3) * np.radians(cov.unseen_rotation_sigma_deg) ** 2
         else:
             Q[3:, 3:] += iv.cov  # the gyro's own integration noise and bias uncertainty
         new = self.state.compose(t, dR, dp, Q)
