@@ -76,6 +76,8 @@ class ImuOptions:
     accel_tilt_sigma_deg: float = 0.5  #: roll/pitch measurement noise of mean gravity (deg)
     tilt_window_s: float = 0.5  #: accelerometer samples averaged for gravity (s before a frame)
     max_gap_s: float = 0.2  #: IMU samples further apart than this are an IMU gap
+    input_wait_s: float = 5.0  #: a pair waits for its partner, infos and IMU until images
+    #: this much newer (stamp time) arrive; then it is processed with what it has
     gravity: float = 9.81  #: m/s^2; rover.yaml overrides
     zero_velocity_flow_px: float = 0.3  #: median corner motion below this: standing still
     zero_velocity_gyro_rad_s: float = 0.01  #: and gyro rate below this (if IMU is used)

@@ -181,23 +181,23 @@ class VoEstimator:
             self.counts.imu += 1
 
     def _drain(self, force: bool) -> list[VoOutput]:
-        """Process complete pairs in time order, once the IMU has caught up with them."""
+        """Process pairs in time order once each is ready: both images, the camera infos and
+        the IMU up to its stamp. A pair that images ``input_wait_s`` newer have overtaken is
+        processed as it is (its partner, infos or IMU are lost), so a dead sensor delays the
+        odometry by that much and no more; over DDS, topics arrive in any interleaving.
+        """
         out: list[VoOutput] = []
+        wait_ns = int(self.cfg.imu.input_wait_s * 1e9)
         while self.pairs:
             t_ns = min(self.pairs)
             pair = self.pairs[t_ns]
-            newer = [k for k in self.pairs if k > t_ns]
-            complete = pair.left is not None and pair.right is not None
-            if not complete and not newer and not force:
-                break  # the other image may still come
-            if (complete and not force and not newer
-                    and (self.info["left"] is None or self.info["right"] is None)):
-                break  # camera infos are written just after their images
             latest = self.propagator.latest if self.propagator else None
-            if (complete and not force and not newer and self.cfg.imu.use_imu
-                    and (latest is None or latest < t_ns * 1e-9)):
-                # Wait for the IMU to reach the pair (it runs at 50 Hz); if the IMU is gone,
-                # the next image triggers processing.
+            ready = (pair.left is not None and pair.right is not None
+                     and self.info["left"] is not None and self.info["right"] is not None
+                     and (not self.cfg.imu.use_imu
+                          or (latest is not None and latest >= t_ns * 1e-9)))
+            stale = max(self.pairs) - t_ns > wait_ns
+            if not (ready or stale or force):
                 break
             del self.pairs[t_ns]
             result = self._process_pair(pair)

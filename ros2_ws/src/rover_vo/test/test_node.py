@@ -48,10 +48,10 @@ def test_node_on_tiny_bag_agrees_with_offline(tiny_bag, clean_run, ros_env, tmp_
         sub_node.create_subscription(Odometry, "/vo/odometry", odom.append, RELIABLE)
         sub_node.create_subscription(DiagnosticArray, "/vo/status", status.append, RELIABLE)
         player = subprocess.Popen(
-            [_exe("globloc"), "play", str(tiny_bag), "--rate", "5", "--wait-subscribers", "30",
+            [_exe("globloc"), "play", str(tiny_bag), "--rate", "2", "--wait-subscribers", "30",
              "--topics", *m.INPUT_TOPICS], env=ros_env, stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT, text=True)
-        deadline = time.monotonic() + 90
+        deadline = time.monotonic() + 150
         while (len(odom) < len(offline) and time.monotonic() < deadline
                and node.poll() is None):
             executor.spin_once(timeout_sec=0.1)
