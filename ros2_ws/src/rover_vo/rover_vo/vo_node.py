@@ -138,6 +138,14 @@ class VoNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the node until shutdown; a missing or bad parameter exits with status 1."""
+    import faulthandler
+
+    import cv2
+
+    # One OpenCV thread: the graph shares few cores between its nodes, and OpenCV's worker
+    # pool is one more set of threads to tear down at exit.
+    cv2.setNumThreads(1)
+    faulthandler.enable()  # a crash in native code leaves a Python stack in the log
     rclpy.init(args=args)
     node = None
     try:
