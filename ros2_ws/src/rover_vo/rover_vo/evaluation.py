@@ -94,8 +94,8 @@ def evaluate(est_path: str | Path, truth_path: str | Path,
             rpe_r = metrics.RPE(metrics.PoseRelation.rotation_angle_deg, delta=length,
                                 delta_unit=Unit.meters, rel_delta_tol=0.1, all_pairs=True)
             rpe_r.process_data((ref, est))
-        except metrics.MetricsException:
-            continue
+        except (metrics.MetricsException, filters.FilterException):
+            continue  # no segment of that length in the associated poses
         e = rpe.error / length * 100.0
         errs.append(e)
         rots.append(rpe_r.error / length * 100.0)
