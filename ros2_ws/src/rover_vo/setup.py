@@ -17,10 +17,11 @@ setup(
     zip_safe=True,
     maintainer='globloc developers',
     maintainer_email='dev@globloc.invalid',
-    description='Stereo + IMU visual odometry library and node.',
+    description='Stereo + IMU visual odometry: library, offline CLI (rover_vo odometry|eval) and node.',
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
+            'rover_vo = rover_vo.__main__:main',
         ],
     },
 )

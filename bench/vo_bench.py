@@ -1,0 +1,269 @@
+"""rover_vo benchmark: accuracy (evo), speed and memory of the three modes and of a
+third-party odometry (KISS-ICP on the stereo point clouds) on the same bags, in one run.
+
+For each bag: ``rover_vo odometry BAG --mode M --threads 1`` in its own process (with
+OMP_NUM_THREADS=1) for M in paper, vo, keyframes; then KISS-ICP 1.3.0 on the point clouds
+of OpenCV SGBM disparities of the same stereo pairs (base_link); then every trajectory
+through ``rover_vo.evaluation.evaluate`` (evo: KITTI-style drift over 100..800 m,
+heading drift per 100 m, aligned APE, final error), and for rover_vo the covariance
+against the actual error (is it honest?).
+
+Each method's run on each bag is cached in bench/results/vo_runs/<bag>/<method>/ (rerun
+with --force); the summary of every cached run of the given bags goes to
+bench/results/vo_bench.{json,md}.
+
+Usage (repository root, after ``source env.sh``)::
+
+    python bench/vo_bench.py --bags /work/bags/quick /work/bags/atacama_1km_s1 ...
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from rover_vo.evaluation import evaluate, plot_trajectories
+from rover_vo.tum import read_tum_array, write_atomic
+
+RESULTS = Path(__file__).resolve().parent / "results"
+MODES = ("paper", "vo", "keyframes")
+ONE_CORE = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+def run_mode(bag: Path, mode: str, out: Path) -> dict:
+    """``rover_vo odometry`` in its own process on one core; returns its report."""
+    env = dict(os.environ) | ONE_CORE
+    cmd = ["rover_vo", "odometry", str(bag), "--out", str(out), "--mode", mode,
+           "--threads", "1"]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stderr[-2000:]}")
+    report = json.loads((out / "vo_report.json").read_text())
+    report["process_wall_s"] = round(time.perf_counter() - t0, 2)
+    report["warnings"] = [line for line in proc.stderr.splitlines() if line.strip()][:20]
+    return report
+
+
+def kiss_icp_odometry(bag: Path, out: Path, max_range_m: float = 30.0) -> dict:
+    """KISS-ICP (PRBonn, 1.3.0) on the stereo point clouds of the bag; writes out/vo.tum.
+
+    Each pair gives an SGBM disparity at half resolution (320x240, 48 disparities), its
+    points within ``max_range_m`` in base_link (extrinsics from rover.yaml), registered by
+    ``KissICP.register_frame`` with deskewing off (a stereo pair is a snapshot).
+    """
+    import cv2
+    from kiss_icp.config import KISSConfig
+    from kiss_icp.kiss_icp import KissICP
+
+    from rover_vo.bag import read_messages, rover_params
+    from rover_vo.messages import (
+        TOPIC_LEFT,
+        TOPIC_LEFT_INFO,
+        TOPIC_RIGHT,
+        TOPIC_RIGHT_INFO,
+        decode_image,
+        stamp_ns,
+    )
+    from rover_vo.rig import rig_from_camera_info
+    from rover_vo.state import OdomState
+    from rover_vo.tum import write_tum
+
+    cv2.setNumThreads(1)
+    params = rover_params(bag)
+    cfg = KISSConfig()
+    cfg.data.deskew = False
+    cfg.data.max_range = max_range_m
+    cfg.data.min_range = 1.0
+    cfg.registration.max_num_threads = 1
+    cfg.mapping.voxel_size = max_range_m / 100.0  # what kiss_icp.config.load_config sets
+    odometry = KissICP(cfg)
+    sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=48, blockSize=5,
+                                 P1=8 * 25, P2=32 * 25, uniquenessRatio=10,
+                                 speckleWindowSize=50, speckleRange=2)
+    infos: dict[str, object] = {}
+    pending: dict[int, dict] = {}
+    rig = None
+    states = []
+    cpu = 0.0
+    for topic, msg in read_messages(bag):
+        if topic in (TOPIC_LEFT_INFO, TOPIC_RIGHT_INFO):
+            infos[topic] = msg
+            continue
+        if topic not in (TOPIC_LEFT, TOPIC_RIGHT):
+            continue
+        pair = pending.setdefault(stamp_ns(msg), {})
+        pair[topic] = msg
+        if len(pair) < 2 or len(infos) < 2:
+            continue
+        t_ns = stamp_ns(msg)
+        del pending[t_ns]
+        c0 = time.process_time()
+        if rig is None:
+            rig = rig_from_camera_info(infos[TOPIC_LEFT_INFO], infos[TOPIC_RIGHT_INFO], params)
+        left, right = decode_image(pair[TOPIC_LEFT]), decode_image(pair[TOPIC_RIGHT])
+        if left is None or right is None:
+            continue
+        small_l, small_r = cv2.pyrDown(left), cv2.pyrDown(right)
+        disp = sgbm.compute(small_l, small_r).astype(np.float32) / 16.0
+        v, u = np.nonzero(disp > 1.0)
+        d = disp[v, u] * 2.0  # full-resolution disparity
+        u, v = u * 2.0 + 0.5, v * 2.0 + 0.5
+        z = rig.fx * rig.baseline_m / d
+        pts_c = np.column_stack([(u - rig.cx) * z / rig.fx, (v - rig.cy) * z / rig.fy, z])
+        pts_b = pts_c @ rig.base_T_left[:3, :3].T + rig.base_T_left[:3, 3]
+        odometry.register_frame(pts_b.astype(np.float64), np.zeros(len(pts_b)))
+        cpu += time.process_time() - c0
+        T = odometry.last_pose
+        states.append(OdomState(t_ns * 1e-9, T[:3, :3].copy(), T[:3, 3].copy()))
+    out.mkdir(parents=True, exist_ok=True)
+    write_tum(out / "vo.tum", states, header=f"KISS-ICP 1.3.0 on SGBM stereo clouds of {bag}")
+    report = {"pairs": len(states), "cpu_s": round(cpu, 2),
+              "pairs_per_cpu_s": round(len(states) / max(cpu, 1e-9), 3)}
+    write_atomic(out / "vo_report.json", json.dumps(report, indent=2) + "\n")
+    return report
+
+
+def covariance_honesty(run: Path, truth: Path) -> dict:
+    """Horizontal error (first pose aligned) against the published covariance.
+
+    Returns the mean normalised squared error over 2 DOF (2 if honest), the share of poses
+    inside their 95 % ellipse (0.95 if honest), and the final 1-sigma vs final error.
+    """
+    from scipy.spatial.transform import Rotation
+
+    est = read_tum_array(run / "vo.tum")
+    cov = read_tum_array(run / "vo_covariance.txt")
+    ref = read_tum_array(truth)
+    idx = np.clip(np.searchsorted(ref[:, 0], est[:, 0] - 1e-4), 0, len(ref) - 1)
+    ref = ref[idx]
+    keep = np.abs(ref[:, 0] - est[:, 0]) < 0.02
+    est, ref, cov = est[keep], ref[keep], cov[keep]
+    R0e = Rotation.from_quat(est[0, 4:]).as_matrix()
+    R0r = Rotation.from_quat(ref[0, 4:]).as_matrix()
+    A = R0r @ R0e.T  # odom -> map rotation with the first poses aligned
+    p = (est[:, 1:4] - est[0, 1:4]) @ A.T + ref[0, 1:4]
+    err = (p - ref[:, 1:4])[:, :2]
+    C = cov[:, 1:].reshape(-1, 6, 6)[:, :3, :3]
+    C = (A @ C @ A.T)[:, :2, :2]
+    ok = np.linalg.det(C) > 1e-12
+    nees = np.einsum("ni,nij,nj->n", err[ok], np.linalg.inv(C[ok]), err[ok])
+    return {"mean_nees_2dof": round(float(np.mean(nees)), 3),
+            "share_in_95pct_ellipse": round(float(np.mean(nees < 5.991)), 3),
+            "final_sigma_xy_m": round(float(np.sqrt(np.trace(C[-1]))), 3),
+            "final_error_xy_m": round(float(np.linalg.norm(err[-1])), 3)}
+
+
+def bench_method(bag: Path, method: str, force: bool) -> dict:
+    """One method on one bag, cached in bench/results/vo_runs/<bag>/<method>/row.json."""
+    out = RESULTS / "vo_runs" / bag.name / method
+    truth = bag / "truth" / "trajectory.tum"
+    row_path = out / "row.json"
+    if row_path.is_file() and not force:
+        return json.loads(row_path.read_text())
+    print(f"[vo_bench] {bag.name}: {method}", file=sys.stderr)
+    # A finished run whose summary was not written (an interrupted bench) is reused.
+    done = (out / "vo.tum").is_file() and (out / "vo_report.json").is_file() and not force
+    if method == "kiss_icp":
+        report = (json.loads((out / "vo_report.json").read_text()) if done
+                  else kiss_icp_odometry(bag, out))
+        row = {"metrics": evaluate(out / "vo.tum", truth).as_dict(), "report": report}
+    else:
+        report = (json.loads((out / "vo_report.json").read_text()) if done
+                  else run_mode(bag, method, out))
+        report.setdefault("process_wall_s", None)
+        row = {"metrics": evaluate(out / "vo.tum", truth).as_dict(),
+               "honesty": covariance_honesty(out, truth),
+               "report": {k: report[k] for k in (
+                   "pairs", "distance_m", "cpu_s", "pairs_per_cpu_s",
+                   "estimator_pairs_per_cpu_s", "peak_rss_mb", "rss_mb_first_last",
+                   "sources", "process_wall_s")},
+               "bad_input": {k: v for k, v in report["status"].items()
+                             if k.startswith("bad_input.") and v}}
+    plot_trajectories(out / "vo.tum", truth, out / "trajectory.png",
+                      title=f"{method} on {bag.name}")
+    write_atomic(row_path, json.dumps(row, indent=2) + "\n")
+    return row
+
+
+def collect(bag: Path) -> dict:
+    """Every cached method row of a bag."""
+    rows = {}
+    for method in (*MODES, "kiss_icp"):
+        row_path = RESULTS / "vo_runs" / bag.name / method / "row.json"
+        if row_path.is_file():
+            rows[method] = json.loads(row_path.read_text())
+    return {"bag": str(bag), "rows": rows}
+
+
+def markdown(summaries: list[dict], meta: dict) -> str:
+    lines = [
+        "# rover_vo benchmark",
+        "",
+        f"Made by `{meta['command']}` on {meta['date']} ({meta['machine']}).",
+        f"**Speed was measured while the machine was shared** (load average "
+        f"{meta['loadavg']}): one process per run, OpenCV and OpenMP limited to one thread.",
+        "",
+        "| bag | method | distance m | drift % (KITTI 100-800 m) | heading deg/100 m | "
+        "rot deg/100 m | APE RMSE m | final error % | pairs/CPU s (estimator) | peak RSS MB |"
+        " NEES xy (2 = honest) | in 95 % ellipse |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for s in summaries:
+        name = Path(s["bag"]).name
+        for method, row in s["rows"].items():
+            m, r = row["metrics"], row["report"]
+            h = row.get("honesty", {})
+            speed = f"{r['pairs_per_cpu_s']:.1f}"
+            if "estimator_pairs_per_cpu_s" in r:
+                speed += f" ({r['estimator_pairs_per_cpu_s']:.1f})"
+            lines.append(
+                f"| {name} | {method} | {m['distance_m']:.0f} | {m['kitti_drift_pct']:.3f} | "
+                f"{m['heading_drift_deg_per_100m']:.3f} | {m['kitti_rot_deg_per_100m']:.3f} | "
+                f"{m['ape_rmse_m']:.2f} | {m['final_error_pct']:.3f} | {speed} | "
+                f"{r.get('peak_rss_mb', '')} | {h.get('mean_nees_2dof', '')} | "
+                f"{h.get('share_in_95pct_ellipse', '')} |")
+    lines += ["", "Methods: `paper` = frame to frame + IMU (the paper's mode, the default); `vo` ="
+              " frame to frame, vision alone; `keyframes` = keyframes + IMU; `kiss_icp` = KISS-ICP"
+              " 1.3.0"
+              " on SGBM stereo point clouds of the same pairs. pairs/CPU s counts reading the"
+              " bag (rosbags deserialisation of 50 Hz IMU); in brackets the estimator alone.",
+              ""]
+    return "\n".join(lines)
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--bags", nargs="+", required=True, type=Path)
+    p.add_argument("--methods", nargs="+", default=[*MODES, "kiss_icp"],
+                   choices=[*MODES, "kiss_icp"], help="methods to run (cached ones are reused)")
+    p.add_argument("--force", action="store_true", help="recompute cached runs")
+    p.add_argument("--summary-only", action="store_true", help="only rebuild the summary")
+    args = p.parse_args()
+    if not args.summary_only:
+        for bag in args.bags:
+            for method in args.methods:
+                bench_method(bag, method, args.force)
+    summaries = [collect(b) for b in args.bags]
+    meta = {"command": "python bench/vo_bench.py --bags " + " ".join(str(b) for b in args.bags),
+            "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+            "machine": f"{platform.machine()}, {os.cpu_count()} cores",
+            "loadavg": " ".join(f"{x:.1f}" for x in os.getloadavg())}
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    write_atomic(RESULTS / "vo_bench.json", json.dumps({"meta": meta, "bags": summaries},
+                                                        indent=2) + "\n")
+    write_atomic(RESULTS / "vo_bench.md", markdown(summaries, meta))
+    print((RESULTS / "vo_bench.md").read_text())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,555 @@
+"""The estimator (OpenVINS ``VioManager``): takes the sensor messages in arrival order, pairs
+left and right images, and runs each stereo pair through zero-velocity detection, feature
+tracking, motion estimation against the keyframe, VO + IMU fusion and the covariance
+update. Bad input is counted by kind, logged once per kind, and the pose continues
+IMU-propagated with a growing covariance.
+
+The node (``vo_node.py``) and the offline CLI (``cli.py``) both call :meth:`VoEstimator.feed`
+with the same messages.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from rover_vo import messages as m
+from rover_vo.config import VoConfig
+from rover_vo.features import stereo_match, track
+from rover_vo.keyframes import Keyframe, make_keyframe
+from rover_vo.motion import estimate_motion, refine_motion
+from rover_vo.propagator import ImuInterval, Propagator
+from rover_vo.rig import RigError, StereoRig, rig_from_camera_info
+from rover_vo.state import OdomState, step_noise
+from rover_vo.zero_velocity import image_motion_px, is_stationary
+
+#: Kinds of bad input counted in /vo/status (``bad_input.<kind>``).
+BAD_INPUT_KINDS = (
+    "corrupt_image", "bad_image_size", "missing_left", "missing_right", "missing_camera_info",
+    "bad_camera_info", "imu_gap", "imu_nan", "imu_duplicate", "imu_out_of_order",
+    "stereo_duplicate", "stereo_out_of_order", "textureless", "overexposed", "vision_failed",
+    "internal_error",
+)
+
+
+@dataclass
+class VoOutput:
+    """One odometry output, at a stereo pair's stamp.
+
+    Attributes:
+        state: ``odom_T_base`` and its covariance ``[x y z rx ry rz]`` (odom frame).
+        linear, angular: body-frame velocity (m/s, rad/s) over the last interval.
+        source: ``vision``, ``zero_velocity``, ``imu_propagation`` or ``initial``.
+        stamp_ns: the pair's header stamp, exact (ns).
+    """
+
+    state: OdomState
+    linear: np.ndarray
+    angular: np.ndarray
+    source: str
+    stamp_ns: int = 0
+
+
+@dataclass
+class FrameStats:
+    """Per-frame figures for /vo/status and the report."""
+
+    features: int = 0
+    stereo_matches: int = 0
+    tracked: int = 0
+    inliers: int = 0
+    rms_px: float = float("nan")
+    keyframe: bool = False
+
+
+@dataclass
+class _Pair:
+    t_ns: int
+    left: Any = None
+    right: Any = None
+
+
+@dataclass
+class Counters:
+    """Running totals."""
+
+    pairs: int = 0
+    vision: int = 0
+    zero_velocity: int = 0
+    propagated: int = 0
+    keyframes: int = 0
+    imu: int = 0
+    bad: Counter = field(default_factory=Counter)
+
+
+class VoEstimator:
+    """Stereo + IMU visual odometry over a stream of messages.
+
+    Args:
+        config: options (its mode preset is applied here).
+        params: flat rover.yaml parameters (extrinsics, IMU noise, gravity).
+        log: ``log(level, text)``; default: the ``rover_vo`` Python logger.
+    """
+
+    def __init__(self, config: VoConfig, params: dict[str, Any],
+                 log: Callable[[int, str], None] | None = None) -> None:
+        self.cfg = config.resolved()
+        self.params = dict(params)
+        imu = self.cfg.imu
+        for key, attr in (("gyro_noise_density", "gyro_noise_density"),
+                          ("gyro_bias_random_walk", "gyro_bias_random_walk"),
+                          ("gravity", "gravity")):
+            if key in self.params:
+                setattr(imu, attr, float(self.params[key]))
+        self.imu_rate = float(self.params.get("imu_rate_hz", 50.0))
+        self._log = log or (lambda level, text: logging.getLogger("rover_vo").log(level, text))
+        self.rig: StereoRig | None = None
+        self.info: dict[str, Any] = {"left": None, "right": None}
+        self.propagator: Propagator | None = None
+        self._imu_prebuffer: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self.pairs: dict[int, _Pair] = {}
+        self.last_pair_ns: int | None = None
+        self.state: OdomState | None = None
+        self.kf: Keyframe | None = None
+        self.last_image: np.ndarray | None = None
+        self.last_step = (np.eye(3), np.zeros(3))  # last moving step b0_T_b1 (prediction)
+        self.velocity = (np.zeros(3), np.zeros(3))
+        self.source = "initializing"
+        self.stats = FrameStats()
+        self.counts = Counters()
+        self._imu_gap_open = False
+
+    # -- input ----------------------------------------------------------------------------
+    def bad(self, kind: str, detail: str) -> None:
+        """Count a bad input; log the first of each kind."""
+        self.counts.bad[kind] += 1
+        if self.counts.bad[kind] == 1:
+            self._log(logging.WARNING, f"{detail} (first '{kind}'; further ones are counted in "
+                      "/vo/status, not logged)")
+
+    def feed(self, topic: str, msg: Any) -> list[VoOutput]:
+        """Take one message of an input topic; returns the odometry outputs it completes."""
+        if topic == m.TOPIC_IMU:
+            self._feed_imu(msg)
+            return self._drain(force=False)
+        if topic in (m.TOPIC_LEFT_INFO, m.TOPIC_RIGHT_INFO):
+            self.info["left" if topic == m.TOPIC_LEFT_INFO else "right"] = msg
+            return []
+        if topic in (m.TOPIC_LEFT, m.TOPIC_RIGHT):
+            side = "left" if topic == m.TOPIC_LEFT else "right"
+            t_ns = m.stamp_ns(msg)
+            if self.last_pair_ns is not None and t_ns <= self.last_pair_ns:
+                kind = "stereo_duplicate" if t_ns == self.last_pair_ns else "stereo_out_of_order"
+                self.bad(kind, f"{topic}: stamp {t_ns * 1e-9:.3f} s not after the last "
+                         "processed pair: image dropped")
+                return []
+            pair = self.pairs.setdefault(t_ns, _Pair(t_ns))
+            if getattr(pair, side) is not None:
+                self.bad("stereo_duplicate", f"{topic}: two images with stamp "
+                         f"{t_ns * 1e-9:.3f} s: the second dropped")
+                return []
+            setattr(pair, side, msg)
+            return self._drain(force=False)
+        return []
+
+    def finish(self) -> list[VoOutput]:
+        """Process whatever is still waiting (end of a bag)."""
+        return self._drain(force=True)
+
+    def _feed_imu(self, msg: Any) -> None:
+        t = m.stamp_s(msg)
+        gyro, accel = m.imu_sample(msg)
+        if self.propagator is None:
+            # Extrinsics of the IMU come with the rig; hold samples until then.
+            if np.all(np.isfinite(gyro)) and np.all(np.isfinite(accel)):
+                self._imu_prebuffer.append((t, gyro, accel))
+                del self._imu_prebuffer[:-int(self.imu_rate * 30)]
+            else:
+                self.bad("imu_nan", f"{m.TOPIC_IMU}: non-finite sample at {t:.3f} s: dropped")
+            return
+        kind = self.propagator.add(t, gyro, accel)
+        if kind is not None:
+            self.bad(kind, f"{m.TOPIC_IMU}: {kind.replace('imu_', '').replace('_', ' ')} "
+                     f"sample at {t:.3f} s: dropped")
+        else:
+            self.counts.imu += 1
+
+    def _drain(self, force: bool) -> list[VoOutput]:
+        """Process pairs in time order once each is ready: both images, the camera infos and
+        the IMU up to its stamp. A pair that images ``input_wait_s`` newer have overtaken is
+        processed as it is (its partner, infos or IMU are lost), so a dead sensor delays the
+        odometry by that much and no more; over DDS, topics arrive in any interleaving.
+        """
+        out: list[VoOutput] = []
+        wait_ns = int(self.cfg.imu.input_wait_s * 1e9)
+        while self.pairs:
+            t_ns = min(self.pairs)
+            pair = self.pairs[t_ns]
+            latest = self.propagator.latest if self.propagator else None
+            ready = (pair.left is not None and pair.right is not None
+                     and self.info["left"] is not None and self.info["right"] is not None
+                     and (not self.cfg.imu.use_imu
+                          or (latest is not None and latest >= t_ns * 1e-9)))
+            stale = max(self.pairs) - t_ns > wait_ns
+            if not (ready or stale or force):
+                break
+            del self.pairs[t_ns]
+            result = self._process_pair(pair)
+            if result is not None:
+                result.stamp_ns = t_ns
+                out.append(result)
+        return out
+
+    # -- one stereo pair ----------------------------------------------------------------------
+    def _ensure_rig(self) -> bool:
+        if self.rig is not None:
+            return True
+        if self.info["left"] is None or self.info["right"] is None:
+            return False
+        try:
+            self.rig = rig_from_camera_info(self.info["left"], self.info["right"], self.params)
+        except RigError as exc:
+            self.bad("bad_camera_info", str(exc))
+            self.info = {"left": None, "right": None}
+            return False
+        imu = self.cfg.imu
+        self.propagator = Propagator(self.rig.base_R_imu, imu.gyro_noise_density,
+                                     imu.gyro_bias_random_walk, imu.gyro_bias_sigma0)
+        for t, g, a in self._imu_prebuffer:
+            self.propagator.add(t, g, a)
+            self.counts.imu += 1
+        self._imu_prebuffer = []
+        return True
+
+    def _decode(self, pair: _Pair) -> tuple[np.ndarray, np.ndarray] | None:
+        t = pair.t_ns * 1e-9
+        if pair.left is None:
+            self.bad("missing_left", f"{m.TOPIC_LEFT}: no left image for the right one at "
+                     f"{t:.3f} s")
+            return None
+        if pair.right is None:
+            self.bad("missing_right", f"{m.TOPIC_RIGHT}: no right image for the left one at "
+                     f"{t:.3f} s")
+            return None
+        if not self._ensure_rig():
+            self.bad("missing_camera_info", "/stereo/{left,right}/camera_info: no valid "
+                     f"CameraInfo yet at {t:.3f} s: pair not used")
+            return None
+        images = []
+        for topic, msg in ((m.TOPIC_LEFT, pair.left), (m.TOPIC_RIGHT, pair.right)):
+            img = m.decode_image(msg)
+            if img is None:
+                self.bad("corrupt_image", f"{topic}: image at {t:.3f} s does not decode "
+                         f"(format '{msg.format}')")
+                return None
+            if img.shape != (self.rig.height, self.rig.width):
+                self.bad("bad_image_size", f"{topic}: image at {t:.3f} s is {img.shape[1]}x"
+                         f"{img.shape[0]}, CameraInfo says {self.rig.width}x{self.rig.height}")
+                return None
+            images.append(img)
+        left = images[0]
+        small = left[::4, ::4]
+        if np.mean(small >= 250) > 0.5:
+            self.bad("overexposed", f"{m.TOPIC_LEFT}: image at {t:.3f} s is over-exposed")
+            return None
+        if float(small.std()) < 2.0:
+            self.bad("textureless", f"{m.TOPIC_LEFT}: image at {t:.3f} s has no texture")
+            return None
+        return images[0], images[0], images[1]
+
+    def _process_pair(self, pair: _Pair) -> VoOutput | None:
+        t = pair.t_ns * 1e-9
+        self.last_pair_ns = pair.t_ns
+        self.counts.pairs += 1
+        self.stats = FrameStats()
+        images = self._decode(pair)
+        if self.state is None:
+            if images is None:
+                return None
+            return self._initialize(t, *images)
+        iv = self._imu_interval(self.state.t, t)
+        if images is None:
+            return self._propagate(t, iv)
+        left = images[1]
+        # Zero-velocity detection: standing still, nothing moves (no drift at stops).
+        flow = image_motion_px(self.last_image, left, self.kf.tracked[self.kf.alive],
+                               self.cfg.features)
+        if is_stationary(flow, iv, self.cfg.imu):
+            return self._zero_velocity(t, iv, left)
+        return self._vision(t, iv, images)
+
+    def _imu_interval(self, t0: float, t1: float) -> ImuInterval | None:
+        if not self.cfg.imu.use_imu or self.propagator is None:
+            return None
+        iv = self.propagator.interval(t0, t1)
+        if iv is None or iv.gap > self.cfg.imu.max_gap_s:
+            gap = (t1 - t0) if iv is None else iv.gap
+            self.bad("imu_gap", f"{m.TOPIC_IMU}: no sample for {gap:.2f} s before "
+                     f"{t1:.3f} s (gyro held or unused)")
+            if iv is None:
+                return None
+        return iv
+
+    def _gravity_tilt(self, accel_b: np.ndarray) -> np.ndarray:
+        """Roll and pitch (as ``odom_R_base`` with zero yaw) of a mean specific force."""
+        up = accel_b / np.linalg.norm(accel_b)
+        # The rotation taking body 'up' to odom z; its yaw is removed below.
+        R = Rotation.align_vectors([[0, 0, 1]], [up])[0].as_matrix()
+        yaw = np.arctan2(R[1, 0], R[0, 0])
+        return Rotation.from_euler("z", -yaw).as_matrix() @ R
+
+    def _initialize(self, t: float, image: np.ndarray, left: np.ndarray,
+                    right: np.ndarray) -> VoOutput:
+        R0 = np.eye(3)
+        if self.cfg.imu.use_imu and self.propagator is not None:
+            iv = self.propagator.interval(t - 1.0, t)
+            if iv is not None:
+                R0 = self._gravity_tilt(iv.mean_accel)  # gravity gives roll and pitch
+        self.state = OdomState(t, R0)
+        self._new_keyframe(image, left, right)
+        self.last_image = left
+        self.source = "initial"
+        return VoOutput(self.state.copy(), np.zeros(3), np.zeros(3), "initial")
+
+    def _new_keyframe(self, image: np.ndarray, left: np.ndarray, right: np.ndarray) -> None:
+        del image  # the same array as left (kept for when pyramids are passed)
+        self.kf, n_corners, n_stereo = make_keyframe(self.state, left, right, self.rig,
+                                                     self.cfg.features)
+        self.counts.keyframes += 1
+        self.stats.keyframe = True
+        self.stats.features, self.stats.stereo_matches = n_corners, n_stereo
+
+    def _output(self, new: OdomState, source: str, moving: bool) -> VoOutput:
+        dt = max(new.t - self.state.t, 1e-6)
+        dR = self.state.R.T @ new.R
+        dp = self.state.R.T @ (new.p - self.state.p)
+        if moving:
+            self.last_step = (dR, dp)
+        self.velocity = (dp / dt, Rotation.from_matrix(dR).as_rotvec() / dt)
+        self.state = new
+        self.source = source
+        return VoOutput(new.copy(), *self.velocity, source)
+
+    def _zero_velocity(self, t: float, iv: ImuInterval | None, left: np.ndarray) -> VoOutput:
+        self.counts.zero_velocity += 1
+        new = self.state.copy()
+        new.t = t
+        if iv is not None:
+            self.propagator.update_bias_at_rest(t, iv, self.imu_rate)
+            new.R = self._tilt_update(new.R, iv, stationary=True)
+            self.kf.state.R = self._tilt_update(self.kf.state.R, iv, stationary=True)
+        self.last_image = left
+        self.stats.tracked = self.kf.n_alive
+        return self._output(new, "zero_velocity", moving=False)
+
+    def _tilt_update(self, R: np.ndarray, iv: ImuInterval, stationary: bool) -> np.ndarray:
+        """Roll and pitch pulled toward the accelerometer's gravity (yaw untouched)."""
+        f = iv.mean_accel
+        g = self.cfg.imu.gravity
+        if abs(np.linalg.norm(f) - g) > 0.05 * g:
+            return R  # accelerating: the mean specific force is not gravity
+        up_b = R.T @ np.array([0.0, 0.0, 1.0])
+        f_hat = f / np.linalg.norm(f)
+        axis = np.cross(up_b, f_hat)
+        s = np.linalg.norm(axis)
+        if s < 1e-12:
+            return R
+        angle = np.arctan2(s, up_b @ f_hat)
+        sigma_meas = np.radians(self.cfg.imu.accel_tilt_sigma_deg) / (3.0 if stationary else 1)
+        sigma_state = np.sqrt(max(self.state.cov[3, 3] + self.state.cov[4, 4], 1e-12) / 2)
+        gain = sigma_state**2 / (sigma_state**2 + sigma_meas**2)
+        # R' = R Exp(phi) with Exp(-phi) up_b -> f_hat: phi = -angle * axis.
+        return R @ Rotation.from_rotvec(-gain * angle * axis / s).as_matrix()
+
+    def _predict(self, iv: ImuInterval | None) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted body motion of this interval: gyro rotation, last step's translation."""
+        dR_last, dp_last = self.last_step
+        return (iv.R if iv is not None else dR_last), dp_last
+
+    def _propagate(self, t: float, iv: ImuInterval | None) -> VoOutput:
+        """No usable image: dead-reckon with the gyro and the last step, covariance growing."""
+        self.counts.propagated += 1
+        dR, dp = self._predict(iv)
+        cov = self.cfg.covariance
+        step = float(np.linalg.norm(dp))
+        Q = step_noise(step, cov.propagation_translation_sigma,
+                       cov.rotation_sigma_deg_per_sqrt_m * 10.0)
+        # Unseen, the rover may also have moved when the last step says it stood still.
+        Q[:3, :3] += np.eye(3) * cov.propagation_floor_m**2
+        if iv is None:
+            # No gyro: the rotation is the last step's guess; a turn may have started.
+            Q[3:, 3:] += np.eye(3) * np.radians(cov.unseen_rotation_sigma_deg) ** 2
+        else:
+            Q[3:, 3:] += iv.cov  # the gyro's own integration noise and bias uncertainty
+        new = self.state.compose(t, dR, dp, Q)
+        return self._output(new, "imu_propagation", moving=False)
+
+    def _cam(self) -> tuple[np.ndarray, np.ndarray]:
+        T = self.rig.base_T_left
+        return T[:3, :3], T[:3, 3]
+
+    def _camera_from_keyframe(self, odom_R_b: np.ndarray, odom_p_b: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+        """Left-camera transform keyframe -> a body pose (``x_cur = R x_kf + t``)."""
+        R_bc, p_bc = self._cam()
+        kf = self.kf.state
+        Rk, pk = kf.R @ R_bc, kf.R @ p_bc + kf.p
+        Rc, pc = odom_R_b @ R_bc, odom_R_b @ p_bc + odom_p_b
+        return Rc.T @ Rk, Rc.T @ (pk - pc)
+
+    def _predict_pixels(self, X: np.ndarray, idx: np.ndarray, dR: np.ndarray, dp: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Where keyframe points ``X`` land if the body moves by ``(dR, dp)`` from the last
+        state: ``(cur_R_kf, cur_t_kf, points in the current camera, pixels)``."""
+        rig = self.rig
+        R_guess, t_guess = self._camera_from_keyframe(self.state.R @ dR,
+                                                      self.state.p + self.state.R @ dp)
+        Xp = X @ R_guess.T + t_guess
+        in_front = Xp[:, 2] > 0.1
+        predicted = self.kf.tracked[idx].copy()
+        predicted[in_front] = (Xp[in_front, :2] / Xp[in_front, 2:]) * [rig.fx, rig.fy] + [
+            rig.cx, rig.cy]
+        return R_guess, t_guess, Xp, predicted
+
+    def _vision(self, t: float, iv: ImuInterval | None, images: tuple) -> VoOutput:
+        cfg, rig, kf = self.cfg, self.rig, self.kf
+        image, left, right = images
+        R_bc, p_bc = self._cam()
+        dR, dp = self._predict(iv)
+        idx = np.flatnonzero(kf.alive)
+        X = kf.points[idx]
+        if cfg.window.track_from_keyframe:
+            # From the keyframe's own image: no tracking drift accumulates over the span.
+            src_img, src_uv = kf.image, kf.corners[idx]
+        else:
+            src_img, src_uv = self.last_image, kf.tracked[idx]
+        need = cfg.motion.min_inliers
+        # Tracking: LK starting where the predicted motion puts each keyframe point.
+        R_guess, t_guess, Xp, predicted = self._predict_pixels(X, idx, dR, dp)
+        uv, ok = track(src_img, left, src_uv, cfg.features, predicted)
+        # Fallbacks: from the last image (a shorter hop); without a gyro, a few turn rates
+        # around the last one (a turn starting is what the last step cannot predict); then
+        # with no prediction at all.
+        if ok.sum() < need and cfg.window.track_from_keyframe:
+            uv, ok = track(self.last_image, left, kf.tracked[idx], cfg.features, predicted)
+        if ok.sum() < need and iv is None:
+            for yaw in np.radians([-5.0, 5.0, -10.0, 10.0, -15.0, 15.0]):
+                turn = Rotation.from_euler("z", yaw).as_matrix() @ dR
+                guess = self._predict_pixels(X, idx, turn, dp)
+                uv2, ok2 = track(self.last_image, left, kf.tracked[idx], cfg.features, guess[3])
+                if ok2.sum() >= need:
+                    uv, ok = uv2, ok2
+                    R_guess, t_guess, Xp, predicted = guess
+                    break
+        if ok.sum() < need:
+            uv, ok = track(self.last_image, left, kf.tracked[idx], cfg.features)
+        in_front = Xp[:, 2] > 0.1
+        self.stats.tracked = int(ok.sum())
+        est = None
+        if ok.sum() >= cfg.motion.min_inliers:
+            # Right image: each tracked corner is searched where its predicted depth puts it.
+            disp_guess = np.where(in_front, rig.fx * rig.baseline_m / np.maximum(Xp[:, 2], 0.5),
+                                  3.0)[ok]
+            disparity, sok = stereo_match(left, right, uv[ok], cfg.features, rig.fx,
+                                          rig.baseline_m, disp_guess)
+            uv_r = np.full((int(ok.sum()), 2), np.nan)
+            uv_r[sok] = uv[ok][sok] - np.column_stack([disparity[sok], np.zeros(sok.sum())])
+            prior = prior_cov = None
+            if iv is not None:
+                prior, prior_cov = self._gyro_prior(kf.state.t, t)
+            K = rig.camera_matrix
+            est_vo = estimate_motion(X[ok], uv[ok], uv_r, K, rig.baseline_m, cfg.motion,
+                                     R_guess, t_guess)
+            est = est_vo
+            if est_vo is not None and prior is not None:
+                # VO + IMU fusion: the same inliers, the gyro rotation as a prior.
+                inl = est_vo.inliers
+                est = refine_motion(X[ok][inl], uv[ok][inl], uv_r[inl], K, rig.baseline_m,
+                                    est_vo.R, est_vo.t, cfg.motion, prior, prior_cov)
+                est.inliers = inl
+        if est is None:
+            self.bad("vision_failed", f"{m.TOPIC_LEFT}: too few tracked inliers at {t:.3f} s"
+                     " (motion from the IMU and the last step)")
+            out = self._propagate(t, iv)
+            # The keyframe is lost: start a new one where the propagated pose puts us.
+            self._new_keyframe(image, left, right)
+            self.last_image = left
+            return out
+        self.counts.vision += 1
+        inl = est.inliers
+        self.stats.inliers, self.stats.rms_px = int(inl.sum()), est.rms_px
+        # Body motion keyframe -> current from the camera motion.
+        kf_R_cur_c, kf_p_cur_c = est.R.T, -est.R.T @ est.t
+        kf_R_b = R_bc @ kf_R_cur_c @ R_bc.T
+        kf_p_b = R_bc @ kf_p_cur_c + p_bc - kf_R_b @ p_bc
+        cov_cam = est.cov
+        rot = np.zeros((6, 6))
+        rot[:3, :3] = rot[3:, 3:] = R_bc
+        cov_b = rot @ cov_cam @ rot.T
+        c = self.cfg.covariance
+        span = float(np.linalg.norm(kf_p_b))
+        Q = step_noise(span, c.translation_sigma_per_m, c.rotation_sigma_deg_per_sqrt_m, cov_b)
+        new = kf.state.compose(t, kf_R_b, kf_p_b, Q)
+        new.distance_m = self.state.distance_m + float(np.linalg.norm(new.p - self.state.p))
+        # Track bookkeeping: outliers and lost corners leave the keyframe.
+        alive = np.zeros(len(kf.points), bool)
+        alive[idx[np.flatnonzero(ok)[inl]]] = True
+        kf.tracked[idx[ok]] = uv[ok]
+        kf.alive = alive
+        kf.frames += 1
+        out = self._output(new, "vision", moving=True)
+        self.last_image = left
+        tracked_frac = kf.n_alive / max(len(kf.points), 1)
+        w = cfg.window
+        if (w.frame_to_frame or tracked_frac < w.keyframe_min_tracked
+                or kf.frames >= w.keyframe_max_frames):
+            if iv is not None:
+                # Gyro bias from the vision rotation over the keyframe span (one update per
+                # keyframe: the frames inside a span share their measurements).
+                R_vo_b = R_bc @ est_vo.R.T @ R_bc.T
+                rot3 = R_bc @ est_vo.cov[:3, :3] @ R_bc.T
+                self.propagator.update_bias_from_rotation(kf.state.t, t, R_vo_b, rot3)
+                # Gravity from the accelerometer just before the frame (the body tilts as
+                # it drives over relief: a mean over the whole span would lag).
+                recent = self.propagator.interval(t - self.cfg.imu.tilt_window_s, t)
+                if recent is not None:
+                    self.state.R = self._tilt_update(self.state.R, recent, stationary=False)
+            self._new_keyframe(image, left, right)
+            self.stats.inliers = int(inl.sum())
+        return out
+
+    def _gyro_prior(self, t0: float, t1: float) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The gyro's ``cur_R_kf`` (left camera) over ``[t0, t1]`` and its covariance."""
+        iv = self.propagator.interval(t0, t1)
+        if iv is None:
+            return None, None
+        R_bc, _ = self._cam()
+        kf_R_cur = R_bc.T @ iv.R @ R_bc
+        cov_c = R_bc.T @ iv.cov @ R_bc
+        cur_R_kf = kf_R_cur.T
+        return cur_R_kf, kf_R_cur.T @ cov_c @ kf_R_cur
+
+    # -- status ---------------------------------------------------------------------------
+    def status(self) -> dict[str, Any]:
+        """Figures for /vo/status: per-frame counts, state and bad-input totals."""
+        s, c = self.stats, self.counts
+        out: dict[str, Any] = {
+            "state": self.source,
+            "features": s.features, "stereo_matches": s.stereo_matches, "tracked": s.tracked,
+            "inliers": s.inliers, "reprojection_rms_px": round(s.rms_px, 3),
+            "keyframe": s.keyframe, "pairs": c.pairs, "vision_frames": c.vision,
+            "zero_velocity_frames": c.zero_velocity, "propagated_frames": c.propagated,
+            "keyframes": c.keyframes, "imu_samples": c.imu,
+            "distance_m": round(self.state.distance_m, 3) if self.state else 0.0,
+        }
+        if self.propagator is not None:
+            out["gyro_bias_rad_s"] = [round(float(b), 6) for b in self.propagator.bias]
+        for kind in BAD_INPUT_KINDS:
+            out[f"bad_input.{kind}"] = c.bad.get(kind, 0)
+        return out

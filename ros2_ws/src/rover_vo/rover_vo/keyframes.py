@@ -1,0 +1,78 @@
+"""Keyframes: the reference a frame's motion is measured from (beyond the paper's mode).
+
+Measuring each frame against a keyframe instead of the previous frame keeps the error of
+the intermediate frames out of the chain: the pose error grows per keyframe, not per frame.
+In the paper's mode every frame becomes the next keyframe.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from rover_vo.config import FeatureOptions
+from rover_vo.features import detect_corners, stereo_match
+from rover_vo.reconstruction import ground_disparity, triangulate_disparity
+from rover_vo.rig import StereoRig
+from rover_vo.state import OdomState
+
+
+@dataclass
+class Keyframe:
+    """A stereo frame with triangulated corners and where they are tracked now.
+
+    Attributes:
+        state: odometry state of the frame (pose, covariance).
+        points: (N, 3) corners triangulated in the keyframe's left optical frame (m).
+        corners: (N, 2) their pixels in the keyframe's left image.
+        tracked: (N, 2) their pixels in the last processed image.
+        alive: (N,) bool, still tracked.
+        image: the keyframe's left image.
+        frames: frames measured against this keyframe so far.
+    """
+
+    state: OdomState
+    image: np.ndarray
+    points: np.ndarray
+    corners: np.ndarray
+    tracked: np.ndarray
+    alive: np.ndarray
+    frames: int = 0
+
+    @property
+    def n_alive(self) -> int:
+        return int(self.alive.sum())
+
+
+def tilt_of(rig: StereoRig) -> tuple[float, float]:
+    """Camera height above base_link (m) and optical-axis tilt below its x-y plane (rad)."""
+    z_axis = rig.base_T_left[:3, 2]
+    return float(rig.base_T_left[2, 3]), float(np.arcsin(-z_axis[2]))
+
+
+def make_keyframe(state: OdomState, left: np.ndarray, right: np.ndarray,
+                  rig: StereoRig, opts: FeatureOptions) -> tuple[Keyframe, int, int]:
+    """Detect, stereo-match and triangulate the corners of a new keyframe.
+
+    Args:
+        state: the keyframe's odometry state.
+        left, right: the pair's images.
+        rig, opts: the stereo rig and feature options.
+
+    Returns:
+        ``(keyframe, corners detected, stereo matches kept)``.
+    """
+    corners = detect_corners(left, opts)
+    h_cam, tilt = tilt_of(rig)
+    # Start each stereo search at flat ground's disparity for its row: most corners are
+    # on the ground, and LK converges from a few pixels away.
+    guess = ground_disparity(corners[:, 1], rig.fy, rig.cy, h_cam, tilt, rig.fx,
+                             rig.baseline_m) if len(corners) else np.zeros(0)
+    disparity, ok = stereo_match(left, right, corners, opts, rig.fx, rig.baseline_m, guess)
+    pts = triangulate_disparity(corners[ok], disparity[ok], rig.fx, rig.fy, rig.cx, rig.cy,
+                                rig.baseline_m)
+    near = pts[:, 2] < opts.max_depth_m
+    kept = corners[ok][near]
+    kf = Keyframe(state.copy(), left, pts[near], kept, kept.copy(), np.ones(len(kept), bool))
+    return kf, len(corners), int(near.sum())

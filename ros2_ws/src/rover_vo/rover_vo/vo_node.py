@@ -1,0 +1,167 @@
+"""The rover_vo node: stereo + IMU visual odometry on the live topics.
+
+Thin ROS wrapper around :class:`~rover_vo.estimator.VoEstimator` (the offline CLI runs the
+same estimator on the same messages). Subscribes the stereo images, camera infos and IMU
+(sensor-data QoS); publishes ``/vo/odometry`` (nav_msgs/Odometry, odom -> base_link, pose
+covariance growing with the distance driven, body twist) at each stereo pair and
+``/vo/status`` (diagnostics). Extrinsics come from the bag's rover.yaml parameters.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from typing import Any
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from scipy.spatial.transform import Rotation
+from sensor_msgs.msg import CameraInfo, CompressedImage, Imu
+
+from roi_network.spin import spin_until_shutdown
+from rover_vo import messages as m
+from rover_vo.config import VoConfig, config_from_flat, flat_parameters
+from rover_vo.estimator import VoEstimator, VoOutput
+
+RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+
+#: rover.yaml keys the estimator reads (declared so the params file reaches it).
+ROVER_PARAMS: dict[str, Any] = {
+    "base_to_left_camera": [0.0] * 7,
+    "base_to_imu": [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+    "imu_rate_hz": 50.0,
+    "gyro_noise_density": 1.7e-4,
+    "gyro_bias_random_walk": 2.0e-5,
+    "gravity": 9.81,
+}
+
+
+def sensor_qos(depth: int) -> QoSProfile:
+    """Sensor-data QoS (best effort, volatile) with a deeper queue than the default 5."""
+    qos = QoSProfile(**{k: getattr(qos_profile_sensor_data, k)
+                        for k in ("reliability", "durability")}, depth=depth)
+    qos.history = HistoryPolicy.KEEP_LAST
+    return qos
+
+
+def odometry_message(out: VoOutput, odom_frame: str, base_frame: str) -> Odometry:
+    """nav_msgs/Odometry of one output: pose and covariance in odom, twist in base_link."""
+    msg = Odometry()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(out.stamp_ns, 1_000_000_000)
+    msg.header.frame_id, msg.child_frame_id = odom_frame, base_frame
+    p, o = msg.pose.pose.position, msg.pose.pose.orientation
+    p.x, p.y, p.z = (float(v) for v in out.state.p)
+    o.x, o.y, o.z, o.w = (float(v) for v in Rotation.from_matrix(out.state.R).as_quat())
+    msg.pose.covariance = [float(v) for v in out.state.ros_covariance().ravel()]
+    tw = msg.twist.twist
+    tw.linear.x, tw.linear.y, tw.linear.z = (float(v) for v in out.linear)
+    tw.angular.x, tw.angular.y, tw.angular.z = (float(v) for v in out.angular)
+    # Twist covariance: a coarse diagonal (the twist is a by-product, not fused downstream).
+    msg.twist.covariance = [float(v) for v in np.diag([0.01] * 3 + [1e-4] * 3).ravel()]
+    return msg
+
+
+class VoNode(Node):
+    """Subscribes the stereo pair, camera infos and IMU; publishes /vo/odometry, /vo/status."""
+
+    def __init__(self) -> None:
+        super().__init__("rover_vo")
+        defaults = flat_parameters(VoConfig())
+        values = {}
+        for name, default in defaults.items():
+            values[name] = self.declare_parameter(
+                name, default, ParameterDescriptor(description=f"{name} (docs/rover_vo.md)")
+            ).value
+        rover = {}
+        for name, default in ROVER_PARAMS.items():
+            rover[name] = self.declare_parameter(
+                name, default, ParameterDescriptor(description=f"rover.yaml: {name}")).value
+        self.odom_frame = self.declare_parameter(
+            "odom_frame", "odom", ParameterDescriptor(description="odometry frame")).value
+        self.base_frame = self.declare_parameter(
+            "base_frame", "base_link", ParameterDescriptor(description="body frame")).value
+        if not any(rover["base_to_left_camera"][3:]):
+            raise ValueError("parameter 'base_to_left_camera' is not set (pass the bag's "
+                             "rover.yaml with --params-file)")
+        config = config_from_flat(values)
+        logger = self.get_logger()
+        levels = {logging.WARNING: logger.warning, logging.ERROR: logger.error}
+
+        def log(level: int, text: str) -> None:
+            levels.get(level, logger.info)(text)
+
+        self.estimator = VoEstimator(config, rover, log)
+        self.odom_pub = self.create_publisher(Odometry, "/vo/odometry", RELIABLE)
+        self.status_pub = self.create_publisher(DiagnosticArray, "/vo/status", RELIABLE)
+        for topic in (m.TOPIC_LEFT, m.TOPIC_RIGHT):
+            self.create_subscription(CompressedImage, topic,
+                                     lambda msg, t=topic: self.on_message(t, msg), sensor_qos(10))
+        for topic in (m.TOPIC_LEFT_INFO, m.TOPIC_RIGHT_INFO):
+            self.create_subscription(CameraInfo, topic,
+                                     lambda msg, t=topic: self.on_message(t, msg), sensor_qos(10))
+        self.create_subscription(Imu, m.TOPIC_IMU, lambda msg: self.on_message(m.TOPIC_IMU, msg),
+                                 sensor_qos(2000))
+        logger.info(f"mode {config.mode}; waiting for {m.TOPIC_LEFT} and {m.TOPIC_IMU}")
+
+    def on_message(self, topic: str, msg: Any) -> None:
+        """Feed the estimator; publish what it completes. A failure never kills the node."""
+        try:
+            outputs = self.estimator.feed(topic, msg)
+        except Exception as exc:  # a bug on one message must not stop the odometry
+            self.estimator.bad("internal_error", f"{topic}: {type(exc).__name__}: {exc}")
+            return
+        for out in outputs:
+            self.odom_pub.publish(odometry_message(out, self.odom_frame, self.base_frame))
+            self.publish_status(out)
+
+    def publish_status(self, out: VoOutput) -> None:
+        """/vo/status: features, stereo matches, inliers, state and bad-input counts."""
+        values = self.estimator.status()
+        status = DiagnosticStatus()
+        status.name = "rover_vo"
+        status.hardware_id = "stereo_imu"
+        status.level = (DiagnosticStatus.OK if out.source in ("vision", "zero_velocity",
+                                                              "initial")
+                        else DiagnosticStatus.WARN)
+        status.message = f"{out.source}: {values['inliers']} inliers"
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        msg = DiagnosticArray()
+        msg.header.stamp = odometry_message(out, "", "").header.stamp
+        msg.status = [status]
+        self.status_pub.publish(msg)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the node until shutdown; a missing or bad parameter exits with status 1."""
+    import faulthandler
+
+    import cv2
+
+    # One OpenCV thread: the graph shares few cores between its nodes, and OpenCV's worker
+    # pool is one more set of threads to tear down at exit.
+    cv2.setNumThreads(1)
+    faulthandler.enable()  # a crash in native code leaves a Python stack in the log
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = VoNode()
+        spin_until_shutdown(node)
+    except KeyboardInterrupt:
+        pass
+    except ValueError as exc:
+        print(f"rover_vo: error: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,55 @@
+"""Fixtures of the rover_vo tests: a tiny bag generated once per session (atacama_sim
+``tiny`` preset, ~30 stereo pairs over 12 m) and its messages read back with rosbags.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from rover_vo.bag import read_messages, rover_params
+from rover_vo.testing import run
+
+SEED = 7  # neither an evaluation (1-3) nor a training (101, 102) seed
+
+
+@pytest.fixture(scope="session")
+def tiny_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A freshly generated tiny bag directory (rosbag/, rover.yaml, truth/)."""
+    from atacama_sim.config import make_config
+    from atacama_sim.generate import generate
+
+    out = tmp_path_factory.mktemp("bags") / "tiny"
+    generate(make_config("tiny", SEED), out, progress=False)
+    return out
+
+
+@pytest.fixture(scope="session")
+def tiny_messages(tiny_bag: Path) -> list:
+    """Every VO input message of the tiny bag, in bag order: [(topic, msg)]."""
+    return list(read_messages(tiny_bag))
+
+
+@pytest.fixture(scope="session")
+def tiny_params(tiny_bag: Path) -> dict:
+    """The tiny bag's rover.yaml parameters."""
+    return rover_params(tiny_bag)
+
+
+@pytest.fixture(scope="session")
+def clean_run(tiny_messages, tiny_params):
+    """``(estimator, outputs, logs)`` of the estimator over the unmodified tiny stream."""
+    return run(tiny_messages, tiny_params)
+
+
+@pytest.fixture
+def ros_env() -> dict[str, str]:
+    """Environment for ROS subprocesses: an isolated domain, localhost discovery."""
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = str(30 + os.getpid() % 60)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
