@@ -13,7 +13,6 @@ import sys
 import time
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
 from nav_msgs.msg import Odometry
@@ -33,7 +32,7 @@ from darces_matcher.matcher import MatchConfig, Matcher, MatchResult
 from roi_network.geojson import read_geojson
 from roi_network.pointcloud import PointCloudFormatError, from_pointcloud2
 from roi_network.records import xy
-from roi_network.spin import spin_until_shutdown
+from roi_network.spin import run_node
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -225,28 +224,7 @@ class MatcherNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the node until shutdown; a bad GN file or parameter exits with status 1."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = MatcherNode()
-        spin_until_shutdown(node)
-    except KeyboardInterrupt:
-        pass
-    except (OSError, ValueError) as exc:
-        print(f"darces_matcher: error: {exc}", file=sys.stderr)
-        return 1
-    except Exception:
-        # Asked to stop (SIGTERM/SIGINT) while starting: rclpy then fails to create the
-        # remaining entities on the shut-down context. That is a stop, not a crash.
-        if rclpy.ok():
-            raise
-        return 0
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
-
+    return run_node(MatcherNode, "darces_matcher", args)
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -34,15 +34,13 @@ def load_gn(path: str):
 
 
 def main(args=None) -> int:
-    import rclpy
     from rcl_interfaces.msg import ParameterDescriptor
-    from rclpy.executors import ExternalShutdownException
     from rclpy.node import Node
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import PointCloud2
 
     from roi_network.pointcloud import to_pointcloud2
-    from roi_network.spin import spin_until_shutdown
+    from roi_network.spin import run_node
 
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -65,21 +63,8 @@ def main(args=None) -> int:
                 f"(CRS {self.gn.map_frame.crs if self.gn.map_frame else '?'}, "
                 f"map origin {origin[0]:.1f}, {origin[1]:.1f})")
 
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = GnServer()
-        spin_until_shutdown(node)
-    except ValueError as exc:
-        print(f"gn_server: error: {exc}", file=sys.stderr)
-        return EXIT_BAD_GN
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node(GnServer, "gn_server", args, error_status=EXIT_BAD_GN)
+
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -24,7 +24,6 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, PointCloud2
 
 from roi_detector.inputs import BadInput, OdometryBuffer, StereoFrame, decode_image
-from roi_detector.node_runner import run_node
 from roi_detector.rover_pipeline import (
     DriveMapper,
     RoverConfig,
@@ -33,6 +32,7 @@ from roi_detector.rover_pipeline import (
 )
 from roi_detector.tracking import TrackerConfig
 from roi_network.pointcloud import to_pointcloud2
+from roi_network.spin import run_node
 
 RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 #: Sensor-data QoS (best effort) with room for the pairs that arrive while one is processed.

@@ -18,8 +18,8 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
 from roi_detector.local_network import LnConfig, load_or_fresh
-from roi_detector.node_runner import run_node
 from roi_network.pointcloud import PointCloudFormatError, from_pointcloud2, to_pointcloud2
+from roi_network.spin import run_node
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)

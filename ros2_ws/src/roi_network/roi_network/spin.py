@@ -42,3 +42,49 @@ def spin_until_shutdown(node, slice_s: float = SLICE_S) -> None:
                 break  # the context went away while the wait set was being built
     finally:
         executor.shutdown(timeout_sec=0)
+
+
+def run_node(node_factory, name: str, args: list[str] | None = None,
+             error_status: int = 1) -> int:
+    """The process around one node: init, spin until SIGINT/SIGTERM, shut down.
+
+    Every node executable of the graph ends its ``main`` with this, so that they all stop
+    and fail the same way.
+
+    Args:
+        node_factory: Called with no argument after ``rclpy.init``; returns the node.
+        name: Executable name, first word of the error line.
+        args: ROS arguments (``--ros-args ...``), as ``rclpy.init`` takes them.
+        error_status: Exit status when the node cannot start.
+
+    Returns:
+        0 on a stop by signal, including one that lands while the node is still starting;
+        ``error_status`` after printing ``<name>: error: <reason>`` to stderr when the node
+        cannot start (bad parameter, unreadable input file: ``OSError``, ``ValueError``).
+    """
+    import sys
+
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = node_factory()
+        spin_until_shutdown(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (OSError, ValueError) as exc:
+        print(f"{name}: error: {exc}", file=sys.stderr)
+        return error_status
+    except Exception:
+        # Asked to stop while starting: rclpy then fails to create the remaining entities
+        # on the shut-down context. That is a stop, not a crash.
+        if rclpy.ok():
+            raise
+        return 0
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0

@@ -59,3 +59,26 @@ def test_sigterm_stops_a_busy_node_within_a_second():
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
+
+
+RUN_NODE = textwrap.dedent('''
+    import sys
+    from roi_network.spin import run_node
+
+    def bad_node():
+        raise ValueError("/nowhere/gn.geojson: GN file not found")
+
+    sys.exit(run_node(bad_node, "probe_node", error_status=int(sys.argv[1])))
+''')
+
+
+@pytest.mark.parametrize("status", [1, 2])
+def test_run_node_reports_a_node_that_cannot_start_in_one_line(status):
+    env = dict(os.environ, ROS_DOMAIN_ID=str(150 + os.getpid() % 50),
+               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    done = subprocess.run([sys.executable, "-c", RUN_NODE, str(status)], env=env,
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == status
+    assert done.stderr.strip().splitlines()[-1] == (
+        "probe_node: error: /nowhere/gn.geojson: GN file not found")
+    assert "Traceback" not in done.stderr

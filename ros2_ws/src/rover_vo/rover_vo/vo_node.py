@@ -14,7 +14,6 @@ import sys
 from typing import Any
 
 import numpy as np
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import ParameterDescriptor
@@ -23,7 +22,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, CompressedImage, Imu
 
-from roi_network.spin import spin_until_shutdown
+from roi_network.spin import run_node
 from rover_vo import messages as m
 from rover_vo.config import VoConfig, config_from_flat, flat_parameters
 from rover_vo.estimator import VoEstimator, VoOutput
@@ -146,22 +145,7 @@ def main(args: list[str] | None = None) -> int:
     # pool is one more set of threads to tear down at exit.
     cv2.setNumThreads(1)
     faulthandler.enable()  # a crash in native code leaves a Python stack in the log
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = VoNode()
-        spin_until_shutdown(node)
-    except KeyboardInterrupt:
-        pass
-    except ValueError as exc:
-        print(f"rover_vo: error: {exc}", file=sys.stderr)
-        return 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
-
+    return run_node(VoNode, "rover_vo", args)
 
 if __name__ == "__main__":
     sys.exit(main())
