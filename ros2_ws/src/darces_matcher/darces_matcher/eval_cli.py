@@ -319,8 +319,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     report = evaluate(gn, methods, options, seed=args.seed, max_lns=args.max_lns,
                       gn_misses=args.gn_misses, baseline_max_lns=args.baseline_max_lns,
                       progress=args.progress)
+    if report["lns"] == 0:
+        print(f"darces_eval: the paper protocol found no LN on {report_gn_name(args)}: no "
+              f"route of {options.min_nodes}-{options.max_nodes} nodes joins two ROIs "
+              f"{options.min_pair_m:.0f}-{options.max_pair_m:.0f} m apart (a GN smaller "
+              f"than a route, or too sparse); nothing written", file=sys.stderr)
+        return 1
     report["options"] = {
-        "gn": str(args.gn) if args.gn else f"synthetic:{args.synthetic}:seed{args.gn_seed}",
+        "gn": report_gn_name(args),
         "min_nodes": options.min_nodes, "max_nodes": options.max_nodes,
         "seed": args.seed, "max_lns": args.max_lns, "outliers": args.outliers,
         "label_flips": args.label_flips, "gn_misses": args.gn_misses, "noise": args.noise,
@@ -340,6 +346,11 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"  | median {r['time_ms']['median']:.2f} ms"
               f"  p95 {r['time_ms']['p95']:.2f} ms")
     return 0
+
+
+def report_gn_name(args: argparse.Namespace) -> str:
+    """The GN as the report names it: its path, or ``synthetic:NAME:seedS``."""
+    return str(args.gn) if args.gn else f"synthetic:{args.synthetic}:seed{args.gn_seed}"
 
 
 if __name__ == "__main__":

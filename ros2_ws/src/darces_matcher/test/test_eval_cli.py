@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from darces_matcher.eval_cli import main
@@ -84,3 +85,23 @@ def test_baseline_subset_and_separate_pass(gn_file: Path, tmp_path: Path) -> Non
     assert report["methods"]["darces"]["same_subset_as_baselines"]["lns"] == 3
     assert report["methods"]["darces_original"]["lns"] == 3
     assert report["methods"]["kiss_matcher"]["lns"] == 3
+
+
+def test_gn_smaller_than_a_route_is_a_clear_error(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # 40 ROIs in a 100 m square: no two are 600 m apart, so the protocol has no LN.
+    rng = np.random.default_rng(3)
+    features = [
+        {"type": "Feature", "geometry": {"type": "Point", "coordinates": [float(x), float(y)]},
+         "properties": {"id": i, "class": "rock", "area_m2": 1.0, "major_m": 1.2,
+                        "minor_m": 1.0, "angle_rad": 0.0, "score": 1.0}}
+        for i, (x, y) in enumerate(rng.uniform(0.0, 100.0, (40, 2)))
+    ]
+    small = tmp_path / "small.geojson"
+    small.write_text(json.dumps({"type": "FeatureCollection", "features": features,
+                                 "metadata": {"crs": "EPSG:32719", "map_origin": [0.0, 0.0]}}))
+    out = tmp_path / "o.json"
+    assert main(["--gn", str(small), "--json", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "found no LN" in err and str(small) in err
+    assert not out.exists()
