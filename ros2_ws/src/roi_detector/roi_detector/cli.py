@@ -23,10 +23,10 @@ import numpy as np
 
 from roi_detector.inputs import BadInput, load_rover_params, read_stereo_frames, read_tum
 from roi_detector.rover_pipeline import (
+    METHODS,
     DriveMapper,
     RoverConfig,
     RoverDetector,
-    detections_to_records,
 )
 
 DEFAULT_MODEL = Path(__file__).resolve().parent / "models" / "rover.npz"
@@ -80,20 +80,25 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
     mapper = DriveMapper(cfg)
     n_pairs = n_dets = 0
     t_detect = 0.0
+    last = None
     for frame in read_stereo_frames(bag_dir, bad, every=every):
         n_pairs += 1
         t0 = time.perf_counter()
-        dets = detector.detect(frame)
-        t_detect += time.perf_counter() - t0
-        n_dets += len(dets)
+        obs = detector.observe(frame)
         pose = track.at(frame.stamp_ns * 1e-9)
         if pose is None:
+            t_detect += time.perf_counter() - t0
             bad("odometry gap", f"no odometry pose at {frame.stamp_ns * 1e-9:.3f} s")
             continue
-        mapper.add_detections(detections_to_records(dets), frame.stamp_ns * 1e-9, pose,
-                              detector.camera)
+        mapper.add_pair(obs, frame.stamp_ns * 1e-9, pose, detector.camera)
         mapper.update_ln()
-    stats = {"pairs": n_pairs, "detections": n_dets, "tracks": len(mapper.tracker.tracks),
+        t_detect += time.perf_counter() - t0
+        n_dets += 0 if obs.records is None else len(obs.records)
+        last = (frame.stamp_ns * 1e-9, pose[2])
+    if n_pairs and last is not None:
+        mapper.finish(*last)
+        mapper.update_ln()
+    stats = {"pairs": n_pairs, "detections": n_dets, "tracks": mapper.n_tracks,
              "ln_nodes": len(mapper.ln), "bad_input": dict(bad.counts),
              "detect_s_per_pair": t_detect / max(n_pairs, 1)}
     return mapper.ln, stats
@@ -103,7 +108,7 @@ def _cmd_ln(args) -> int:
     from roi_detector.local_network import LnConfig
     from roi_detector.tracking import TrackerConfig
 
-    cfg = RoverConfig(tracker=TrackerConfig(min_obs=args.min_obs),
+    cfg = RoverConfig(method=args.method, tracker=TrackerConfig(min_obs=args.min_obs),
                       ln=LnConfig(min_obs=args.min_obs))
     ln, stats = build_ln(args.bag, args.odometry, args.model, cfg, args.every, args.drift)
     meta = {"source_bag": str(Path(args.bag).resolve()), "odometry": str(args.odometry),
@@ -162,8 +167,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", required=True)
     p.add_argument("--model", default=None, help="rover model .npz ('none': no classifier)")
     p.add_argument("--every", type=int, default=1, help="use one stereo pair in N")
+    p.add_argument("--method", default="elevation_map", choices=METHODS,
+                   help="elevation_map (default: ROIs found in the drive's fused height "
+                   "map) or per_pair (the paper's: detect per pair, then track)")
     p.add_argument("--min-obs", type=int, default=3,
-                   help="observations that confirm a track (LN node)")
+                   help="observations (per_pair) or detection rounds in a row "
+                   "(elevation_map) that make an LN node")
     p.add_argument("--drift", type=float, default=0.01,
                    help="odometry 1-sigma error per metre travelled (TUM has no covariance)")
     p.set_defaults(func=_cmd_ln)

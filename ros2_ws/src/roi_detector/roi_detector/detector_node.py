@@ -1,12 +1,14 @@
-"""The roi_detector node: per stereo pair, detect and classify ROIs; track them in odom.
+"""The roi_detector node: per stereo pair, find ROIs and follow them in odom.
 
-Thin ROS wrapper around :class:`~roi_detector.rover_pipeline.RoverDetector` (detection,
-classification) and :class:`~roi_detector.rover_pipeline.DriveMapper` (tracking), the
-code ``roi_detector ln`` runs offline.
+Thin ROS wrapper around :class:`~roi_detector.rover_pipeline.RoverDetector` (the pair's
+stereo points, or its classified detections with the paper's per-pair method) and
+:class:`~roi_detector.rover_pipeline.DriveMapper` (the drive's elevation map, or the
+tracker), the code ``roi_detector ln`` runs offline.
 
 Subscribes the stereo pair (CompressedImage + CameraInfo, sensor-data QoS) and
-``/vo/odometry``; publishes ``/rois/detections`` (base_link, every pair) and
-``/rois/tracks`` (odom, every track, after each pair whose odometry pose is known).
+``/vo/odometry``; publishes, after each pair whose odometry pose is known,
+``/rois/detections`` (base_link: the ROIs in the pair's view; per_pair: what the pair
+detected) and ``/rois/tracks`` (odom, every ROI followed).
 Bad input (undecodable image, missing pair half, odometry gap, a detection with no valid
 depth) is counted, logged once per kind and skipped; counts are on ``/rois/status``.
 """
@@ -25,10 +27,11 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, PointCloud2
 
 from roi_detector.inputs import BadInput, OdometryBuffer, StereoFrame, decode_image
 from roi_detector.rover_pipeline import (
+    METHODS,
     DriveMapper,
     RoverConfig,
     RoverDetector,
-    detections_to_records,
+    records_in_view,
 )
 from roi_detector.tracking import TrackerConfig
 from roi_network.pointcloud import to_pointcloud2
@@ -72,19 +75,26 @@ class RoiDetectorNode(Node):
             "min_obs", TrackerConfig().min_obs,
             d(description="observations that confirm a track"),
         ).value
+        method = self.declare_parameter(
+            "method", RoverConfig().method,
+            d(description=f"one of {METHODS}: ROIs found in the drive's elevation map "
+              "(default), or detected per pair and tracked (the paper's)"),
+        ).value
         if len(extrinsic) != 7 or not any(extrinsic):
             raise ValueError("parameter 'base_to_left_camera' is not set (pass the bag's "
                              "rover.yaml as a params file)")
         from roi_detector.cli import load_classifier
 
         classifier = load_classifier(model or None)
-        cfg = RoverConfig(tracker=TrackerConfig(min_obs=int(min_obs)))
+        if method not in METHODS:
+            raise ValueError(f"parameter 'method': unknown '{method}' (one of {METHODS})")
+        cfg = RoverConfig(method=method, tracker=TrackerConfig(min_obs=int(min_obs)))
         self.bad = BadInput(lambda m: self.get_logger().warning(m))
         self.detector = RoverDetector(extrinsic, classifier, cfg, self.bad)
         self.mapper = DriveMapper(cfg)
         self.odometry = OdometryBuffer(self.max_gap_s)
         self.pending_pairs: dict[int, dict[str, CompressedImage]] = {}
-        self.waiting: list[tuple[float, np.ndarray]] = []  # detections waiting for odometry
+        self.waiting: list = []  # (stamp s, header stamp, PairObservation) awaiting odometry
         self.left_k = self.right_p = None
         self.n_pairs = 0
         prov = {} if classifier is None else classifier.meta.get("provenance", {})
@@ -136,14 +146,12 @@ class RoiDetectorNode(Node):
             return
         frame = StereoFrame(stamp, left, right, self.left_k, self.right_p)
         try:
-            dets = self.detector.detect(frame)
+            obs = self.detector.observe(frame)
         except ValueError as exc:  # inconsistent CameraInfo: named field
             self.bad("bad camera_info", str(exc))
             return
         self.n_pairs += 1
-        records = detections_to_records(dets)
-        self.det_pub.publish(to_pointcloud2(records, "base_link", stamp=left_msg.header.stamp))
-        self.waiting.append((_stamp_s(left_msg.header.stamp), records))
+        self.waiting.append((_stamp_s(left_msg.header.stamp), left_msg.header.stamp, obs))
         self._track_waiting()
         self.publish_status(left_msg.header.stamp)
 
@@ -165,17 +173,20 @@ class RoiDetectorNode(Node):
         latest = self.odometry.latest_t
         keep = []
         changed = None
-        for t, records in self.waiting:
+        for t, header_stamp, obs in self.waiting:
             pose = self.odometry.at(t)
             if pose is not None:
-                tracks = self.mapper.add_detections(records, t, pose, self.detector.camera)
+                tracks = self.mapper.add_pair(obs, t, pose, self.detector.camera)
+                seen = obs.records if obs.records is not None else records_in_view(
+                    tracks, pose, self.detector.camera, self.mapper.cfg.elevation_map.max_range_m)
+                self.det_pub.publish(to_pointcloud2(seen, "base_link", stamp=header_stamp))
                 changed = t
             elif latest is not None and latest > t + self.odometry_wait_s:
                 self.bad("odometry gap", f"no odometry pose at {t:.3f} s")
             elif latest is None and self.waiting[-1][0] > t + self.odometry_wait_s:
                 self.bad("odometry gap", f"no odometry at all by {self.waiting[-1][0]:.3f} s")
             else:
-                keep.append((t, records))
+                keep.append((t, header_stamp, obs))
         self.waiting = keep
         if changed is not None:
             stamp = round(changed * 1e9)
@@ -185,9 +196,10 @@ class RoiDetectorNode(Node):
         """Pair, track and bad-input counts on /rois/status."""
         status = DiagnosticStatus(name="roi_detector", hardware_id="rover_stereo")
         status.level = DiagnosticStatus.OK if not self.bad.counts else DiagnosticStatus.WARN
-        status.message = f"{self.n_pairs} pairs, {len(self.mapper.tracker.tracks)} tracks"
-        values = {"pairs": self.n_pairs, "tracks": len(self.mapper.tracker.tracks),
-                  "confirmed": len(self.mapper.tracker.confirmed()),
+        status.message = f"{self.n_pairs} pairs, {self.mapper.n_tracks} tracks"
+        values = {"pairs": self.n_pairs, "tracks": self.mapper.n_tracks,
+                  "confirmed": int((self.mapper.current_tracks()["n_obs"]
+                                    >= self.mapper.cfg.ln.min_obs).sum()),
                   "waiting_for_odometry": len(self.waiting), **{
                       f"skipped: {k}": v for k, v in self.bad.counts.items()}}
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from roi_detector.inputs import load_rover_params
 from roi_detector.truth import Truth, match_to_truth
 from roi_network.geojson import read_geojson
 from roi_network.records import LABEL_NAMES, OUTCROP, ROCK, xy
@@ -22,7 +23,8 @@ def _rate(num: int, den: int) -> float | None:
 
 
 def evaluate_ln(ln_path: str, bag_dir: str, gn: str | None = None,
-                plot: str | None = None, radius_m: float = 15.0) -> dict:
+                plot: str | None = None, radius_m: float = 15.0,
+                view_depth_m: float = 20.0, min_views: int = 3) -> dict:
     """Recall, precision, classification accuracy, node error and the matcher's fix.
 
     Args:
@@ -32,6 +34,10 @@ def evaluate_ln(ln_path: str, bag_dir: str, gn: str | None = None,
         plot: optional PNG path: truth ROIs, route and LN nodes in map.
         radius_m: recall counts truth ROIs above the rover thresholds this close to the
             route, metres.
+        view_depth_m, min_views: the second recall (``recall_in_view``) counts only the
+            truth ROIs whose centre was in the left image, at most ``view_depth_m``
+            deep, in at least ``min_views`` stereo pairs (:meth:`Truth.views`): a fixed
+            45 deg camera never sees many ROIs within 15 m of the route.
     """
     truth = Truth.load(bag_dir)
     ln = read_geojson(ln_path).records
@@ -41,8 +47,12 @@ def evaluate_ln(ln_path: str, bag_dir: str, gn: str | None = None,
     # Matching by position only, then judged by class.
     j_any, _ = match_to_truth(pts[:, :2], t)
     wanted = truth.above_thresholds() & truth.near_route(radius_m)
+    in_view = wanted & (truth.views(load_rover_params(Path(bag_dir) / "rover.yaml"),
+                                    view_depth_m) >= min_views)
     report: dict = {"ln": str(ln_path), "bag": str(bag_dir), "ln_nodes": len(ln),
-                    "truth_wanted": int(wanted.sum()), "per_class": {}}
+                    "truth_wanted": int(wanted.sum()), "truth_in_view": int(in_view.sum()),
+                    "in_view_rule": f">= {min_views} stereo pairs with the centre in the "
+                    f"left image at most {view_depth_m:g} m deep", "per_class": {}}
     for label in (ROCK, OUTCROP):
         name = LABEL_NAMES[label]
         mine = ln["label"] == label
@@ -51,11 +61,15 @@ def evaluate_ln(ln_path: str, bag_dir: str, gn: str | None = None,
         found = set(j_any[tp_nodes].tolist())
         wanted_c = np.flatnonzero(wanted & (t["label"] == label))
         hits = sum(1 for i in wanted_c if i in found)
+        view_c = np.flatnonzero(in_view & (t["label"] == label))
+        hits_view = sum(1 for i in view_c if i in found)
         report["per_class"][name] = {
             "ln_nodes": int(mine.sum()), "true_nodes": int(tp_nodes.sum()),
             "precision": _rate(int(tp_nodes.sum()), int(mine.sum())),
             "truth_wanted": len(wanted_c), "truth_found": int(hits),
             "recall": _rate(hits, len(wanted_c)),
+            "truth_in_view": len(view_c), "truth_in_view_found": int(hits_view),
+            "recall_in_view": _rate(hits_view, len(view_c)),
         }
     matched = j_any >= 0
     correct = matched & (t["label"][np.clip(j_any, 0, None)] == ln["label"])

@@ -1,9 +1,17 @@
 """The rover half of Sec. 4-5, one stereo pair at a time: detect, classify, track, LN.
 
-``RoverDetector.detect`` turns a stereo pair into classified detections in base_link;
-``DriveMapper.add_pair`` places them in odom with the odometry pose of the pair, tracks
-them and keeps the Local Network up to date. The offline CLI and the two nodes call
-exactly these (the nodes split them: roi_detector runs detect + track, ln_builder the LN).
+Two methods (``RoverConfig.method``):
+
+- ``"elevation_map"`` (default): ``RoverDetector.observe`` turns a stereo pair into its
+  3D points and colour; ``DriveMapper.add_pair`` fuses them into the drive's elevation
+  map in odom with the pair's odometry pose, where rocks and outcrops are found and kept
+  (:mod:`roi_detector.elevation_map`).
+- ``"per_pair"`` (the paper's): ``observe`` detects and classifies ROIs in the pair
+  (base_link); ``add_pair`` places them in odom and tracks them across pairs.
+
+Either way ``DriveMapper`` keeps the Local Network up to date. The offline CLI and the two
+nodes call exactly these (the nodes split them: roi_detector runs observe + add_pair,
+ln_builder the LN).
 """
 
 from __future__ import annotations
@@ -14,6 +22,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from roi_detector.elevation_map import ElevationMap, ElevationMapConfig, appearance
 from roi_detector.inputs import StereoFrame
 from roi_detector.local_network import LnConfig, LocalNetwork
 from roi_detector.rover_candidates import (
@@ -36,13 +45,37 @@ from roi_network.records import empty_records
 
 @dataclass(frozen=True)
 class RoverConfig:
-    """Every parameter of the rover pipeline, defaults in one place."""
+    """Every parameter of the rover pipeline, defaults in one place.
 
+    Attributes:
+        method: ``"elevation_map"`` or ``"per_pair"`` (the paper's; see the module).
+    """
+
+    method: str = "elevation_map"
+    elevation_map: ElevationMapConfig = field(default_factory=ElevationMapConfig)
     stereo: StereoConfig = field(default_factory=StereoConfig)
     thresholds: RoverThresholds = field(default_factory=RoverThresholds)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     ln: LnConfig = field(default_factory=LnConfig)
     outcrops: bool = True
+
+
+METHODS = ("elevation_map", "per_pair")
+
+
+@dataclass
+class PairObservation:
+    """What one stereo pair contributes (base_link).
+
+    Attributes:
+        records: per_pair method: the pair's classified detections (ROI records).
+        points: elevation_map method: (H/2, W/2, 3) stereo points, NaN where invalid.
+        appearance: elevation_map method: (H/2, W/2, 2) relative saturation and value.
+    """
+
+    records: np.ndarray | None = None
+    points: np.ndarray | None = None
+    appearance: np.ndarray | None = None
 
 
 class RoverDetector:
@@ -58,6 +91,8 @@ class RoverDetector:
 
     def __init__(self, base_to_left_camera, classifier: RoverClassifier | None,
                  cfg: RoverConfig = RoverConfig(), on_bad=None) -> None:
+        if cfg.method not in METHODS:
+            raise ValueError(f"method: unknown '{cfg.method}' (expected one of {METHODS})")
         self.extrinsic = list(base_to_left_camera)
         self.classifier = classifier
         self.cfg = cfg
@@ -76,6 +111,37 @@ class RoverDetector:
             self._key = key
         return self.camera
 
+    def observe(self, frame: StereoFrame) -> PairObservation:
+        """The pair's contribution under the configured method (see the module)."""
+        if self.cfg.method == "per_pair":
+            return PairObservation(records=detections_to_records(self.detect(frame)))
+        camera = self._camera(frame)
+        left = cv2.cvtColor(frame.left, cv2.COLOR_BGR2GRAY)
+        right = cv2.cvtColor(frame.right, cv2.COLOR_BGR2GRAY)
+        disp = self._disparity(left, right, None)
+        points = points_base(disp, camera, self._rays[::2, ::2], self.cfg.stereo.max_range_m)
+        h, w = points.shape[:2]
+        small = cv2.resize(frame.left, (w, h), interpolation=cv2.INTER_AREA)
+        return PairObservation(points=points,
+                               appearance=appearance(small, np.isfinite(points[..., 2])))
+
+    def _disparity(self, left: np.ndarray, right: np.ndarray,
+                   left_half: np.ndarray | None) -> np.ndarray:
+        """Disparity on the half-resolution grid, in full-resolution pixels.
+
+        From the full-resolution pair (downscale 1) or, 8x cheaper, from the
+        half-resolution pair (downscale 2; disparities doubled back).
+        """
+        st = self.cfg.stereo
+        if st.downscale == 2:
+            h, w = left.shape[0] // 2, left.shape[1] // 2
+            if left_half is None:
+                left_half = cv2.resize(left, (w, h), interpolation=cv2.INTER_AREA)
+            right_s = cv2.resize(right, (w, h), interpolation=cv2.INTER_AREA)
+            half = dataclasses.replace(st, num_disparities=max(16, st.num_disparities // 32 * 16))
+            return 2.0 * disparity(left_half, right_s, half)
+        return disparity(left, right, st)[::2, ::2]
+
     def candidates(self, frame: StereoFrame) -> tuple[list[Candidate], dict | None]:
         """Candidates above the rover thresholds (unclassified) and the metric images."""
         camera = self._camera(frame)
@@ -84,17 +150,9 @@ class RoverDetector:
         metrics = metric_images(left, 0.5)
         # Candidates are found and measured on a half-resolution grid of the stereo
         # points, the grid of the metric images: 4x fewer pixels, and a rover ROI still
-        # covers tens to thousands. The disparities come from the full-resolution pair
-        # (downscale 1) or, 8x cheaper, from the half-resolution pair (downscale 2;
-        # disparities doubled back to full-resolution pixels).
+        # covers tens to thousands.
         st = self.cfg.stereo
-        if st.downscale == 2:
-            right_s = cv2.resize(right, (metrics["_gray"].shape[1], metrics["_gray"].shape[0]),
-                                 interpolation=cv2.INTER_AREA)
-            half = dataclasses.replace(st, num_disparities=max(16, st.num_disparities // 32 * 16))
-            disp = 2.0 * disparity(metrics["_gray"], right_s, half)
-        else:
-            disp = disparity(left, right, st)[::2, ::2]
+        disp = self._disparity(left, right, metrics["_gray"])
         points = points_base(disp, camera, self._rays[::2, ::2], st.max_range_m)
         cands = rover_candidates(
             metrics["_gray"], points, camera, self.cfg.thresholds,
@@ -132,6 +190,31 @@ def detections_to_records(dets: list[Candidate]) -> np.ndarray:
     return rec
 
 
+def records_in_view(records_odom: np.ndarray, pose, camera: StereoCamera,
+                    max_depth_m: float) -> np.ndarray:
+    """The records (odom) whose centre is in the pair's left image within
+    ``max_depth_m``, re-expressed in base_link at the pair's odometry ``pose``."""
+    if len(records_odom) == 0:
+        return records_odom
+    r_ob, t_ob = pose[0], np.asarray(pose[1], float)
+    p = np.column_stack([records_odom["x"], records_odom["y"], records_odom["z"]])
+    pb = (p - t_ob) @ r_ob
+    uv, z = camera.project_base(pb)
+    ok = (z > 0) & (z <= max_depth_m) & (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & \
+        (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
+    out = records_odom[ok].copy()
+    out["x"], out["y"], out["z"] = pb[ok, 0], pb[ok, 1], pb[ok, 2]
+    yaw = float(np.arctan2(r_ob[1, 0], r_ob[0, 0]))
+    c, s = np.cos(yaw), np.sin(yaw)
+    for r in out:  # covariance and ellipse rotated from odom into base_link
+        cov = np.array([[r["cov_xx"], r["cov_xy"]], [r["cov_xy"], r["cov_yy"]]])
+        rot = np.array([[c, s], [-s, c]])
+        cb = rot @ cov @ rot.T
+        r["cov_xx"], r["cov_xy"], r["cov_yy"] = cb[0, 0], cb[0, 1], cb[1, 1]
+        r["angle_rad"] = r["angle_rad"] - yaw
+    return out
+
+
 def observations_in_odom(records_base: np.ndarray, t: float, r_odom_base: np.ndarray,
                          t_odom_base: np.ndarray, odom_cov_xy: np.ndarray | None,
                          camera_xy_base: np.ndarray) -> list[Observation]:
@@ -165,7 +248,46 @@ class DriveMapper:
     def __init__(self, cfg: RoverConfig = RoverConfig(), ln: LocalNetwork | None = None) -> None:
         self.cfg = cfg
         self.tracker = Tracker(cfg.tracker)
+        self.map = ElevationMap(cfg.elevation_map)
         self.ln = ln if ln is not None else LocalNetwork(cfg.ln)
+        self._tracks = empty_records(0)
+
+    @property
+    def n_tracks(self) -> int:
+        """ROIs followed so far (tracks, or elevation-map ROIs)."""
+        return len(self.map.rois) if self.cfg.method == "elevation_map" else \
+            len(self.tracker.tracks)
+
+    def add_pair(self, obs: PairObservation, t: float, pose,
+                 camera: StereoCamera) -> np.ndarray:
+        """Add one pair's observation with its odometry pose ``(R_odom_base, t_odom_base,
+        xy cov or None)``; returns the track records (odom) the detector stands behind.
+
+        elevation_map: the ROIs of the map (``n_obs`` = detection rounds that found
+        them), after a detection round when one is due.
+        """
+        if obs.records is not None:
+            return self.add_detections(obs.records, t, pose, camera)
+        r_ob, t_ob, cov = pose
+        self.map.integrate(obs.points, obs.appearance, r_ob, np.asarray(t_ob, float),
+                           camera.t_base_cam, camera.fxb)
+        if self.map.due():
+            self.map.detect(t, cov)
+            self._tracks = self.map.to_records()
+        return self._tracks
+
+    def finish(self, t: float, cov=None) -> np.ndarray:
+        """A last detection round over what was integrated since the last one."""
+        if self.cfg.method == "elevation_map":
+            self.map.detect(t, cov)
+            self._tracks = self.map.to_records()
+        return self.current_tracks()
+
+    def current_tracks(self) -> np.ndarray:
+        """The track records (odom) the detector stands behind now."""
+        if self.cfg.method == "elevation_map":
+            return self._tracks
+        return tracks_to_records(self.tracker.consistent())
 
     def add_detections(self, records_base: np.ndarray, t: float, pose,
                        camera: StereoCamera | None = None) -> np.ndarray:
@@ -192,5 +314,5 @@ class DriveMapper:
         return tracks_to_records(self.tracker.consistent())
 
     def update_ln(self) -> bool:
-        """Feed the consistent tracks to the LN; True if the LN changed."""
-        return self.ln.update(tracks_to_records(self.tracker.consistent()))
+        """Feed the current tracks to the LN; True if the LN changed."""
+        return self.ln.update(self.current_tracks())

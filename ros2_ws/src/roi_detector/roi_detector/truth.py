@@ -64,6 +64,34 @@ class Truth:
         d, _ = cKDTree(route).query(xy(self.rois))
         return d <= radius_m
 
+    def views(self, rover_params: dict, max_depth_m: float, step_m: float = 0.45
+              ) -> np.ndarray:
+        """Per truth ROI, the number of stereo pairs (one every ``step_m`` of the route)
+        whose left image holds its centre (0.2 m above the ground) at most
+        ``max_depth_m`` deep: what a fixed forward camera can see of it.
+
+        Args:
+            rover_params: the bag's rover.yaml parameters (``base_to_left_camera``,
+                ``fx fy cx cy``, ``image_width``, ``image_height``).
+        """
+        tr, r, p = self.trajectory, self.rois, rover_params
+        e = np.asarray(p["base_to_left_camera"], float)
+        r_bc, t_bc = Rotation.from_quat(e[3:]).as_matrix(), e[:3]
+        travelled = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(tr.p[:, :2], axis=0), axis=1))]
+        idx = np.searchsorted(travelled, np.arange(0.0, travelled[-1], step_m))
+        centres = np.column_stack([r["x"], r["y"], r["z"] + 0.2])
+        count = np.zeros(len(r), int)
+        for k in np.unique(np.clip(idx, 0, len(tr.p) - 1)):
+            r_mb = Rotation.from_quat(tr.q[k]).as_matrix()
+            pc = ((centres - tr.p[k]) @ r_mb - t_bc) @ r_bc
+            z = pc[:, 2]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                u = p["fx"] * pc[:, 0] / z + p["cx"]
+                v = p["fy"] * pc[:, 1] / z + p["cy"]
+            count += (z > 0) & (z <= max_depth_m) & (u >= 0) & (u < p["image_width"]) & \
+                (v >= 0) & (v < p["image_height"])
+        return count
+
     def _odom_in_map(self) -> Rotation:
         """Rotation of odom in map: the first pose's heading only (odom is gravity-aligned,
         as rover_vo's is: z up, x along the first heading)."""

@@ -251,3 +251,23 @@ def test_rover_classifier_round_trip(tmp_path):
     (tmp_path / "bad.npz").write_bytes(b"junk")
     with pytest.raises(ModelFileError, match=r"bad\.npz"):
         RoverClassifier.load(tmp_path / "bad.npz")
+
+
+def test_records_in_view_rotates_into_base_link():
+    from roi_detector.rover_pipeline import records_in_view
+    from roi_network.records import empty_records
+
+    cam = _camera()
+    rec = empty_records(3)
+    # odom: rover at (10, 5) facing +y (yaw 90 deg); ROIs 8 m ahead, 8 m behind, 30 m ahead.
+    for r, (x, y) in zip(rec, [(10.0, 13.0), (10.0, -3.0), (10.0, 35.0)], strict=True):
+        r["x"], r["y"], r["z"] = x, y, 0.0
+        r["cov_xx"], r["cov_yy"], r["angle_rad"] = 0.04, 0.01, 0.0
+    yaw = np.pi / 2
+    r_ob = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]])
+    out = records_in_view(rec, (r_ob, np.array([10.0, 5.0, 0.0]), None), cam, 20.0)
+    assert len(out) == 1
+    assert abs(out["x"][0] - 8.0) < 1e-9 and abs(out["y"][0]) < 1e-9
+    # Covariance long along odom x = across the rover's view (base_link y).
+    assert abs(out["cov_yy"][0] - 0.04) < 1e-9 and abs(out["cov_xx"][0] - 0.01) < 1e-9
+    assert abs(out["angle_rad"][0] + yaw) < 1e-9

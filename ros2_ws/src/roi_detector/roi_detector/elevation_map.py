@@ -1,0 +1,513 @@
+"""A local elevation map of the drive (odom), built from every stereo pair, and the rocks
+and outcrops found in it.
+
+The paper detects ROIs in each rover image and tracks them. One view of a rock 6-15 m
+ahead, seen by a 45 deg camera, shows its front flank only, and its area and height from
+that view swing by a factor of 3 from pair to pair. Rovers have long fused their stereo
+into a height map of the terrain around them (MER's GESTALT, Maimone et al. 2007); this
+module does that, then measures ROIs the way the orbital catalogue defines them: top-down
+footprint area, and height above the ground around them.
+
+- **Integration**: every stereo point is placed in odom with the pair's odometry pose and
+  accumulated per cell (``cell_m``) as an inverse-variance weighted mean height, the
+  variance being the vertical part of the stereo range error (``Z^2 / (fx B) * sigma_d``
+  along the ray). A rolling window centred near the rover holds the map: cells that fall
+  out of it are forgotten (what was found there stays in the ROI list).
+- **Ground**: a grey-scale opening of the height map (a square ``ground_window_m`` wide,
+  wider than the largest rock), smoothed: the low envelope that follows terrain swells
+  but not rocks.
+- **Rocks**: connected cells standing > ``rock_seed_height_m`` above the ground, grown
+  down to ``rock_grow_height_m`` (hysteresis); kept when the region's height above the
+  ring of ground around it exceeds the paper's 0.25 m and the convex hull of its cells
+  (a rock's far side is seen late or never) exceeds the paper's 0.6 m^2.
+- **Outcrops**: pale tabular slabs. Each pair's image brightness is normalised by the
+  median of its ground pixels (auto-exposure and sun cancel) and mapped like the height;
+  connected cells brighter than the local ground by ``outcrop_brightness_ratio`` that
+  stand less than ``max_outcrop_height_m`` above it, over > 5.5 m^2 (the paper's
+  threshold).
+- **Persistence** (the tracking of the paper's Sec. 4.2, done on the map): each detection
+  round's regions are associated with the ROIs found so far by centre distance
+  (``max(1 m, half the major axis)``); an ROI counts the rounds that found it and the
+  rounds that re-examined its cells, and is reported while found in at least
+  ``min_hit_ratio`` of them and in ``min_rounds`` (a stereo artefact flickers, a rock
+  stays); its measurement is the latest (the map has integrated every view so far), its
+  observation count the number of stereo pairs that saw its cells, which the Local
+  Network's ``min_obs`` applies to.
+
+Pure numpy/scipy/OpenCV: no ROS, no truth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from roi_network.records import OUTCROP, ROCK, empty_records
+
+
+@dataclass(frozen=True)
+class ElevationMapConfig:
+    """Map, ground and ROI parameters (odom metres unless stated).
+
+    Attributes:
+        cell_m: map cell side.
+        window_m: side of the rolling map window around the rover.
+        max_range_m: stereo points farther from the camera (depth) are not mapped: the
+            range error grows as Z^2 (0.3 m at 14 m for the MER-like bench).
+        disparity_sigma_px: 1-sigma disparity error that weights each point.
+        height_floor_m: smallest vertical sigma of a point (texture, rendering, JPEG).
+        ground_window_m: side of the opening that finds the ground (wider than the
+            largest rock footprint, ~2.8 m across).
+        rock_seed_height_m: cells this high above the ground seed a rock (paper: 0.25).
+        rock_grow_height_m: a rock region grows over cells this high.
+        rock_min_height_m, rock_min_area_m2: the paper's rover rock thresholds.
+        rock_max_area_m2: larger regions are terrain, not one rock.
+        rock_min_ring_seen: the observed fraction of the ring of ground around a rock
+            region below which its height cannot be measured (the far side of a rock
+            is hidden: a quarter is enough).
+        rock_min_relief_ratio: a rock's height over its equivalent diameter is at
+            least this (flatter regions are terrain swells).
+        min_cell_weight: cells with less accumulated weight (1/m^2) are unobserved.
+        min_pairs: cells seen by fewer stereo pairs are unobserved.
+        max_cell_sd_m: cells whose height spreads more than this across the pairs that
+            saw them (a stereo mismatch of one view) are unobserved.
+        max_pair_weight: cap of one pair's weight in a cell (1/m^2).
+        ground_cell_m: the ground is found on cells this large, each at the
+            ``ground_percentile`` of its fine cells (robust to single bad cells).
+        outcrop_max_saturation: outcrop cells' colour saturation, relative to the
+            median of the pairs that saw them, is below this.
+        outcrop_min_value: and their value (brightness) above this.
+        outcrop_min_area_m2: the paper's rover outcrop threshold.
+        max_outcrop_height_m: outcrops are slabs; regions standing higher are not.
+        detect_every: a detection round every this many integrated pairs.
+        centre_sigma_m: 1-sigma error of a map ROI's centre (cell size, partial views).
+        min_hit_ratio: an ROI is reported while found in at least this fraction of the
+            detection rounds that re-examined its cells.
+        min_rounds: and in at least this many rounds.
+    """
+
+    cell_m: float = 0.1
+    window_m: float = 64.0
+    max_range_m: float = 14.0
+    disparity_sigma_px: float = 0.5
+    height_floor_m: float = 0.02
+    ground_window_m: float = 3.2
+    rock_seed_height_m: float = 0.25
+    rock_grow_height_m: float = 0.1
+    rock_min_height_m: float = 0.25
+    rock_min_area_m2: float = 0.6
+    rock_max_area_m2: float = 9.0
+    rock_min_ring_seen: float = 0.25
+    rock_min_relief_ratio: float = 0.2
+    min_cell_weight: float = 100.0
+    min_pairs: int = 3
+    max_cell_sd_m: float = 0.4
+    max_pair_weight: float = 2500.0
+    ground_cell_m: float = 0.4
+    ground_percentile: float = 25.0
+    outcrop_max_saturation: float = 0.6
+    outcrop_min_value: float = 0.8
+    outcrop_min_area_m2: float = 5.5
+    max_outcrop_height_m: float = 0.45
+    detect_every: int = 3
+    centre_sigma_m: float = 0.15
+    min_hit_ratio: float = 0.5
+    min_rounds: int = 2
+
+
+@dataclass
+class MapRoi:
+    """An ROI of the elevation map (odom)."""
+
+    id: int
+    label: int
+    xy: np.ndarray
+    z: float
+    area_m2: float
+    height_m: float
+    major_m: float
+    minor_m: float
+    angle_rad: float
+    rounds: int = 1
+    examined: int = 1
+    n_pairs: int = 0
+    odom_cov: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
+    last_t: float = 0.0
+
+
+class ElevationMap:
+    """Rolling elevation and brightness map in odom, with its ROIs.
+
+    Args:
+        cfg: parameters.
+    """
+
+    def __init__(self, cfg: ElevationMapConfig = ElevationMapConfig()) -> None:
+        self.cfg = cfg
+        self.n = round(cfg.window_m / cfg.cell_m)
+        self.origin = None  # odom x, y of cell (0, 0)'s corner
+        # Per cell, over the pairs that saw it: the sum of the pairs' weights, of weight *
+        # mean height and of weight * mean height^2 (mean and spread across views), and
+        # the number of pairs.
+        self.w = np.zeros((self.n, self.n), np.float32)
+        self.wz = np.zeros((self.n, self.n), np.float32)
+        self.wzz = np.zeros((self.n, self.n), np.float32)
+        self.npairs = np.zeros((self.n, self.n), np.float32)
+        # Appearance samples per cell and the sums of their relative saturation and value.
+        self.nb = np.zeros((self.n, self.n), np.float32)
+        self.bs = np.zeros((self.n, self.n), np.float32)
+        self.bv = np.zeros((self.n, self.n), np.float32)
+        self.rois: list[MapRoi] = []
+        self._next_id = 1
+        self._pairs = 0
+        self._touched: list[np.ndarray] = []  # cell index boxes touched since last round
+
+    # -- integration -----------------------------------------------------------------
+
+    def _recentre(self, xy: np.ndarray) -> None:
+        """Keep the rover in the central half of the window; shift the grids if not."""
+        half = 0.5 * self.cfg.window_m
+        if self.origin is None:
+            self.origin = np.floor((xy - half) / self.cfg.cell_m) * self.cfg.cell_m
+            return
+        centre = self.origin + half
+        if np.all(np.abs(xy - centre) < 0.25 * self.cfg.window_m):
+            return
+        new_origin = np.floor((xy - half) / self.cfg.cell_m) * self.cfg.cell_m
+        shift = np.round((new_origin - self.origin) / self.cfg.cell_m).astype(int)
+        for name in ("w", "wz", "wzz", "npairs", "nb", "bs", "bv"):
+            setattr(self, name, _shifted(getattr(self, name), shift))
+        self.origin = new_origin
+
+    def integrate(self, points_base: np.ndarray, appearance: np.ndarray | None,
+                  r_odom_base: np.ndarray, t_odom_base: np.ndarray,
+                  camera_base: np.ndarray, fxb: float) -> None:
+        """Add one stereo pair's points.
+
+        Args:
+            points_base: (H, W, 3) base_link points, NaN where invalid.
+            appearance: (H, W, 2) colour saturation and value of the image at those
+                points, each relative to the pair's median (see :func:`appearance`),
+                or None.
+            r_odom_base, t_odom_base: the pair's odometry pose (base_link in odom).
+            camera_base: (3,) left camera centre in base_link, m.
+            fxb: fx * baseline of the rig (pixels * m).
+        """
+        c = self.cfg
+        p = points_base.reshape(-1, 3)
+        ok = np.isfinite(p[:, 2])
+        rel = p[ok] - camera_base
+        dist = np.linalg.norm(rel, axis=1)
+        keep = dist < c.max_range_m
+        rel, dist = rel[keep], dist[keep]
+        pts = p[ok][keep] @ r_odom_base.T + t_odom_base
+        self._recentre(np.asarray(t_odom_base[:2], float))
+        # Vertical sigma: the range error along the ray times the ray's vertical part.
+        sig_r = dist**2 / fxb * c.disparity_sigma_px
+        sig_z = np.hypot(sig_r * np.abs(rel[:, 2]) / np.maximum(dist, 1e-6), c.height_floor_m)
+        wt = 1.0 / sig_z**2
+        ij = np.floor((pts[:, :2] - self.origin) / c.cell_m).astype(np.int64)
+        inside = (ij >= 0).all(axis=1) & (ij < self.n).all(axis=1)
+        ij, wt, z = ij[inside], wt[inside], pts[inside, 2]
+        flat = ij[:, 0] * self.n + ij[:, 1]
+        size = self.n * self.n
+        # This pair's mean height per cell (inverse-variance weighted over its points),
+        # then accumulated across pairs with the pair's weight, capped so that the many
+        # near points of one view do not outvote the other views: a mismatch of one view
+        # (a phantom height) shows as a spread across views.
+        pw = np.bincount(flat, wt, size)
+        hit = pw > 0
+        pz = np.bincount(flat, wt * z, size)[hit] / pw[hit]
+        pw = np.minimum(pw[hit], c.max_pair_weight)
+        for acc, v in ((self.w, pw), (self.wz, pw * pz), (self.wzz, pw * pz * pz),
+                       (self.npairs, 1.0)):
+            acc.ravel()[hit] += v
+        if appearance is not None:
+            a = appearance.reshape(-1, 2)[ok][keep][inside]
+            self.nb += np.bincount(flat, None, size).reshape(self.n, self.n)
+            self.bs += np.bincount(flat, a[:, 0], size).reshape(self.n, self.n)
+            self.bv += np.bincount(flat, a[:, 1], size).reshape(self.n, self.n)
+        if len(ij):
+            self._touched.append(np.r_[ij.min(axis=0), ij.max(axis=0)])
+        self._pairs += 1
+
+    # -- detection -------------------------------------------------------------------
+
+    def due(self) -> bool:
+        """True when a detection round is due (every ``detect_every`` pairs)."""
+        return self._pairs > 0 and self._pairs % self.cfg.detect_every == 0 and \
+            bool(self._touched)
+
+    def detect(self, t: float, odom_cov: np.ndarray | None = None) -> list[MapRoi]:
+        """One detection round over the cells touched since the last one (plus a margin):
+        update the ROI list and return the regions found this round (odom)."""
+        c = self.cfg
+        if not self._touched or self.origin is None:
+            return []
+        box = np.array(self._touched)
+        self._touched = []
+        margin = int(np.ceil(2 * c.ground_window_m / c.cell_m))
+        i0, j0 = np.maximum(box[:, :2].min(axis=0) - margin, 0)
+        i1, j1 = np.minimum(box[:, 2:].max(axis=0) + margin + 1, self.n)
+        found = self._regions(slice(i0, i1), slice(j0, j1))
+        cov = np.zeros((2, 2)) if odom_cov is None else np.asarray(odom_cov, float)
+        matched = set()
+        for r in found:
+            r.odom_cov, r.last_t = cov, t
+            matched.add(self._associate(r))
+        # ROIs whose cells were re-examined (inside the touched box) and not found again.
+        lo = box[:, :2].min(axis=0) * c.cell_m + self.origin
+        hi = (box[:, 2:].max(axis=0) + 1) * c.cell_m + self.origin
+        for r in self.rois:
+            if r.id not in matched and np.all(r.xy >= lo) and np.all(r.xy <= hi):
+                r.examined += 1
+        return found
+
+    def _regions(self, si: slice, sj: slice) -> list[MapRoi]:
+        c = self.cfg
+        z, seen, sd = self.heights(si, sj, with_sd=True)
+        if seen.sum() < 50:
+            return []
+        ground = ground_surface(z, seen, c.ground_window_m / c.cell_m,
+                                max(1, round(c.ground_cell_m / c.cell_m)),
+                                c.ground_percentile)
+        rel = np.where(seen, z - ground, 0.0)
+        out: list[MapRoi] = []
+        off = np.array([si.start, sj.start])
+        # Rock seeds stand high in every view: the mean less one spread across views (a
+        # stereo mismatch of one view is a high spread, not a rock).
+        out += self._rocks(rel, np.where(seen, rel - sd, 0.0), z, seen, off)
+        if self.nb.any():
+            out += self._outcrops(rel, ground, seen, si, sj, off)
+        return out
+
+    def heights(self, si: slice = slice(None), sj: slice = slice(None), with_sd: bool = False):
+        """Mean height (odom z, NaN where unobserved) and the observed mask of a window;
+        with ``with_sd`` also the spread of the height across the pairs (m)."""
+        c = self.cfg
+        w = self.w[si, sj]
+        mean = self.wz[si, sj] / np.maximum(w, 1e-9)
+        var = self.wzz[si, sj] / np.maximum(w, 1e-9) - mean**2
+        seen = (w >= c.min_cell_weight) & (self.npairs[si, sj] >= c.min_pairs) & \
+            (var <= c.max_cell_sd_m**2)
+        z = np.where(seen, mean, np.nan)
+        if with_sd:
+            return z, seen, np.sqrt(np.clip(var, 0.0, None))
+        return z, seen
+
+    def _measure(self, label: int, cells: np.ndarray, off: np.ndarray, z_ground: float,
+                 height: float) -> MapRoi | None:
+        c = self.cfg
+        xy = (cells + off + 0.5) * c.cell_m + self.origin
+        if len(xy) < 3:
+            return None
+        hull = cv2.convexHull(xy.astype(np.float32))
+        # The centre of the footprint's convex hull: a rock seen from one side maps as a
+        # crescent (its top and far side hidden), whose hull still spans the rock.
+        mo = cv2.moments(hull)
+        centre = np.array([mo["m10"], mo["m01"]]) / mo["m00"] if mo["m00"] > 0 else \
+            xy.mean(axis=0)
+        area = float(cv2.contourArea(hull)) + c.cell_m * np.sqrt(len(xy)) * c.cell_m
+        area = max(area, len(xy) * c.cell_m**2)
+        w, v = np.linalg.eigh(np.cov(xy.T) + np.eye(2) * c.cell_m**2 / 12)
+        w = np.clip(w, 0.0, None)
+        ci, cj = (cells + off).T
+        n_pairs = int(np.median(self.npairs[ci, cj]))
+        return MapRoi(0, label, centre, z_ground, area, height,
+                      4 * float(np.sqrt(w[1])), 4 * float(np.sqrt(w[0])),
+                      float(np.arctan2(v[1, 1], v[0, 1])), n_pairs=n_pairs)
+
+    def _rocks(self, rel, rel_low, z, seen, off) -> list[MapRoi]:
+        c = self.cfg
+        seeds = rel_low > c.rock_seed_height_m
+        grow = rel > c.rock_grow_height_m
+        lab, n = ndimage.label(grow)
+        keep = np.zeros(n + 1, bool)
+        keep[np.unique(lab[seeds & grow])] = True
+        keep[0] = False
+        mask = keep[lab]
+        lab, n = ndimage.label(mask)
+        out = []
+        if n == 0:
+            return out
+        ring_all = ndimage.binary_dilation(mask, iterations=5) & ~mask
+        for k, sl in enumerate(ndimage.find_objects(lab), start=1):
+            if sl is None:
+                continue
+            pad = tuple(slice(max(s.start - 6, 0), s.stop + 6) for s in sl)
+            reg = lab[pad] == k
+            cells = np.argwhere(reg)
+            if len(cells) * c.cell_m**2 < 0.25 * c.rock_min_area_m2:
+                continue
+            # The ground around the rock: a plane through the ring of cells 0.1-0.5 m
+            # outside it (a slope is no rock), which must be mostly observed (at the
+            # edge of the seen terrain the ground is a guess).
+            ring = ndimage.binary_dilation(reg, iterations=5) & ring_all[pad]
+            ring_seen = ring & seen[pad]
+            if ring_seen.sum() < max(8, c.rock_min_ring_seen * ring.sum()):
+                continue
+            rc = np.argwhere(ring_seen)
+            plane = _plane(rc, z[pad][ring_seen])
+            if plane is None:
+                continue
+            above = z[pad][reg] - (plane[0] * cells[:, 0] + plane[1] * cells[:, 1] + plane[2])
+            height = float(np.percentile(above, 95))
+            if height <= c.rock_min_height_m:
+                continue
+            corner = np.array([pad[0].start, pad[1].start])
+            r = self._measure(ROCK, cells + corner, off, float(np.median(z[pad][ring_seen])),
+                              height)
+            if r is None or not c.rock_min_area_m2 < r.area_m2 < c.rock_max_area_m2:
+                continue
+            # Rocks are not flat: height over equivalent diameter is 0.3-0.8 for boulders
+            # (Golombek et al. 2008 on Mars); a broad low bump is terrain.
+            if height / np.sqrt(4 * r.area_m2 / np.pi) >= c.rock_min_relief_ratio:
+                out.append(r)
+        return out
+
+    def _outcrops(self, rel, ground, seen, si, sj, off) -> list[MapRoi]:
+        c = self.cfg
+        nb = self.nb[si, sj]
+        have = seen & (nb > 0)
+        if have.sum() < 100:
+            return []
+        sat = self.bs[si, sj] / np.maximum(nb, 1)
+        val = self.bv[si, sj] / np.maximum(nb, 1)
+        # Outcrops are pale slabs: far less saturated than the reddish soil around them
+        # and not dark (desert pavement and rock shadows are dark), and flat.
+        pale = have & (sat < c.outcrop_max_saturation) & (val > c.outcrop_min_value) & \
+            (rel < c.max_outcrop_height_m)
+        pale = ndimage.binary_opening(pale, iterations=2)
+        pale = ndimage.binary_closing(pale, iterations=3) & have
+        lab, _ = ndimage.label(pale)
+        out = []
+        for k, sl in enumerate(ndimage.find_objects(lab), start=1):
+            if sl is None:
+                continue
+            reg = lab[sl] == k
+            if reg.sum() * c.cell_m**2 < c.outcrop_min_area_m2:
+                continue
+            cells = np.argwhere(reg) + np.array([sl[0].start, sl[1].start])
+            height = float(np.percentile(rel[sl][reg], 95))
+            if height > c.max_outcrop_height_m:
+                continue
+            r = self._measure(OUTCROP, cells, off, float(np.nanmedian(ground[sl][reg])), height)
+            if r is not None:
+                out.append(r)
+        return out
+
+    def _associate(self, r: MapRoi) -> int:
+        """Merge ``r`` into the ROI it coincides with, or add it; returns its id."""
+        best, best_d = None, np.inf
+        for old in self.rois:
+            if old.label != r.label:
+                continue
+            d = float(np.hypot(*(old.xy - r.xy)))
+            gate = max(1.0, 0.5 * max(old.major_m, r.major_m))
+            if d < gate and d < best_d:
+                best, best_d = old, d
+        if best is None:
+            r.id = self._next_id
+            self._next_id += 1
+            self.rois.append(r)
+            return r.id
+        r.id, r.rounds, r.examined = best.id, best.rounds + 1, best.examined + 1
+        for name in ("xy", "z", "area_m2", "height_m", "major_m", "minor_m", "angle_rad",
+                     "odom_cov", "last_t", "n_pairs"):
+            setattr(best, name, getattr(r, name))
+        best.rounds, best.examined = r.rounds, r.examined
+        return best.id
+
+    def to_records(self, rois: list[MapRoi] | None = None) -> np.ndarray:
+        """ROI records (odom) of ``rois`` (default: the consistent ones, found in at
+        least ``min_rounds`` rounds and ``min_hit_ratio`` of the rounds that examined
+        their cells) with covariance: centre error plus odometry at the latest round that
+        measured each ROI; ``n_obs`` is the number of stereo pairs that saw its cells
+        (median over them)."""
+        if rois is None:
+            rois = [r for r in self.rois if r.rounds >= self.cfg.min_rounds
+                    and r.rounds >= self.cfg.min_hit_ratio * r.examined]
+        rec = empty_records(len(rois))
+        for i, r in enumerate(rois):
+            s2 = self.cfg.centre_sigma_m**2 + (0.1 * r.major_m) ** 2
+            rec[i]["id"], rec[i]["label"] = r.id, r.label
+            rec[i]["x"], rec[i]["y"], rec[i]["z"] = r.xy[0], r.xy[1], r.z
+            rec[i]["area_m2"], rec[i]["height_m"] = r.area_m2, r.height_m
+            rec[i]["major_m"], rec[i]["minor_m"] = r.major_m, r.minor_m
+            rec[i]["angle_rad"], rec[i]["score"] = r.angle_rad, 1.0
+            rec[i]["cov_xx"] = s2 + r.odom_cov[0, 0]
+            rec[i]["cov_xy"] = r.odom_cov[0, 1]
+            rec[i]["cov_yy"] = s2 + r.odom_cov[1, 1]
+            rec[i]["n_obs"] = r.n_pairs
+        return rec
+
+
+def ground_surface(z: np.ndarray, seen: np.ndarray, window_cells: float, block: int = 4,
+                   percentile: float = 25.0) -> np.ndarray:
+    """Low envelope of a height map (same shape as ``z``).
+
+    On blocks of ``block`` x ``block`` cells, each at the ``percentile`` of its observed
+    cells (a single bad cell does not pull the ground down), unobserved blocks filled
+    from the nearest observed one: a grey opening over a square ``window_cells`` wide,
+    then a mean filter of half that width (the opening's tops are flat), interpolated
+    back to the cells.
+    """
+    n0, n1 = z.shape
+    p0, p1 = -n0 % block, -n1 % block
+    zp = np.pad(np.where(seen, z, np.nan), ((0, p0), (0, p1)), constant_values=np.nan)
+    blocks = zp.reshape(zp.shape[0] // block, block, zp.shape[1] // block, block)
+    blocks = blocks.transpose(0, 2, 1, 3).reshape(blocks.shape[0], blocks.shape[2], -1)
+    have = np.isfinite(blocks).any(axis=-1)
+    if not have.any():
+        return np.full(z.shape, np.nan)
+    coarse = np.full(have.shape, np.nan)
+    coarse[have] = np.nanpercentile(blocks[have], percentile, axis=-1)
+    idx = ndimage.distance_transform_edt(~have, return_distances=False, return_indices=True)
+    filled = coarse[tuple(idx)]
+    k = max(3, round(window_cells / block) | 1)
+    opened = ndimage.grey_opening(filled, size=(k, k), mode="nearest")
+    smooth = ndimage.uniform_filter(opened, size=max(3, k // 2 | 1), mode="nearest")
+    up = cv2.resize(smooth.astype(np.float32), (smooth.shape[1] * block, smooth.shape[0] * block),
+                    interpolation=cv2.INTER_LINEAR)
+    return up[:n0, :n1]
+
+
+def appearance(bgr: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(H, W, 2) colour saturation and value (HSV) of an image, each divided by its median
+    over the ``valid`` pixels (the ground the pair sees): exposure and sun cancel."""
+    hsv = cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV)
+    sv = hsv[..., 1:].astype(np.float32)
+    if valid.any():
+        med = np.median(sv[valid], axis=0)
+        sv /= np.maximum(med, 1.0)
+    return sv
+
+
+def _plane(ij: np.ndarray, z: np.ndarray) -> np.ndarray | None:
+    """Least-squares plane z = a i + b j + c through cells (trimmed once); None if < 8."""
+    if len(z) < 8:
+        return None
+    a = np.column_stack([ij[:, 0], ij[:, 1], np.ones(len(z))])
+    coef, *_ = np.linalg.lstsq(a, z, rcond=None)
+    r = z - a @ coef
+    keep = np.abs(r) <= max(2.5 * np.median(np.abs(r)), 0.02)
+    if keep.sum() >= 8:
+        coef, *_ = np.linalg.lstsq(a[keep], z[keep], rcond=None)
+    return coef
+
+
+def _shifted(a: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """``a`` moved by ``-shift`` cells (the grid origin moved by ``+shift``), zero-filled."""
+    out = np.zeros_like(a)
+    n0, n1 = a.shape
+    di, dj = int(shift[0]), int(shift[1])
+    src_i = slice(max(di, 0), min(n0 + di, n0))
+    dst_i = slice(max(-di, 0), min(n0 - di, n0))
+    src_j = slice(max(dj, 0), min(n1 + dj, n1))
+    dst_j = slice(max(-dj, 0), min(n1 - dj, n1))
+    if src_i.start < src_i.stop and src_j.start < src_j.stop:
+        out[dst_i, dst_j] = a[src_i, src_j]
+    return out
