@@ -19,7 +19,15 @@ from typing import Any
 import numpy as np
 
 from orbital_gn.detect import classify
-from orbital_gn.raster import OrthoInfo, open_ortho, sha256_of
+from orbital_gn.raster import (
+    SUN_TAGS,
+    OrthoImageError,
+    OrthoInfo,
+    Sun,
+    open_ortho,
+    sha256_of,
+    sun_from_tags,
+)
 from orbital_gn.recipe import RECIPES, Recipe
 from orbital_gn.tiling import default_tile_px, detect_candidates, raster_stats
 from roi_detector.classifier import BinaryClassifier, load_classifiers
@@ -69,6 +77,31 @@ def map_origin_of(info: OrthoInfo) -> tuple[float, float]:
     return float(round(x)), float(round(y))
 
 
+def resolve_sun(info: OrthoInfo, recipe: Recipe, sun: Sun | None = None
+                ) -> tuple[Sun | None, str]:
+    """The sun direction a recipe needs, and where it came from.
+
+    Given (``--sun-azimuth/--sun-elevation``, from the image product's metadata) it wins;
+    else the raster's own metadata tags (:data:`orbital_gn.raster.SUN_TAGS`). A recipe that
+    is not ``sun_aware`` needs none.
+
+    Raises:
+        OrthoImageError: a ``sun_aware`` recipe and no sun direction (names the file).
+    """
+    if not recipe.sun_aware:
+        return None, "not used by the recipe"
+    if sun is not None:
+        return sun, "given (--sun-azimuth/--sun-elevation)"
+    tagged = sun_from_tags(info.path)
+    if tagged is not None:
+        return tagged, f"raster metadata {'/'.join(SUN_TAGS)}"
+    raise OrthoImageError(
+        f"{info.path}: recipe {recipe.name!r} needs the sun direction and the raster's "
+        f"metadata has no {'/'.join(SUN_TAGS)}; pass --sun-azimuth DEG (clockwise from "
+        "north) --sun-elevation DEG from the image's metadata (HiRISE: SUB_SOLAR_AZIMUTH "
+        "and 90 - INCIDENCE_ANGLE), or use a model of the 'improved' recipe")
+
+
 def suppress_rocks_on_outcrops(records: np.ndarray) -> np.ndarray:
     """Drop rocks whose centre lies inside an outcrop's footprint ellipse (one ROI, not two)."""
     rocks = records["label"] == ROCK
@@ -100,7 +133,8 @@ def assign_ids(records: np.ndarray) -> np.ndarray:
 
 def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None = None,
                scheduler: str | None = None, workers: int = 2, progress=None,
-               origin: tuple[float, float] | None = None) -> tuple[RoiNetwork, list[str]]:
+               origin: tuple[float, float] | None = None, sun: Sun | None = None
+               ) -> tuple[RoiNetwork, list[str]]:
     """The GN of an orthoimage.
 
     Args:
@@ -112,18 +146,23 @@ def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None =
         workers: local worker processes.
         progress: ``progress(what, total)`` -> object with ``update(n)`` and ``close()``.
         origin: map-frame origin (easting, northing); default :func:`map_origin_of`.
+        sun: sun direction for a ``sun_aware`` recipe; default :func:`resolve_sun`'s.
 
     Returns:
         (GN in the ``map`` frame, warnings for the user).
 
     Raises:
-        orbital_gn.raster.OrthoImageError: an unusable raster (names the file).
+        orbital_gn.raster.OrthoImageError: an unusable raster, or no sun direction for a
+            ``sun_aware`` recipe (names the file).
     """
     info = open_ortho(path)
     recipe = model.recipe
+    sun, sun_source = resolve_sun(info, recipe, sun)
     warnings: list[str] = []
     origin = origin if origin is not None else map_origin_of(info)
     metadata = _metadata(info, model, origin)
+    metadata["sun"] = ({"azimuth_deg": sun.azimuth_deg, "elevation_deg": sun.elevation_deg,
+                        "source": sun_source} if sun else {"source": sun_source})
     tile_px = tile_px or default_tile_px(info)
     min_side_m = min(info.width, info.height) * info.gsd_m
     smallest = min(r.min_area_m2 for r in recipe.rules.rules)
@@ -142,7 +181,7 @@ def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None =
                                 "the GN is empty")
             else:
                 cands = detect_candidates(info, recipe, stats, origin, tile_px, scheduler,
-                                          workers, progress)
+                                          workers, progress, sun)
                 kept = [classify(c, model.classifiers, recipe) for c in cands]
                 records = np.concatenate(kept) if kept else empty_records(0)
                 records = assign_ids(suppress_rocks_on_outcrops(records))
