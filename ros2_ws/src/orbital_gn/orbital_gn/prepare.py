@@ -41,15 +41,23 @@ def default_model_path() -> Path:
     return Path(str(resources.files("orbital_gn") / "models" / "orbital_default.npz"))
 
 
+def no_sun_model_path() -> Path:
+    """The committed model used instead of the default one when a raster's sun direction
+    is unknown (``orbital_gn/models/orbital_improved.npz``, the ``improved`` recipe)."""
+    return Path(str(resources.files("orbital_gn") / "models" / "orbital_improved.npz"))
+
+
 @dataclass
 class Model:
     """Trained classifiers with their recipe and provenance (``None`` classifiers: the
-    candidate-only detector)."""
+    candidate-only detector). ``without_sun``: a model file to use instead when the
+    recipe needs the sun direction and the raster's is unknown (the default model's)."""
 
     recipe: Recipe
     classifiers: dict[str, BinaryClassifier] = field(default_factory=dict)
     meta: dict[str, Any] = field(default_factory=dict)
     path: str | None = None
+    without_sun: str | None = None
 
 
 def load_model(path: str | os.PathLike[str] | None) -> Model:
@@ -66,7 +74,10 @@ def load_model(path: str | os.PathLike[str] | None) -> Model:
     if name not in RECIPES:
         raise ModelFileError(f"{p}: field 'provenance.recipe.name' is {name!r}, expected one "
                              f"of {sorted(RECIPES)}")
-    return Model(RECIPES[name], classifiers, meta, str(p))
+    fallback = None
+    if path is None and RECIPES[name].sun_aware and no_sun_model_path().is_file():
+        fallback = str(no_sun_model_path())
+    return Model(RECIPES[name], classifiers, meta, str(p), fallback)
 
 
 def map_origin_of(info: OrthoInfo) -> tuple[float, float]:
@@ -156,9 +167,16 @@ def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None =
             ``sun_aware`` recipe (names the file).
     """
     info = open_ortho(path)
+    warnings: list[str] = []
+    notes: list[str] = []  # warnings that do not mean the GN is empty
+    if (model.recipe.sun_aware and sun is None and model.without_sun
+            and sun_from_tags(info.path) is None):
+        notes.append(f"{info.path}: no sun direction (no --sun-azimuth/--sun-elevation, "
+                        f"no {'/'.join(SUN_TAGS)} metadata): using {model.without_sun} "
+                        f"(recipe without the sun) instead of {model.path}")
+        model = load_model(model.without_sun)
     recipe = model.recipe
     sun, sun_source = resolve_sun(info, recipe, sun)
-    warnings: list[str] = []
     origin = origin if origin is not None else map_origin_of(info)
     metadata = _metadata(info, model, origin)
     metadata["sun"] = ({"azimuth_deg": sun.azimuth_deg, "elevation_deg": sun.elevation_deg,
@@ -193,7 +211,7 @@ def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None =
     if records.size == 0 and not warnings:
         warnings.append(f"{info.path}: no ROI found; the GN is empty")
     metadata["tile_px"] = tile_px
-    return RoiNetwork(records, "map", MapFrame(info.crs, origin), metadata), warnings
+    return RoiNetwork(records, "map", MapFrame(info.crs, origin), metadata), notes + warnings
 
 
 def _flat(stats) -> bool:
