@@ -2,15 +2,17 @@
 
     python bench/orbital_gn_bench.py quality [--bags B...] [--recipes paper,improved]
     python bench/orbital_gn_bench.py scale --ortho bags/X/orbital.tif --tiles 2 4 ...
-    python bench/orbital_gn_bench.py matcher --bag BAG --gn GN.geojson [--length M --step M]
+    python bench/orbital_gn_bench.py matcher --bag BAG --gn GN.geojson... [--length M --step M]
 
 Writes bench/results/orbital_gn_<part>.json and a markdown table beside it. Every
 ``orbital_gn prepare`` runs as its own process (as a user runs it), with its wall time
 and the peak resident memory of its process tree (main process + dask workers, sampled
 every 0.2 s with psutil).
 
-The paper recipe's model is trained by this script (``orbital_gn train --recipe paper``)
-on the same training bags as the default model when it is missing.
+Models per recipe: ``sun_aware`` the committed default, ``improved`` the committed
+no-sun model (``orbital_improved.npz``; both from ``make orbital-model``), ``paper``
+trained by this script (``orbital_gn train --recipe paper``) on the same training bags
+when it is missing.
 """
 
 from __future__ import annotations
@@ -80,8 +82,10 @@ def ensure_paper_model(train_bags: list[str]) -> Path:
 
 
 def cmd_quality(args) -> None:
+    from orbital_gn.prepare import no_sun_model_path
+
     recipes = args.recipes.split(",")
-    models = {"improved": args.model or "default"}
+    models = {"sun_aware": args.model or "default", "improved": str(no_sun_model_path())}
     if "paper" in recipes:
         models["paper"] = str(ensure_paper_model(args.train_bags))
     out_json = RESULTS / "orbital_gn_quality.json"
@@ -101,7 +105,7 @@ def cmd_quality(args) -> None:
                    "--workers", "2"]
             if models[recipe] != "default":
                 cmd += ["--model", models[recipe]]
-            if recipe == "improved":
+            if recipe == "sun_aware":
                 cmd += ["--preview", str(WORK / f"{bag.name}_{recipe}.png")]
             print(" ".join(cmd), flush=True)
             m = run_measured(cmd)
@@ -252,16 +256,45 @@ def cmd_matcher(args) -> None:
     from roi_network.geojson import read_geojson
 
     bag = Path(args.bag)
-    gns = {"detected": Path(args.gn), "truth": bag / "truth" / "rois.geojson"}
+    gns = {Path(g).stem: Path(g) for g in args.gn}
+    gns["truth"] = bag / "truth" / "rois.geojson"
     summary = {"bag": bag.name, "ln_length_m": args.length, "ln_step_m": args.step,
                "route_radius_m": 15.0, "drift": 0.01, "runs": {},
                "command": " ".join(sys.argv)}
+    from scipy.spatial import cKDTree
+
+    truth_net = read_geojson(gns["truth"])
     for name, path in gns.items():
         gn = read_geojson(path)
         matcher = Matcher(gn)
         counts = {"lns": 0, "fix": 0, "correct_2m": 0, "false_fix_10m": 0}
         times = []
+        # Why a GN may fail the matcher: per LN, the share of its nodes the GN holds (a
+        # node of the same class within DESIGN.md's radius), the position error of those,
+        # and the GN nodes within 15 m of the LN's nodes that are no truth ROI (chance
+        # partners).
+        held_share, held_err, false_near = [], [], []
+        gxy = np.column_stack([gn.records["x"], gn.records["y"]])
+        gn_shift = np.subtract(gn.map_frame.origin, truth_net.map_frame.origin)
+        gxy_t = gxy + gn_shift  # GN nodes in the truth's map frame
+        txy = np.column_stack([truth_net.records["x"], truth_net.records["y"]])
+        is_truth = np.zeros(len(gn), bool)
+        if len(gn) and len(truth_net):
+            d, j = cKDTree(txy).query(gxy_t)
+            radius = np.maximum(1.0, truth_net.records["major_m"][j] / 2)
+            is_truth = (d <= radius) & (truth_net.records["label"][j] == gn.records["label"])
+        gtree = cKDTree(gxy_t) if len(gn) else None
         for ln, t_true, true_xy in route_lns(bag, args.length, args.step, 15.0, seed=0):
+            if gtree is not None:
+                d, j = gtree.query(true_xy)
+                tj = cKDTree(txy).query(true_xy)[1]  # the truth ROI each LN node is
+                radius = np.maximum(1.0, truth_net.records["major_m"][tj] / 2)
+                ok = (d <= radius) & (gn.records["label"][j] == truth_net.records["label"][tj])
+                held_share.append(float(ok.mean()))
+                held_err.extend(d[ok].tolist())
+                near = gtree.query_ball_point(true_xy, 15.0)
+                idx = np.unique(np.concatenate([np.asarray(n, int) for n in near]))
+                false_near.append(int((~is_truth[idx]).sum()) if idx.size else 0)
             t0 = time.perf_counter()
             res = matcher.match(ln)
             times.append(1e3 * (time.perf_counter() - t0))
@@ -276,6 +309,12 @@ def cmd_matcher(args) -> None:
             counts["false_fix_10m"] += int(err > 10.0)
         n = max(counts["lns"], 1)
         summary["runs"][name] = {**counts, "gn_rois": len(gn),
+                                 "ln_nodes_held_median": float(np.median(held_share))
+                                 if held_share else None,
+                                 "held_position_error_m_median": float(np.median(held_err))
+                                 if held_err else None,
+                                 "false_gn_nodes_near_ln_median": float(np.median(false_near))
+                                 if false_near else None,
                                  "correct_rate": counts["correct_2m"] / n,
                                  "no_fix_rate": 1 - counts["fix"] / n,
                                  "false_fix_10m_rate": counts["false_fix_10m"] / n,
@@ -287,12 +326,21 @@ def cmd_matcher(args) -> None:
              f"stretch of the route (a start every {args.step:g} m), 1 % drift, random odom "
              "frame; darces_matcher.Matcher with its defaults. Correct: every LN node within "
              "2 m; false fix: off by more than 10 m.", "",
-             "| GN | ROIs | LNs | correct % | no fix % | false fix >10 m % | median ms |",
-             "|---|---|---|---|---|---|---|"]
+             "Held: LN nodes with a GN node of their class within max(1 m, half the truth "
+             "major axis) (median over LNs); error: distance of those (median); false GN "
+             "nodes: GN nodes matching no truth ROI within 15 m of an LN's nodes (median).", "",
+             "| GN | ROIs | LNs | correct % | no fix % | false fix >10 m % | median ms | "
+             "LN nodes held % | held error m | false GN nodes near LN |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for name, r in summary["runs"].items():
+        held = r["ln_nodes_held_median"]
+        err = r["held_position_error_m_median"]
         lines.append(f"| {name} | {r['gn_rois']} | {r['lns']} | {100 * r['correct_rate']:.1f} | "
                      f"{100 * r['no_fix_rate']:.1f} | {100 * r['false_fix_10m_rate']:.1f} | "
-                     f"{r['median_ms'] and round(r['median_ms'], 1)} |")
+                     f"{r['median_ms'] and round(r['median_ms'], 1)} | "
+                     f"{'n/a' if held is None else round(100 * held, 1)} | "
+                     f"{'n/a' if err is None else round(err, 2)} | "
+                     f"{r['false_gn_nodes_near_ln_median']} |")
     (RESULTS / f"orbital_gn_matcher_{bag.name}.md").write_text("\n".join(lines) + "\n")
 
 
@@ -349,8 +397,8 @@ def main() -> None:
     q = sub.add_parser("quality")
     q.add_argument("--bags", nargs="+", default=DEFAULT_BAGS)
     q.add_argument("--train-bags", nargs="+", default=TRAIN_BAGS)
-    q.add_argument("--recipes", default="paper,improved")
-    q.add_argument("--model", help="model of the improved recipe (default: committed one)")
+    q.add_argument("--recipes", default="sun_aware,improved,paper")
+    q.add_argument("--model", help="model of the sun_aware recipe (default: committed one)")
     q.add_argument("--append", action="store_true", help="keep earlier runs of other bags")
     q.set_defaults(func=cmd_quality)
     s = sub.add_parser("scale")
@@ -360,7 +408,7 @@ def main() -> None:
     s.set_defaults(func=cmd_scale)
     m = sub.add_parser("matcher")
     m.add_argument("--bag", required=True, help="bag of the GN (its truth for reference)")
-    m.add_argument("--gn", required=True)
+    m.add_argument("--gn", required=True, nargs="+", help="detected GN(s); one row each")
     m.add_argument("--length", type=float, default=400.0, help="LN route stretch, m")
     m.add_argument("--step", type=float, default=20.0, help="between LN starts, m")
     m.set_defaults(func=cmd_matcher)
