@@ -1,6 +1,7 @@
 """Benchmark of orbital_gn: detection quality, speed, memory, and the matcher on the GN.
 
     python bench/orbital_gn_bench.py quality [--bags B...] [--recipes paper,improved]
+    python bench/orbital_gn_bench.py centres [--bags B...] [--recipes ...]
     python bench/orbital_gn_bench.py scale --ortho bags/X/orbital.tif --tiles 2 4 ...
     python bench/orbital_gn_bench.py matcher --bag BAG --gn GN.geojson... [--length M --step M]
 
@@ -152,6 +153,43 @@ def _write_quality_md(results: dict, path: Path) -> None:
             f"{_pct(nr.get('fraction'))} | {r['wall_s']} | {r['mpx_per_s']} | "
             f"{r['peak_rss_mib']} |")
     path.write_text("\n".join(lines) + "\n")
+
+
+def cmd_centres(args) -> None:
+    """Centre error of the matched detections of GNs already prepared by ``quality``
+    (``out/bench_orbital_gn/<bag>_<recipe>.geojson``): median / p90 distance to the
+    matched truth ROI, per class; bench/results/orbital_gn_centres.{json,md}."""
+    from orbital_gn.evaluate import evaluate
+    from roi_network.geojson import read_geojson
+
+    rows = []
+    for bag in map(Path, args.bags):
+        truth = read_geojson(bag / "truth" / "rois.geojson")
+        for recipe in args.recipes.split(","):
+            gn_path = WORK / f"{bag.name}_{recipe}.geojson"
+            if not gn_path.is_file():
+                print(f"skip {gn_path}: run the quality bench first", flush=True)
+                continue
+            ev = evaluate(read_geojson(gn_path), truth)
+            rows.append({"bag": bag.name, "recipe": recipe, "gn": str(gn_path),
+                         "rock": ev["rock"]["centre_error_m"],
+                         "outcrop": ev["outcrop"]["centre_error_m"]})
+    _write(RESULTS / "orbital_gn_centres.json", {"runs": rows, "command": " ".join(sys.argv)})
+
+    def f(v):
+        return "n/a" if v is None else f"{v:.2f}"
+
+    lines = ["# Centre error of matched detections (bench/orbital_gn_bench.py centres)", "",
+             "Distance from each detection matching a truth ROI (DESIGN.md's rule) to that "
+             "ROI's centre, metres.", "",
+             "| bag | recipe | rocks median | rocks p90 | outcrops median | outcrops p90 |",
+             "|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['bag']} | {r['recipe']} | {f(r['rock']['median'])} | "
+                     f"{f(r['rock']['p90'])} | {f(r['outcrop']['median'])} | "
+                     f"{f(r['outcrop']['p90'])} |")
+    (RESULTS / "orbital_gn_centres.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
 
 
 def _vrt_mosaic(ortho: Path, k: int, out: Path) -> Path:
@@ -401,6 +439,10 @@ def main() -> None:
     q.add_argument("--model", help="model of the sun_aware recipe (default: committed one)")
     q.add_argument("--append", action="store_true", help="keep earlier runs of other bags")
     q.set_defaults(func=cmd_quality)
+    c = sub.add_parser("centres")
+    c.add_argument("--bags", nargs="+", default=DEFAULT_BAGS)
+    c.add_argument("--recipes", default="sun_aware,improved,paper")
+    c.set_defaults(func=cmd_centres)
     s = sub.add_parser("scale")
     s.add_argument("--ortho", required=True)
     s.add_argument("--tiles", type=int, nargs="+", default=[1, 2, 3])

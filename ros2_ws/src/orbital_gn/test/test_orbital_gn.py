@@ -97,6 +97,10 @@ def test_match_rule_radius_and_class():
     assert result["outcrop"]["detections"] == 2 and result["outcrop"]["true_positives"] == 1
     det_match, hit = match(gn, truth, ROCK)
     assert (det_match == -1).sum() == 1 and hit.sum() == n_rock - 2
+    # Centre error of the matched rocks: all exact but the one moved by 0.9 m.
+    err = result["rock"]["centre_error_m"]
+    assert err["median"] == pytest.approx(0.0, abs=1e-9)
+    assert 0.0 < err["p90"] <= 0.9 + 1e-9
 
 
 def test_cli_prepare_eval_and_preview(tmp_path, bags, model_file, capsys):
