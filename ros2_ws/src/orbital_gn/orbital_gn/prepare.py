@@ -109,8 +109,8 @@ def resolve_sun(info: OrthoInfo, recipe: Recipe, sun: Sun | None = None
     raise OrthoImageError(
         f"{info.path}: recipe {recipe.name!r} needs the sun direction and the raster's "
         f"metadata has no {'/'.join(SUN_TAGS)}; pass --sun-azimuth DEG (clockwise from "
-        "north) --sun-elevation DEG from the image's metadata (HiRISE: SUB_SOLAR_AZIMUTH "
-        "and 90 - INCIDENCE_ANGLE), or use a model of the 'improved' recipe")
+        "north) --sun-elevation DEG (90 - incidence angle) from the image product's label, "
+        "or use a model of the 'improved' recipe")
 
 
 def suppress_rocks_on_outcrops(records: np.ndarray) -> np.ndarray:

@@ -67,8 +67,8 @@ class OrthoInfo:
 
 #: Raster metadata tags giving the sun direction at acquisition (GDAL metadata, default
 #: domain), as atacama_sim's orthoimages carry them; other products give it in their label
-#: (HiRISE: SUB_SOLAR_AZIMUTH, INCIDENCE_ANGLE), to pass to ``prepare --sun-azimuth
-#: --sun-elevation``.
+#: (incidence angle, solar azimuth in the product's convention), to convert and pass to
+#: ``prepare --sun-azimuth --sun-elevation``.
 SUN_TAGS: Final = ("SUN_AZIMUTH_DEG", "SUN_ELEVATION_DEG")
 
 
