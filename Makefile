@@ -68,10 +68,14 @@ training-bags: setup
 	    $(RUN_ENV) atacama_sim generate --preset quick --seed $$s \
 	      --out $(TRAIN_DIR)/train_quick_s$$s || exit 1; fi; done
 
-# Re-train the committed default orbital classifiers (Rock Orbital, Outcrop Orbital).
+# Re-train the committed orbital classifiers (Rock Orbital, Outcrop Orbital): the default
+# (sun_aware recipe) and the one prepare falls back to when a raster's sun direction is
+# unknown (improved recipe).
 ORBITAL_MODEL := $(WS)/src/orbital_gn/orbital_gn/models/orbital_default.npz
+ORBITAL_MODEL_NO_SUN := $(WS)/src/orbital_gn/orbital_gn/models/orbital_improved.npz
 orbital-model: training-bags
-	$(RUN_ENV) orbital_gn train $(TRAIN_BAGS) --out $(ORBITAL_MODEL)
+	$(RUN_ENV) orbital_gn train $(TRAIN_BAGS) --recipe sun_aware --out $(ORBITAL_MODEL)
+	$(RUN_ENV) orbital_gn train $(TRAIN_BAGS) --recipe improved --out $(ORBITAL_MODEL_NO_SUN)
 
 # Re-train the rover classifiers (Rock Rover, Outcrop Rover).
 ROVER_MODEL := $(WS)/src/roi_detector/roi_detector/models/rover.npz

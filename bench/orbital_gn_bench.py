@@ -1,16 +1,19 @@
 """Benchmark of orbital_gn: detection quality, speed, memory, and the matcher on the GN.
 
     python bench/orbital_gn_bench.py quality [--bags B...] [--recipes paper,improved]
+    python bench/orbital_gn_bench.py centres [--bags B...] [--recipes ...]
     python bench/orbital_gn_bench.py scale --ortho bags/X/orbital.tif --tiles 2 4 ...
-    python bench/orbital_gn_bench.py matcher --bag BAG --gn GN.geojson [--length M --step M]
+    python bench/orbital_gn_bench.py matcher --bag BAG --gn GN.geojson... [--length M --step M]
 
 Writes bench/results/orbital_gn_<part>.json and a markdown table beside it. Every
 ``orbital_gn prepare`` runs as its own process (as a user runs it), with its wall time
 and the peak resident memory of its process tree (main process + dask workers, sampled
 every 0.2 s with psutil).
 
-The paper recipe's model is trained by this script (``orbital_gn train --recipe paper``)
-on the same training bags as the default model when it is missing.
+Models per recipe: ``sun_aware`` the committed default, ``improved`` the committed
+no-sun model (``orbital_improved.npz``; both from ``make orbital-model``), ``paper``
+trained by this script (``orbital_gn train --recipe paper``) on the same training bags
+when it is missing.
 """
 
 from __future__ import annotations
@@ -80,8 +83,10 @@ def ensure_paper_model(train_bags: list[str]) -> Path:
 
 
 def cmd_quality(args) -> None:
+    from orbital_gn.prepare import no_sun_model_path
+
     recipes = args.recipes.split(",")
-    models = {"improved": args.model or "default"}
+    models = {"sun_aware": args.model or "default", "improved": str(no_sun_model_path())}
     if "paper" in recipes:
         models["paper"] = str(ensure_paper_model(args.train_bags))
     out_json = RESULTS / "orbital_gn_quality.json"
@@ -101,7 +106,7 @@ def cmd_quality(args) -> None:
                    "--workers", "2"]
             if models[recipe] != "default":
                 cmd += ["--model", models[recipe]]
-            if recipe == "improved":
+            if recipe == "sun_aware":
                 cmd += ["--preview", str(WORK / f"{bag.name}_{recipe}.png")]
             print(" ".join(cmd), flush=True)
             m = run_measured(cmd)
@@ -148,6 +153,43 @@ def _write_quality_md(results: dict, path: Path) -> None:
             f"{_pct(nr.get('fraction'))} | {r['wall_s']} | {r['mpx_per_s']} | "
             f"{r['peak_rss_mib']} |")
     path.write_text("\n".join(lines) + "\n")
+
+
+def cmd_centres(args) -> None:
+    """Centre error of the matched detections of GNs already prepared by ``quality``
+    (``out/bench_orbital_gn/<bag>_<recipe>.geojson``): median / p90 distance to the
+    matched truth ROI, per class; bench/results/orbital_gn_centres.{json,md}."""
+    from orbital_gn.evaluate import evaluate
+    from roi_network.geojson import read_geojson
+
+    rows = []
+    for bag in map(Path, args.bags):
+        truth = read_geojson(bag / "truth" / "rois.geojson")
+        for recipe in args.recipes.split(","):
+            gn_path = WORK / f"{bag.name}_{recipe}.geojson"
+            if not gn_path.is_file():
+                print(f"skip {gn_path}: run the quality bench first", flush=True)
+                continue
+            ev = evaluate(read_geojson(gn_path), truth)
+            rows.append({"bag": bag.name, "recipe": recipe, "gn": str(gn_path),
+                         "rock": ev["rock"]["centre_error_m"],
+                         "outcrop": ev["outcrop"]["centre_error_m"]})
+    _write(RESULTS / "orbital_gn_centres.json", {"runs": rows, "command": " ".join(sys.argv)})
+
+    def f(v):
+        return "n/a" if v is None else f"{v:.2f}"
+
+    lines = ["# Centre error of matched detections (bench/orbital_gn_bench.py centres)", "",
+             "Distance from each detection matching a truth ROI (DESIGN.md's rule) to that "
+             "ROI's centre, metres.", "",
+             "| bag | recipe | rocks median | rocks p90 | outcrops median | outcrops p90 |",
+             "|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['bag']} | {r['recipe']} | {f(r['rock']['median'])} | "
+                     f"{f(r['rock']['p90'])} | {f(r['outcrop']['median'])} | "
+                     f"{f(r['outcrop']['p90'])} |")
+    (RESULTS / "orbital_gn_centres.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
 
 
 def _vrt_mosaic(ortho: Path, k: int, out: Path) -> Path:
@@ -252,16 +294,45 @@ def cmd_matcher(args) -> None:
     from roi_network.geojson import read_geojson
 
     bag = Path(args.bag)
-    gns = {"detected": Path(args.gn), "truth": bag / "truth" / "rois.geojson"}
+    gns = {Path(g).stem: Path(g) for g in args.gn}
+    gns["truth"] = bag / "truth" / "rois.geojson"
     summary = {"bag": bag.name, "ln_length_m": args.length, "ln_step_m": args.step,
                "route_radius_m": 15.0, "drift": 0.01, "runs": {},
                "command": " ".join(sys.argv)}
+    from scipy.spatial import cKDTree
+
+    truth_net = read_geojson(gns["truth"])
     for name, path in gns.items():
         gn = read_geojson(path)
         matcher = Matcher(gn)
         counts = {"lns": 0, "fix": 0, "correct_2m": 0, "false_fix_10m": 0}
         times = []
+        # Why a GN may fail the matcher: per LN, the share of its nodes the GN holds (a
+        # node of the same class within DESIGN.md's radius), the position error of those,
+        # and the GN nodes within 15 m of the LN's nodes that are no truth ROI (chance
+        # partners).
+        held_share, held_err, false_near = [], [], []
+        gxy = np.column_stack([gn.records["x"], gn.records["y"]])
+        gn_shift = np.subtract(gn.map_frame.origin, truth_net.map_frame.origin)
+        gxy_t = gxy + gn_shift  # GN nodes in the truth's map frame
+        txy = np.column_stack([truth_net.records["x"], truth_net.records["y"]])
+        is_truth = np.zeros(len(gn), bool)
+        if len(gn) and len(truth_net):
+            d, j = cKDTree(txy).query(gxy_t)
+            radius = np.maximum(1.0, truth_net.records["major_m"][j] / 2)
+            is_truth = (d <= radius) & (truth_net.records["label"][j] == gn.records["label"])
+        gtree = cKDTree(gxy_t) if len(gn) else None
         for ln, t_true, true_xy in route_lns(bag, args.length, args.step, 15.0, seed=0):
+            if gtree is not None:
+                d, j = gtree.query(true_xy)
+                tj = cKDTree(txy).query(true_xy)[1]  # the truth ROI each LN node is
+                radius = np.maximum(1.0, truth_net.records["major_m"][tj] / 2)
+                ok = (d <= radius) & (gn.records["label"][j] == truth_net.records["label"][tj])
+                held_share.append(float(ok.mean()))
+                held_err.extend(d[ok].tolist())
+                near = gtree.query_ball_point(true_xy, 15.0)
+                idx = np.unique(np.concatenate([np.asarray(n, int) for n in near]))
+                false_near.append(int((~is_truth[idx]).sum()) if idx.size else 0)
             t0 = time.perf_counter()
             res = matcher.match(ln)
             times.append(1e3 * (time.perf_counter() - t0))
@@ -276,6 +347,12 @@ def cmd_matcher(args) -> None:
             counts["false_fix_10m"] += int(err > 10.0)
         n = max(counts["lns"], 1)
         summary["runs"][name] = {**counts, "gn_rois": len(gn),
+                                 "ln_nodes_held_median": float(np.median(held_share))
+                                 if held_share else None,
+                                 "held_position_error_m_median": float(np.median(held_err))
+                                 if held_err else None,
+                                 "false_gn_nodes_near_ln_median": float(np.median(false_near))
+                                 if false_near else None,
                                  "correct_rate": counts["correct_2m"] / n,
                                  "no_fix_rate": 1 - counts["fix"] / n,
                                  "false_fix_10m_rate": counts["false_fix_10m"] / n,
@@ -287,12 +364,21 @@ def cmd_matcher(args) -> None:
              f"stretch of the route (a start every {args.step:g} m), 1 % drift, random odom "
              "frame; darces_matcher.Matcher with its defaults. Correct: every LN node within "
              "2 m; false fix: off by more than 10 m.", "",
-             "| GN | ROIs | LNs | correct % | no fix % | false fix >10 m % | median ms |",
-             "|---|---|---|---|---|---|---|"]
+             "Held: LN nodes with a GN node of their class within max(1 m, half the truth "
+             "major axis) (median over LNs); error: distance of those (median); false GN "
+             "nodes: GN nodes matching no truth ROI within 15 m of an LN's nodes (median).", "",
+             "| GN | ROIs | LNs | correct % | no fix % | false fix >10 m % | median ms | "
+             "LN nodes held % | held error m | false GN nodes near LN |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for name, r in summary["runs"].items():
+        held = r["ln_nodes_held_median"]
+        err = r["held_position_error_m_median"]
         lines.append(f"| {name} | {r['gn_rois']} | {r['lns']} | {100 * r['correct_rate']:.1f} | "
                      f"{100 * r['no_fix_rate']:.1f} | {100 * r['false_fix_10m_rate']:.1f} | "
-                     f"{r['median_ms'] and round(r['median_ms'], 1)} |")
+                     f"{r['median_ms'] and round(r['median_ms'], 1)} | "
+                     f"{'n/a' if held is None else round(100 * held, 1)} | "
+                     f"{'n/a' if err is None else round(err, 2)} | "
+                     f"{r['false_gn_nodes_near_ln_median']} |")
     (RESULTS / f"orbital_gn_matcher_{bag.name}.md").write_text("\n".join(lines) + "\n")
 
 
@@ -349,10 +435,14 @@ def main() -> None:
     q = sub.add_parser("quality")
     q.add_argument("--bags", nargs="+", default=DEFAULT_BAGS)
     q.add_argument("--train-bags", nargs="+", default=TRAIN_BAGS)
-    q.add_argument("--recipes", default="paper,improved")
-    q.add_argument("--model", help="model of the improved recipe (default: committed one)")
+    q.add_argument("--recipes", default="sun_aware,improved,paper")
+    q.add_argument("--model", help="model of the sun_aware recipe (default: committed one)")
     q.add_argument("--append", action="store_true", help="keep earlier runs of other bags")
     q.set_defaults(func=cmd_quality)
+    c = sub.add_parser("centres")
+    c.add_argument("--bags", nargs="+", default=DEFAULT_BAGS)
+    c.add_argument("--recipes", default="sun_aware,improved,paper")
+    c.set_defaults(func=cmd_centres)
     s = sub.add_parser("scale")
     s.add_argument("--ortho", required=True)
     s.add_argument("--tiles", type=int, nargs="+", default=[1, 2, 3])
@@ -360,7 +450,7 @@ def main() -> None:
     s.set_defaults(func=cmd_scale)
     m = sub.add_parser("matcher")
     m.add_argument("--bag", required=True, help="bag of the GN (its truth for reference)")
-    m.add_argument("--gn", required=True)
+    m.add_argument("--gn", required=True, nargs="+", help="detected GN(s); one row each")
     m.add_argument("--length", type=float, default=400.0, help="LN route stretch, m")
     m.add_argument("--step", type=float, default=20.0, help="between LN starts, m")
     m.set_defaults(func=cmd_matcher)

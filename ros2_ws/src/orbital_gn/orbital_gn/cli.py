@@ -3,6 +3,7 @@
     orbital_gn train  BAG_DIR... --out models/orbital.npz [--recipe improved]
     orbital_gn prepare ORTHO.tif --out GN.geojson [--model M] [--preview GN.png]
                                  [--scheduler ADDR] [--workers N] [--tile-px N]
+                                 [--sun-azimuth DEG --sun-elevation DEG]
     orbital_gn eval   --gn GN.geojson --truth BAG_DIR/truth/rois.geojson [--json OUT]
 
 Errors are one line on stderr naming the file, exit status 2; no partial output file.
@@ -17,7 +18,7 @@ import sys
 import time
 from pathlib import Path
 
-from orbital_gn.raster import OrthoImageError
+from orbital_gn.raster import OrthoImageError, Sun
 from orbital_gn.recipe import RECIPES
 from roi_detector.classifier import ModelFileError
 from roi_network.geojson import GeoJsonFormatError
@@ -44,12 +45,17 @@ def cmd_prepare(args) -> int:
     from orbital_gn.prepare import Model, load_model, prepare_gn
     from roi_network.geojson import write_geojson
 
+    if (args.sun_azimuth is None) != (args.sun_elevation is None):
+        raise ValueError("--sun-azimuth and --sun-elevation go together (degrees clockwise "
+                         "from north, degrees above the horizon)")
+    sun = (Sun.checked(args.sun_azimuth, args.sun_elevation, "--sun-azimuth/--sun-elevation")
+           if args.sun_azimuth is not None else None)
     model = Model(RECIPES[args.recipe]) if args.model == "none" else load_model(args.model)
     t0 = time.perf_counter()
     gn, warnings = prepare_gn(args.ortho, model, tile_px=args.tile_px, scheduler=args.scheduler,
                               workers=args.workers,
                               progress=_progress_factory(not args.no_progress),
-                              origin=tuple(args.origin) if args.origin else None)
+                              origin=tuple(args.origin) if args.origin else None, sun=sun)
     elapsed = time.perf_counter() - t0
     for w in warnings:
         print(f"orbital_gn prepare: warning: {w}", file=sys.stderr)
@@ -128,6 +134,12 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("--tile-px", type=int, default=None, help="window core side, pixels")
     pr.add_argument("--origin", type=float, nargs=2, metavar=("EASTING", "NORTHING"),
                     help="map-frame origin (default: raster centre rounded to 1 m)")
+    pr.add_argument("--sun-azimuth", type=float, metavar="DEG",
+                    help="sun azimuth at acquisition, degrees clockwise from north (a "
+                    "sun-aware model needs it; default: the raster's SUN_AZIMUTH_DEG tag)")
+    pr.add_argument("--sun-elevation", type=float, metavar="DEG",
+                    help="sun elevation above the horizon, degrees (0, 90] (default: the "
+                    "raster's SUN_ELEVATION_DEG tag)")
     pr.add_argument("--no-progress", action="store_true")
     pr.set_defaults(func=cmd_prepare)
     tr = sub.add_parser("train", help="train the classifiers from training bags")

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from orbital_gn.raster import OrthoInfo, OrthoWindow
+from orbital_gn.raster import OrthoInfo, OrthoWindow, Sun
 from orbital_gn.recipe import Recipe
 from roi_detector.candidates import (
     MetricMoments,
@@ -24,6 +24,8 @@ from roi_detector.candidates import (
     candidate_regions,
     ellipse_from_cov,
     metric_moments,
+    shadow_shift_px,
+    sun_direction_px,
     threshold_excess,
 )
 from roi_detector.classifier import BinaryClassifier
@@ -36,7 +38,7 @@ from roi_detector.metrics import (
     weighted_entropy,
     weighted_entropy_at,
 )
-from roi_network import LABEL_NAMES, ROI_DTYPE
+from roi_network import LABEL_NAMES, ROCK, ROI_DTYPE
 
 #: scipy's Gaussian truncation used for the local-contrast background (sigmas).
 _CONTRAST_TRUNCATE = 4.0
@@ -160,7 +162,7 @@ def _owned(reg: Region, core_abs: tuple[int, int, int, int], row0: int, col0: in
 
 def window_candidates(win: OrthoWindow, core: tuple[int, int, int, int], info: OrthoInfo,
                       stats: dict[int, dict[str, MetricStats]], recipe: Recipe,
-                      origin: tuple[float, float]) -> list[Candidates]:
+                      origin: tuple[float, float], sun: Sun | None = None) -> list[Candidates]:
     """Candidates (paper Sec. 4.2) whose centroid lies in the window's core, with features.
 
     Args:
@@ -170,11 +172,19 @@ def window_candidates(win: OrthoWindow, core: tuple[int, int, int, int], info: O
         stats: per class, metric statistics over the whole raster.
         recipe: the detection recipe.
         origin: map-frame origin (easting, northing), metres.
+        sun: sun direction; required by a ``sun_aware`` recipe (rock centres moved back
+            towards the sun, ``sun`` features), ignored otherwise.
+
+    Raises:
+        ValueError: a ``sun_aware`` recipe without ``sun``.
     """
+    if recipe.sun_aware and sun is None:
+        raise ValueError(f"recipe {recipe.name!r} needs the sun direction")
     gsd = info.gsd_m
     core_abs = (core[0] + win.row0, core[1] + win.col0, core[2] + win.row0, core[3] + win.col0)
     t = info.transform
     jac = np.array([[t.a, t.b], [t.d, t.e]])
+    sun_dir = sun_direction_px(sun.azimuth_deg, jac) if recipe.sun_aware else None
     out = []
     all_regions: list[tuple[int, list[Region]]] = []
     for rule in recipe.rules.rules:
@@ -187,10 +197,20 @@ def window_candidates(win: OrthoWindow, core: tuple[int, int, int, int], info: O
     entropy = _sparse_entropy(win.gray, [r for _, rs in all_regions for r in rs],
                               entropy_size_px(recipe, gsd))
     for label, regions in all_regions:
-        feats = candidate_features(regions, win.rgb01, win.gray, entropy, recipe.feature_groups)
+        feats = candidate_features(regions, win.rgb01, win.gray, entropy, recipe.feature_groups,
+                                   sun_dir)
         rec = np.zeros(len(regions), ROI_DTYPE)
         rows = np.array([r.row + win.row0 for r in regions], np.float64)
         cols = np.array([r.col + win.col0 for r in regions], np.float64)
+        if label == ROCK and sun_dir is not None and recipe.shadow_kappa:
+            # The dark region is the rock's shaded face plus its cast shadow: its centroid
+            # lies down-sun of the rock; move it back (ownership above used the region's
+            # own centroid, so tiling still decides the same way).
+            for i, reg in enumerate(regions):
+                dc, dr = shadow_shift_px(reg.cov_px, sun_dir, sun.elevation_deg,
+                                         recipe.shadow_kappa)
+                rows[i] += dr
+                cols[i] += dc
         for i, reg in enumerate(regions):
             # Pixel centres are at +0.5 in the affine's corner convention.
             x = t.a * (cols[i] + 0.5) + t.b * (rows[i] + 0.5) + t.c

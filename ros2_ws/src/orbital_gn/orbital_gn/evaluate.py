@@ -60,6 +60,16 @@ def _pr(n_det: int, n_tp: int, n_truth: int, n_hit: int) -> dict[str, Any]:
             "recall": n_hit / n_truth if n_truth else None}
 
 
+def _centre_error(gn: RoiNetwork, truth: RoiNetwork, det: np.ndarray, tr: np.ndarray,
+                  det_match: np.ndarray) -> dict[str, float | None]:
+    """Median and 90th percentile distance (m) from matched detections to their truth."""
+    ok = det_match >= 0
+    if not ok.any():
+        return {"median": None, "p90": None}
+    d = np.hypot(*(crs_xy(gn, det[ok]) - crs_xy(truth, tr[det_match[ok]])).T)
+    return {"median": float(np.median(d)), "p90": float(np.percentile(d, 90))}
+
+
 def route_xy(trajectory_tum: str | Path, truth: RoiNetwork) -> np.ndarray:
     """(N, 2) CRS positions of a TUM trajectory in the truth's map frame."""
     data = np.loadtxt(trajectory_tum, ndmin=2)
@@ -80,6 +90,7 @@ def evaluate(gn: RoiNetwork, truth: RoiNetwork, route: np.ndarray | None = None,
         tr = truth.records[truth.records["label"] == label]
         name = LABEL_NAMES[label]
         out[name] = _pr(det.size, int((det_match >= 0).sum()), tr.size, int(tr_hit.sum()))
+        out[name]["centre_error_m"] = _centre_error(gn, truth, det, tr, det_match)
         if label != ROCK:
             continue
         # A detection's bin: its matched truth's area, or its own when unmatched.

@@ -19,7 +19,15 @@ from typing import Any
 import numpy as np
 
 from orbital_gn.detect import classify
-from orbital_gn.raster import OrthoInfo, open_ortho, sha256_of
+from orbital_gn.raster import (
+    SUN_TAGS,
+    OrthoImageError,
+    OrthoInfo,
+    Sun,
+    open_ortho,
+    sha256_of,
+    sun_from_tags,
+)
 from orbital_gn.recipe import RECIPES, Recipe
 from orbital_gn.tiling import default_tile_px, detect_candidates, raster_stats
 from roi_detector.classifier import BinaryClassifier, load_classifiers
@@ -33,15 +41,23 @@ def default_model_path() -> Path:
     return Path(str(resources.files("orbital_gn") / "models" / "orbital_default.npz"))
 
 
+def no_sun_model_path() -> Path:
+    """The committed model used instead of the default one when a raster's sun direction
+    is unknown (``orbital_gn/models/orbital_improved.npz``, the ``improved`` recipe)."""
+    return Path(str(resources.files("orbital_gn") / "models" / "orbital_improved.npz"))
+
+
 @dataclass
 class Model:
     """Trained classifiers with their recipe and provenance (``None`` classifiers: the
-    candidate-only detector)."""
+    candidate-only detector). ``without_sun``: a model file to use instead when the
+    recipe needs the sun direction and the raster's is unknown (the default model's)."""
 
     recipe: Recipe
     classifiers: dict[str, BinaryClassifier] = field(default_factory=dict)
     meta: dict[str, Any] = field(default_factory=dict)
     path: str | None = None
+    without_sun: str | None = None
 
 
 def load_model(path: str | os.PathLike[str] | None) -> Model:
@@ -58,7 +74,10 @@ def load_model(path: str | os.PathLike[str] | None) -> Model:
     if name not in RECIPES:
         raise ModelFileError(f"{p}: field 'provenance.recipe.name' is {name!r}, expected one "
                              f"of {sorted(RECIPES)}")
-    return Model(RECIPES[name], classifiers, meta, str(p))
+    fallback = None
+    if path is None and RECIPES[name].sun_aware and no_sun_model_path().is_file():
+        fallback = str(no_sun_model_path())
+    return Model(RECIPES[name], classifiers, meta, str(p), fallback)
 
 
 def map_origin_of(info: OrthoInfo) -> tuple[float, float]:
@@ -67,6 +86,31 @@ def map_origin_of(info: OrthoInfo) -> tuple[float, float]:
     x = t.a * info.width / 2.0 + t.b * info.height / 2.0 + t.c
     y = t.d * info.width / 2.0 + t.e * info.height / 2.0 + t.f
     return float(round(x)), float(round(y))
+
+
+def resolve_sun(info: OrthoInfo, recipe: Recipe, sun: Sun | None = None
+                ) -> tuple[Sun | None, str]:
+    """The sun direction a recipe needs, and where it came from.
+
+    Given (``--sun-azimuth/--sun-elevation``, from the image product's metadata) it wins;
+    else the raster's own metadata tags (:data:`orbital_gn.raster.SUN_TAGS`). A recipe that
+    is not ``sun_aware`` needs none.
+
+    Raises:
+        OrthoImageError: a ``sun_aware`` recipe and no sun direction (names the file).
+    """
+    if not recipe.sun_aware:
+        return None, "not used by the recipe"
+    if sun is not None:
+        return sun, "given (--sun-azimuth/--sun-elevation)"
+    tagged = sun_from_tags(info.path)
+    if tagged is not None:
+        return tagged, f"raster metadata {'/'.join(SUN_TAGS)}"
+    raise OrthoImageError(
+        f"{info.path}: recipe {recipe.name!r} needs the sun direction and the raster's "
+        f"metadata has no {'/'.join(SUN_TAGS)}; pass --sun-azimuth DEG (clockwise from "
+        "north) --sun-elevation DEG (90 - incidence angle) from the image product's label, "
+        "or use a model of the 'improved' recipe")
 
 
 def suppress_rocks_on_outcrops(records: np.ndarray) -> np.ndarray:
@@ -100,7 +144,8 @@ def assign_ids(records: np.ndarray) -> np.ndarray:
 
 def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None = None,
                scheduler: str | None = None, workers: int = 2, progress=None,
-               origin: tuple[float, float] | None = None) -> tuple[RoiNetwork, list[str]]:
+               origin: tuple[float, float] | None = None, sun: Sun | None = None
+               ) -> tuple[RoiNetwork, list[str]]:
     """The GN of an orthoimage.
 
     Args:
@@ -112,18 +157,30 @@ def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None =
         workers: local worker processes.
         progress: ``progress(what, total)`` -> object with ``update(n)`` and ``close()``.
         origin: map-frame origin (easting, northing); default :func:`map_origin_of`.
+        sun: sun direction for a ``sun_aware`` recipe; default :func:`resolve_sun`'s.
 
     Returns:
         (GN in the ``map`` frame, warnings for the user).
 
     Raises:
-        orbital_gn.raster.OrthoImageError: an unusable raster (names the file).
+        orbital_gn.raster.OrthoImageError: an unusable raster, or no sun direction for a
+            ``sun_aware`` recipe (names the file).
     """
     info = open_ortho(path)
-    recipe = model.recipe
     warnings: list[str] = []
+    notes: list[str] = []  # warnings that do not mean the GN is empty
+    if (model.recipe.sun_aware and sun is None and model.without_sun
+            and sun_from_tags(info.path) is None):
+        notes.append(f"{info.path}: no sun direction (no --sun-azimuth/--sun-elevation, "
+                        f"no {'/'.join(SUN_TAGS)} metadata): using {model.without_sun} "
+                        f"(recipe without the sun) instead of {model.path}")
+        model = load_model(model.without_sun)
+    recipe = model.recipe
+    sun, sun_source = resolve_sun(info, recipe, sun)
     origin = origin if origin is not None else map_origin_of(info)
     metadata = _metadata(info, model, origin)
+    metadata["sun"] = ({"azimuth_deg": sun.azimuth_deg, "elevation_deg": sun.elevation_deg,
+                        "source": sun_source} if sun else {"source": sun_source})
     tile_px = tile_px or default_tile_px(info)
     min_side_m = min(info.width, info.height) * info.gsd_m
     smallest = min(r.min_area_m2 for r in recipe.rules.rules)
@@ -142,7 +199,7 @@ def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None =
                                 "the GN is empty")
             else:
                 cands = detect_candidates(info, recipe, stats, origin, tile_px, scheduler,
-                                          workers, progress)
+                                          workers, progress, sun)
                 kept = [classify(c, model.classifiers, recipe) for c in cands]
                 records = np.concatenate(kept) if kept else empty_records(0)
                 records = assign_ids(suppress_rocks_on_outcrops(records))
@@ -154,7 +211,7 @@ def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None =
     if records.size == 0 and not warnings:
         warnings.append(f"{info.path}: no ROI found; the GN is empty")
     metadata["tile_px"] = tile_px
-    return RoiNetwork(records, "map", MapFrame(info.crs, origin), metadata), warnings
+    return RoiNetwork(records, "map", MapFrame(info.crs, origin), metadata), notes + warnings
 
 
 def _flat(stats) -> bool:

@@ -16,6 +16,7 @@ import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Final
 
 import numpy as np
 import rasterio
@@ -62,6 +63,59 @@ class OrthoInfo:
     @property
     def pixel_area_m2(self) -> float:
         return self.gsd_m**2
+
+
+#: Raster metadata tags giving the sun direction at acquisition (GDAL metadata, default
+#: domain), as atacama_sim's orthoimages carry them; other products give it in their label
+#: (incidence angle, solar azimuth in the product's convention), to convert and pass to
+#: ``prepare --sun-azimuth --sun-elevation``.
+SUN_TAGS: Final = ("SUN_AZIMUTH_DEG", "SUN_ELEVATION_DEG")
+
+
+@dataclass(frozen=True)
+class Sun:
+    """Sun direction at acquisition.
+
+    Attributes:
+        azimuth_deg: degrees clockwise from the map's (grid) north, [0, 360).
+        elevation_deg: degrees above the horizon, (0, 90].
+    """
+
+    azimuth_deg: float
+    elevation_deg: float
+
+    @classmethod
+    def checked(cls, azimuth_deg: float, elevation_deg: float, source: str) -> Sun:
+        """A validated Sun; ``source`` (an option or a file) names where the values came from.
+
+        Raises:
+            ValueError: non-finite azimuth, or elevation outside (0, 90] degrees.
+        """
+        az, el = float(azimuth_deg), float(elevation_deg)
+        if not math.isfinite(az):
+            raise ValueError(f"{source}: sun azimuth {azimuth_deg!r} is not a finite number")
+        if not (math.isfinite(el) and 0.0 < el <= 90.0):
+            raise ValueError(f"{source}: sun elevation {elevation_deg!r} is not in (0, 90] "
+                             "degrees (a shadow-aware recipe needs the sun above the horizon)")
+        return cls(az % 360.0, el)
+
+
+def sun_from_tags(path: str | os.PathLike[str]) -> Sun | None:
+    """The sun direction recorded in the raster's metadata (:data:`SUN_TAGS`), or None.
+
+    Raises:
+        OrthoImageError: a tag is present but not a valid angle (names the file and tag).
+    """
+    with rasterio.open(path) as ds:
+        tags = ds.tags()
+    if not all(t in tags for t in SUN_TAGS):
+        return None
+    try:
+        return Sun.checked(float(tags[SUN_TAGS[0]]), float(tags[SUN_TAGS[1]]),
+                           f"{path}: metadata {'/'.join(SUN_TAGS)}")
+    except ValueError as exc:
+        raise OrthoImageError(f"{path}: metadata {'/'.join(SUN_TAGS)} = "
+                              f"{tags[SUN_TAGS[0]]!r}/{tags[SUN_TAGS[1]]!r}: {exc}") from exc
 
 
 def _crs_string(crs: rasterio.crs.CRS) -> str:

@@ -7,12 +7,12 @@ raster's ground sample distance, so one recipe serves any GSD.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Final
 
 from roi_detector.candidates import ORBITAL_PAPER, ClassRule, RuleSet, ThresholdTerm
 from roi_detector.classifier import ClassifierConfig
-from roi_detector.features import GROUPS, PAPER_GROUPS
+from roi_detector.features import GROUPS, PAPER_GROUPS, SUN_GROUPS
 from roi_network import OUTCROP, ROCK
 
 
@@ -41,6 +41,11 @@ class Recipe:
             least this.
         stats_blocks: at most this many 512 x 512 blocks (spread evenly over the raster)
             give the metric distributions' mean and sigma (all blocks when fewer).
+        sun_aware: the recipe needs the sun direction (``prepare --sun-azimuth
+            --sun-elevation`` or the raster's metadata): rock centres are moved back
+            towards the sun by :func:`roi_detector.candidates.shadow_shift_px` with gain
+            ``shadow_kappa``, and the ``sun`` feature group may be used.
+        shadow_kappa: gain of the shadow shift (dimensionless; 0: no shift).
     """
 
     name: str
@@ -53,6 +58,8 @@ class Recipe:
     classifier: ClassifierConfig = field(default_factory=ClassifierConfig)
     min_probability: float = 0.5
     stats_blocks: int = 16
+    sun_aware: bool = False
+    shadow_kappa: float = 0.0
 
     def metrics_used(self, label: int) -> set[str]:
         """Names of the metric maps the rule of ``label`` thresholds."""
@@ -80,6 +87,8 @@ class Recipe:
                            "n_components": self.classifier.n_components,
                            "k": self.classifier.k, "weights": self.classifier.weights},
             "min_probability": self.min_probability,
+            "sun_aware": self.sun_aware,
+            "shadow_kappa": self.shadow_kappa,
         }
 
 
@@ -119,4 +128,13 @@ IMPROVED: Final = Recipe(
     classifier=ClassifierConfig(kind="gradient_boosting"),
 )
 
-RECIPES: Final = {"paper": PAPER, "improved": IMPROVED}
+#: Ours with the sun direction: each rock's dark region (shaded face + cast shadow) lies
+#: down-sun of the rock, by about half a shadow length; its centre is moved back towards
+#: the sun (``shadow_kappa`` = 0.81: least squares of the needed shift on the rocks of
+#: train_quick_s101 and s102 against s / tan(elevation), s the region's spread across
+#: the sun axis), and the classifier also sees the ring's sun side against its shadow
+#: side (feature group ``sun``).
+SUN_AWARE: Final = replace(IMPROVED, name="sun_aware", feature_groups=SUN_GROUPS,
+                           sun_aware=True, shadow_kappa=0.81)
+
+RECIPES: Final = {"paper": PAPER, "improved": IMPROVED, "sun_aware": SUN_AWARE}

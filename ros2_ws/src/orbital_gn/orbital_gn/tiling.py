@@ -33,7 +33,7 @@ from orbital_gn.detect import (
     window_candidates,
     window_moments,
 )
-from orbital_gn.raster import OrthoInfo, read_window
+from orbital_gn.raster import OrthoInfo, Sun, read_window
 from orbital_gn.recipe import Recipe
 from roi_detector.candidates import MetricMoments, MetricStats
 from roi_detector.features import feature_names
@@ -86,11 +86,11 @@ def _moments_task(info: OrthoInfo, tile: Tile, recipe: Recipe):
 
 
 def _candidates_task(info: OrthoInfo, tile: Tile, stats, recipe: Recipe,
-                     origin: tuple[float, float]) -> list[Candidates]:
+                     origin: tuple[float, float], sun: Sun | None) -> list[Candidates]:
     win, core = _read_with_halo(info, tile, halo_px(recipe, info.gsd_m))
     if not win.valid[core[0]:core[2], core[1]:core[3]].any():
         return []
-    return window_candidates(win, core, info, stats, recipe, origin)
+    return window_candidates(win, core, info, stats, recipe, origin, sun)
 
 
 def _run(tasks: list, scheduler: str | None, workers: int,
@@ -180,10 +180,13 @@ def raster_stats(info: OrthoInfo, recipe: Recipe, scheduler: str | None = None,
 
 def detect_candidates(info: OrthoInfo, recipe: Recipe, stats, origin: tuple[float, float],
                       tile_px: int = 1536, scheduler: str | None = None, workers: int = 2,
-                      progress=None) -> list[Candidates]:
-    """Candidates of every class over the whole raster (pass 2), merged by class."""
+                      progress=None, sun: Sun | None = None) -> list[Candidates]:
+    """Candidates of every class over the whole raster (pass 2), merged by class
+    (``sun``: the sun direction, for a ``sun_aware`` recipe)."""
+    if recipe.sun_aware and sun is None:
+        raise ValueError(f"recipe {recipe.name!r} needs the sun direction")
     tiles = tile_grid(info.height, info.width, tile_px)
-    tasks = [dask.delayed(_candidates_task, pure=True)(info, t, stats, recipe, origin)
+    tasks = [dask.delayed(_candidates_task, pure=True)(info, t, stats, recipe, origin, sun)
              for t in tiles]
     parts = _run(tasks, scheduler, workers, progress, "detection")
     merged = []

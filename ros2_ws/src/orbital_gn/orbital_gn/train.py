@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 from orbital_gn.evaluate import match
-from orbital_gn.prepare import map_origin_of
+from orbital_gn.prepare import map_origin_of, resolve_sun
 from orbital_gn.raster import open_ortho
 from orbital_gn.recipe import Recipe
 from orbital_gn.tiling import default_tile_px, detect_candidates, raster_stats
@@ -51,11 +51,13 @@ def labelled_candidates(bag: Path, recipe: Recipe, scheduler: str | None = None,
         if not p.is_file():
             raise TrainingError(f"{bag}: {p.relative_to(bag)} is missing")
     info = open_ortho(ortho)
+    # As prepare does: the sun direction from the image's own metadata (never world.yaml).
+    sun, _ = resolve_sun(info, recipe)
     truth = read_geojson(truth_path)
     origin = map_origin_of(info)
     stats, _ = raster_stats(info, recipe, scheduler, workers)
     cands = detect_candidates(info, recipe, stats, origin, default_tile_px(info), scheduler,
-                              workers)
+                              workers, sun=sun)
     out = {}
     for c in cands:
         net = RoiNetwork(c.records, "map", MapFrame(info.crs, origin))

@@ -16,6 +16,9 @@ from roi_network.geojson import write_geojson
 GSD = 0.25
 CRS = "EPSG:32719"
 ORIGIN_UL = (403000.0, 7334000.0)
+#: The scene's shadows fall down-right (south-east) of each rock: the sun is in the
+#: north-west, azimuth 315 deg; shadows about as long as the rock is wide: elevation 45 deg.
+SUN_TAGS = {"SUN_AZIMUTH_DEG": "315.0", "SUN_ELEVATION_DEG": "45.0"}
 
 
 def scene(seed: int, size: int = 320, n_rocks: int = 40, n_outcrops: int = 4):
@@ -84,8 +87,8 @@ def scene(seed: int, size: int = 320, n_rocks: int = 40, n_outcrops: int = 4):
 
 
 def write_tif(path: Path, data: np.ndarray, crs: str | None = CRS, transform=None,
-              nodata=None) -> Path:
-    """Write (H, W, B) or (H, W) data as a GeoTIFF."""
+              nodata=None, tags: dict[str, str] | None = None) -> Path:
+    """Write (H, W, B) or (H, W) data as a GeoTIFF (with metadata ``tags``)."""
     arr = data if data.ndim == 3 else data[..., None]
     transform = transform if transform is not None else from_origin(*ORIGIN_UL, GSD, GSD)
     profile = {"driver": "GTiff", "width": arr.shape[1], "height": arr.shape[0],
@@ -96,6 +99,8 @@ def write_tif(path: Path, data: np.ndarray, crs: str | None = CRS, transform=Non
         profile["nodata"] = nodata
     with rasterio.open(path, "w", **profile) as ds:
         ds.write(np.moveaxis(arr, -1, 0))
+        if tags:
+            ds.update_tags(**tags)
     return path
 
 
@@ -104,7 +109,7 @@ def make_bag(root: Path, seed: int, size: int = 320) -> Path:
     rgb, truth = scene(seed, size)
     bag = root / f"scene_s{seed}"
     (bag / "truth").mkdir(parents=True)
-    write_tif(bag / "orbital.tif", rgb)
+    write_tif(bag / "orbital.tif", rgb, tags=SUN_TAGS)
     write_geojson(truth, bag / "truth" / "rois.geojson")
     (bag / "world.yaml").write_text(f"config:\n  preset: test\n  seed: {seed}\n")
     return bag

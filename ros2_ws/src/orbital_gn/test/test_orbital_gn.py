@@ -14,8 +14,8 @@ from rasterio.transform import from_origin
 from orbital_gn.cli import main
 from orbital_gn.evaluate import evaluate, match
 from orbital_gn.prepare import Model, load_model, prepare_gn
-from orbital_gn.raster import OrthoImageError, open_ortho
-from orbital_gn.recipe import IMPROVED, PAPER
+from orbital_gn.raster import OrthoImageError, Sun, open_ortho
+from orbital_gn.recipe import IMPROVED, PAPER, SUN_AWARE
 from orbital_gn.train import TrainingError, train_model
 from roi_network import OUTCROP, ROCK
 from roi_network.geojson import read_geojson
@@ -40,7 +40,8 @@ def _key(gn):
                             r["minor_m"], r["score"]])
 
 
-@pytest.mark.parametrize("recipe", [PAPER, IMPROVED], ids=["paper", "improved"])
+@pytest.mark.parametrize("recipe", [PAPER, IMPROVED, SUN_AWARE],
+                         ids=["paper", "improved", "sun_aware"])
 def test_tiled_equals_untiled(bags, recipe):
     ortho = bags[0] / "orbital.tif"
     whole, _ = prepare_gn(ortho, Model(recipe), tile_px=10_000, scheduler="sync")
@@ -96,6 +97,10 @@ def test_match_rule_radius_and_class():
     assert result["outcrop"]["detections"] == 2 and result["outcrop"]["true_positives"] == 1
     det_match, hit = match(gn, truth, ROCK)
     assert (det_match == -1).sum() == 1 and hit.sum() == n_rock - 2
+    # Centre error of the matched rocks: all exact but the one moved by 0.9 m.
+    err = result["rock"]["centre_error_m"]
+    assert err["median"] == pytest.approx(0.0, abs=1e-9)
+    assert 0.0 < err["p90"] <= 0.9 + 1e-9
 
 
 def test_cli_prepare_eval_and_preview(tmp_path, bags, model_file, capsys):
@@ -260,3 +265,81 @@ def test_bad_input_no_roi(tmp_path, capsys):
     soil = np.clip(130 + rng.normal(0, 3.0, (96, 96, 1)) * np.ones(3), 0, 255).astype(np.uint8)
     p = write_tif(tmp_path / "soil.tif", soil)
     _assert_empty_with_warning(*_prepare(tmp_path, p, capsys), "no ROI found")
+
+
+def _rock_offsets(gn, truth):
+    """Distances (m) from each truth rock to the nearest detected rock."""
+    from scipy.spatial import cKDTree
+
+    d = gn.records[gn.records["label"] == ROCK]
+    t = truth.records[truth.records["label"] == ROCK]
+    dist, _ = cKDTree(np.column_stack([d["x"], d["y"]])).query(np.column_stack([t["x"], t["y"]]))
+    return dist[dist < 2.0]
+
+
+def test_sun_aware_centres_rocks_from_the_raster_metadata(bags):
+    # The scene's shadows fall south-east (its orbital.tif says: sun at azimuth 315 deg).
+    ortho = bags[0] / "orbital.tif"
+    truth = read_geojson(bags[0] / "truth" / "rois.geojson")
+    plain, _ = prepare_gn(ortho, Model(IMPROVED), scheduler="sync")
+    aware, _ = prepare_gn(ortho, Model(SUN_AWARE), scheduler="sync")
+    assert aware.metadata["sun"] == {"azimuth_deg": 315.0, "elevation_deg": 45.0,
+                                     "source": "raster metadata "
+                                               "SUN_AZIMUTH_DEG/SUN_ELEVATION_DEG"}
+    # Same candidates; rocks moved back towards the sun, closer to the truth.
+    assert len(aware) == len(plain)
+    off_plain, off_aware = _rock_offsets(plain, truth), _rock_offsets(aware, truth)
+    assert off_aware.size >= off_plain.size >= 10
+    assert np.median(off_aware) < 0.7 * np.median(off_plain)
+    # The option wins over the metadata: the opposite sun pushes them further away.
+    wrong, _ = prepare_gn(ortho, Model(SUN_AWARE), scheduler="sync", sun=Sun(135.0, 45.0))
+    assert wrong.metadata["sun"]["source"].startswith("given")
+    assert np.median(_rock_offsets(wrong, truth)) > np.median(off_plain)
+
+
+def test_sun_aware_model_trains_and_prepares(tmp_path, bags):
+    out = tmp_path / "sun.npz"
+    prov = train_model(bags, SUN_AWARE, out, scheduler="sync")
+    assert prov["recipe"]["sun_aware"] and prov["recipe"]["shadow_kappa"] > 0
+    model = load_model(out)
+    assert model.recipe is SUN_AWARE
+    assert "sun_ring_contrast" in model.classifiers["rock_orbital"].feature_names
+    gn, _ = prepare_gn(bags[1] / "orbital.tif", model, scheduler="sync")
+    result = evaluate(gn, read_geojson(bags[1] / "truth" / "rois.geojson"))
+    assert result["rock"]["recall"] > 0.7 and result["rock"]["precision"] > 0.7
+
+
+def _prepare_sun(tmp_path, ortho, capsys, *extra):
+    out = tmp_path / "gn.geojson"
+    rc = main(["prepare", str(ortho), "--out", str(out), "--model", "none", "--recipe",
+               "sun_aware", "--no-progress", "--scheduler", "sync", *extra])
+    return rc, out, capsys.readouterr()
+
+
+@pytest.mark.parametrize("extra, words", [
+    (["--sun-azimuth", "35"], ["--sun-azimuth and --sun-elevation go together"]),
+    (["--sun-azimuth", "35", "--sun-elevation", "0"], ["sun elevation", "(0, 90]"]),
+    (["--sun-azimuth", "35", "--sun-elevation", "120"], ["sun elevation", "(0, 90]"]),
+    (["--sun-azimuth", "nan", "--sun-elevation", "40"], ["sun azimuth", "not a finite"]),
+], ids=["azimuth-alone", "elevation-0", "elevation-120", "azimuth-nan"])
+def test_sun_options_bad_values(tmp_path, bags, capsys, extra, words):
+    _assert_error(*_prepare_sun(tmp_path, bags[0] / "orbital.tif", capsys, *extra), *words)
+
+
+def test_sun_aware_without_a_sun_direction(tmp_path, capsys):
+    rgb, _ = scene(9, size=120, n_rocks=8, n_outcrops=1)
+    ortho = write_tif(tmp_path / "nosun.tif", rgb)  # no SUN_* metadata
+    _assert_error(*_prepare_sun(tmp_path, ortho, capsys), str(ortho), "needs the sun direction",
+                  "--sun-azimuth")
+    # Given on the command line, it runs.
+    rc, out, _ = _prepare_sun(tmp_path, ortho, capsys, "--sun-azimuth", "315",
+                              "--sun-elevation", "45")
+    assert rc == 0 and out.exists()
+    assert json.loads(out.read_text())["metadata"]["sun"]["azimuth_deg"] == 315.0
+
+
+def test_bad_sun_metadata(tmp_path, capsys):
+    rgb, _ = scene(9, size=120, n_rocks=8, n_outcrops=1)
+    ortho = write_tif(tmp_path / "badsun.tif", rgb,
+                      tags={"SUN_AZIMUTH_DEG": "north", "SUN_ELEVATION_DEG": "40"})
+    _assert_error(*_prepare_sun(tmp_path, ortho, capsys), str(ortho), "SUN_AZIMUTH_DEG")

@@ -323,6 +323,49 @@ def candidate_regions(mask: np.ndarray, rule: ClassRule, pixel_area_m2: float | 
     return regions
 
 
+def sun_direction_px(azimuth_deg: float, jacobian: np.ndarray) -> tuple[float, float]:
+    """Unit vector towards the sun in image coordinates (d col, d row).
+
+    Args:
+        azimuth_deg: sun azimuth, degrees clockwise from the map's north (+y).
+        jacobian: (2, 2) d(x, y)/d(col, row) of the image's georeference (a north-up
+            orthoimage at g m/px: [[g, 0], [0, -g]]).
+    """
+    az = np.radians(azimuth_deg)
+    d = np.linalg.solve(np.asarray(jacobian, np.float64), [np.sin(az), np.cos(az)])
+    d /= np.linalg.norm(d)
+    return float(d[0]), float(d[1])
+
+
+def shadow_shift_px(cov_px: np.ndarray, sun_dir_px: tuple[float, float], elevation_deg: float,
+                    kappa: float) -> tuple[float, float]:
+    """How far a dark rock region's centroid lies from the rock, back towards the sun.
+
+    Seen from above, a rock lit at elevation e is a dark region made of its shaded face
+    and its cast shadow, which stretches away from the sun by about h / tan(e) for a rock
+    h high; rocks are about as high as they are wide, and the region's width across the
+    sun axis is the rock's, so the centroid sits ``kappa * s / tan(e)`` down-sun of the
+    rock, s the region's standard deviation across the sun axis. ``kappa`` is measured on
+    training imagery (orbital: the recipe's ``shadow_kappa``).
+
+    Args:
+        cov_px: (2, 2) region covariance, order (col, row), pixels^2.
+        sun_dir_px: unit vector (d col, d row) towards the sun.
+        elevation_deg: sun elevation above the horizon, degrees (0, 90].
+        kappa: dimensionless gain.
+
+    Returns:
+        (d col, d row), pixels, to add to the centroid.
+    """
+    if not 0.0 < elevation_deg <= 90.0:
+        raise ValueError(f"sun elevation must be in (0, 90] degrees, got {elevation_deg}")
+    dc, dr = sun_dir_px
+    across = np.array([-dr, dc])
+    s = float(np.sqrt(max(across @ np.asarray(cov_px) @ across, 0.0)))
+    shift = kappa * s / np.tan(np.radians(elevation_deg))
+    return shift * dc, shift * dr
+
+
 def threshold_excess(rule: ClassRule, metrics: dict[str, np.ndarray],
                      stats: dict[str, MetricStats]) -> np.ndarray:
     """Per pixel, how far the rule's weakest (``and``) or strongest (``or``) term is past its

@@ -26,6 +26,10 @@ from roi_detector.candidates import Region
 #: paper's list; the paper's recipe uses :data:`PAPER_GROUPS`.
 GROUPS: Final = ("rgb", "hsv", "gray", "gabor", "entropy", "shape")
 PAPER_GROUPS: Final = ("rgb", "hsv", "gray", "gabor", "entropy")
+#: ``sun`` (ours, needs the sun direction): a rock is a dark region (its shaded face and
+#: cast shadow) with its sunlit face on the sun side; soil patches are dark all round.
+SUN_GROUPS: Final = (*GROUPS, "sun")
+_ORDER: Final = SUN_GROUPS
 #: Gabor filter bank: wavelengths (pixels) x orientations (radians).
 GABOR_WAVELENGTHS_PX: Final = (4.0, 8.0)
 GABOR_THETAS: Final = (0.0, np.pi / 4, np.pi / 2, 3 * np.pi / 4)
@@ -43,15 +47,16 @@ _GROUP_NAMES: Final[dict[str, tuple[str, ...]]] = {
     + tuple(f"gabor_l{int(lam)}_ring" for lam in GABOR_WAVELENGTHS_PX),
     "entropy": ("entropy_mean", "entropy_max", "entropy_ring_mean"),
     "shape": ("log_area_m2", "elongation", "fill"),
+    "sun": ("sun_ring_contrast", "sun_lit_max", "sun_shade_min", "sun_axis_ratio"),
 }
 
 
 def feature_names(groups: tuple[str, ...] = GROUPS) -> tuple[str, ...]:
-    """Names of the feature vector's entries for ``groups`` (in :data:`GROUPS` order)."""
+    """Names of the feature vector's entries for ``groups`` (in :data:`SUN_GROUPS` order)."""
     for g in groups:
         if g not in _GROUP_NAMES:
-            raise ValueError(f"unknown feature group {g!r} (known: {GROUPS})")
-    return tuple(n for g in GROUPS if g in groups for n in _GROUP_NAMES[g])
+            raise ValueError(f"unknown feature group {g!r} (known: {_ORDER})")
+    return tuple(n for g in _ORDER if g in groups for n in _GROUP_NAMES[g])
 
 
 @cache
@@ -93,8 +98,36 @@ def _hsv(rgb01: np.ndarray) -> np.ndarray:
     return cv2.cvtColor(rgb01.astype(np.float32), cv2.COLOR_RGB2HSV)  # H deg, S, V in [0,1]
 
 
+def _sun_features(region: Region, gray: np.ndarray, ring: np.ndarray,
+                  origin: tuple[int, int], sun_dir_px: tuple[float, float]) -> list[float]:
+    """The ``sun`` group: the ring's sun-side half against its shadow-side half.
+
+    ``sun_ring_contrast``: mean gray of the ring's sun-side half minus its other half (a
+    rock's lit face is on the sun side, its cast shadow on the other); ``sun_lit_max`` /
+    ``sun_shade_min``: brightest sun-side / darkest shadow-side ring pixel minus the ring
+    mean; ``sun_axis_ratio``: the region's spread along the sun axis over its spread
+    across it (a cast shadow stretches the region along the sun azimuth).
+    """
+    dc, dr = sun_dir_px
+    rr, cc = np.nonzero(ring)
+    along = (cc + origin[1] - region.col) * dc + (rr + origin[0] - region.row) * dr
+    g = gray[ring]
+    sunny, shady = g[along > 0], g[along <= 0]
+    mean = float(g.mean())
+    sun_mean = float(sunny.mean()) if sunny.size else mean
+    shade_mean = float(shady.mean()) if shady.size else mean
+    u = np.array([dc, dr])
+    v = np.array([-dr, dc])
+    var_along, var_across = float(u @ region.cov_px @ u), float(v @ region.cov_px @ v)
+    return [sun_mean - shade_mean,
+            (float(sunny.max()) if sunny.size else mean) - mean,
+            (float(shady.min()) if shady.size else mean) - mean,
+            float(np.sqrt(var_along / max(var_across, 1e-9)))]
+
+
 def region_features(region: Region, rgb01: np.ndarray, gray_u8: np.ndarray,
-                    entropy: np.ndarray, groups: tuple[str, ...] = GROUPS) -> np.ndarray:
+                    entropy: np.ndarray, groups: tuple[str, ...] = GROUPS,
+                    sun_dir_px: tuple[float, float] | None = None) -> np.ndarray:
     """The feature vector of one candidate.
 
     Args:
@@ -102,11 +135,18 @@ def region_features(region: Region, rgb01: np.ndarray, gray_u8: np.ndarray,
         rgb01: (H, W, 3) float32 RGB in [0, 1] (a 1-band image replicated three times).
         gray_u8: (H, W) uint8 gray.
         entropy: (H, W) float32 weighted entropy, bits.
-        groups: feature groups to compute (:data:`GROUPS`).
+        groups: feature groups to compute (:data:`SUN_GROUPS` lists them all).
+        sun_dir_px: unit vector (d col, d row) towards the sun in image coordinates;
+            needed by the ``sun`` group.
 
     Returns:
         float32 vector, length ``len(feature_names(groups))``.
+
+    Raises:
+        ValueError: the ``sun`` group without ``sun_dir_px``.
     """
+    if "sun" in groups and sun_dir_px is None:
+        raise ValueError("feature group 'sun' needs the sun direction (sun_dir_px)")
     h, w = gray_u8.shape
     m = feature_halo_px()
     r0, c0, r1, c1 = region.bbox
@@ -120,7 +160,7 @@ def region_features(region: Region, rgb01: np.ndarray, gray_u8: np.ndarray,
     rgb = rgb01[pr0:pr1, pc0:pc1].astype(np.float32)
     gray = gray_u8[pr0:pr1, pc0:pc1].astype(np.float32) / 255.0
     out: list[float] = []
-    for g in GROUPS:
+    for g in _ORDER:
         if g not in groups:
             continue
         if g == "rgb":
@@ -159,13 +199,18 @@ def region_features(region: Region, rgb01: np.ndarray, gray_u8: np.ndarray,
             elong = float(np.sqrt(evals[1] / max(evals[0], 1e-9)))
             fill = region.n_px / float(max((r1 - r0) * (c1 - c0), 1))
             out += [float(np.log(max(region.area_m2, 1e-6))), elong, fill]
+        elif g == "sun":
+            out += _sun_features(region, gray, ring, (pr0, pc0), sun_dir_px)
     return np.asarray(out, dtype=np.float32)
 
 
 def candidate_features(regions: list[Region], rgb01: np.ndarray, gray_u8: np.ndarray,
-                       entropy: np.ndarray, groups: tuple[str, ...] = GROUPS) -> np.ndarray:
-    """(N, F) float32 feature matrix of ``regions`` (F = ``len(feature_names(groups))``)."""
+                       entropy: np.ndarray, groups: tuple[str, ...] = GROUPS,
+                       sun_dir_px: tuple[float, float] | None = None) -> np.ndarray:
+    """(N, F) float32 feature matrix of ``regions`` (F = ``len(feature_names(groups))``);
+    ``sun_dir_px`` as in :func:`region_features`."""
     n_feat = len(feature_names(groups))
     if not regions:
         return np.zeros((0, n_feat), np.float32)
-    return np.stack([region_features(r, rgb01, gray_u8, entropy, groups) for r in regions])
+    return np.stack([region_features(r, rgb01, gray_u8, entropy, groups, sun_dir_px)
+                     for r in regions])

@@ -19,6 +19,8 @@ from roi_detector.candidates import (
     ellipse_from_cov,
     metric_moments,
     metric_stats,
+    shadow_shift_px,
+    sun_direction_px,
     threshold_excess,
 )
 from roi_detector.classifier import (
@@ -31,6 +33,7 @@ from roi_detector.classifier import (
 from roi_detector.features import (
     GROUPS,
     PAPER_GROUPS,
+    SUN_GROUPS,
     candidate_features,
     entropy_pixels,
     feature_names,
@@ -333,3 +336,71 @@ def test_gradient_boosting_classifier_round_trips(tmp_path):
                                   clf.predict_proba(xt))
     with pytest.raises(ValueError, match="kind"):
         ClassifierConfig(kind="svm")
+
+
+def test_sun_direction_px_on_a_north_up_image():
+    jac = np.array([[0.25, 0.0], [0.0, -0.25]])  # north-up, 0.25 m/px
+    assert sun_direction_px(90.0, jac) == pytest.approx((1.0, 0.0), abs=1e-12)  # east: +col
+    assert sun_direction_px(0.0, jac) == pytest.approx((0.0, -1.0), abs=1e-12)  # north: -row
+    dc, dr = sun_direction_px(315.0, jac)
+    assert dc == pytest.approx(-math.sqrt(0.5)) and dr == pytest.approx(-math.sqrt(0.5))
+
+
+def _rock_with_shadow(sun_dir, radius=6.0, shadow_len=8.0, size=80):
+    """A dark rock disc centred at (40, 40) whose cast shadow (a disc swept ``shadow_len``
+    px down-sun) darkens the soil: the dark region's centroid lies down-sun of the rock."""
+    yy, xx = np.mgrid[:size, :size].astype(np.float64)
+    dark = np.zeros((size, size), bool)
+    for t in np.linspace(0.0, shadow_len, 17):
+        dark |= (xx - 40 + t * sun_dir[0]) ** 2 + (yy - 40 + t * sun_dir[1]) ** 2 <= radius**2
+    return dark
+
+
+@pytest.mark.parametrize("azimuth", [35.0, 200.0, 315.0])
+def test_shadow_shift_moves_the_centroid_back_to_the_rock(azimuth):
+    jac = np.array([[0.25, 0.0], [0.0, -0.25]])
+    sun = sun_direction_px(azimuth, jac)
+    mask = _rock_with_shadow(sun)
+    rule = ClassRule(ROCK, 0.1, (ThresholdTerm("contrast", "below"),), max_extent_m=8)
+    (reg,) = candidate_regions(mask, rule, 0.0625)
+    raw = math.hypot(reg.col - 40, reg.row - 40)
+    assert raw > 3.0  # the shadow pulls the centroid about half its length down-sun
+    # kappa from the geometry of this image: shift = half the shadow, s = the disc's
+    # spread across the sun axis (radius / 2), at 45 deg elevation (tan = 1).
+    dc, dr = shadow_shift_px(reg.cov_px, sun, 45.0, kappa=4.0 / 3.0)
+    fixed = math.hypot(reg.col + dc - 40, reg.row + dr - 40)
+    assert fixed < 0.25 * raw
+    # Towards the sun, not away from it; a wrong azimuth makes it worse.
+    assert dc * sun[0] + dr * sun[1] > 0
+    wc, wr = shadow_shift_px(reg.cov_px, (-sun[0], -sun[1]), 45.0, kappa=4.0 / 3.0)
+    assert math.hypot(reg.col + wc - 40, reg.row + wr - 40) > raw
+    # A lower sun means longer shadows: a larger shift for the same region.
+    lc, lr = shadow_shift_px(reg.cov_px, sun, 20.0, kappa=4.0 / 3.0)
+    assert math.hypot(lc, lr) > math.hypot(dc, dr)
+    for bad in (0.0, -5.0, 91.0):
+        with pytest.raises(ValueError, match="elevation"):
+            shadow_shift_px(reg.cov_px, sun, bad, kappa=1.0)
+
+
+def test_sun_features_see_the_lit_side():
+    # A dark region (shaded face + shadow) with a bright lit face on its +col side.
+    yy, xx = np.mgrid[:60, :60].astype(np.float64)
+    g = np.full((60, 60), 128, np.uint8)
+    dark = (xx - 28) ** 2 + (yy - 30) ** 2 <= 25
+    g[dark] = 60
+    g[((xx - 34) ** 2 + (yy - 30) ** 2 <= 9) & ~dark] = 210
+    rule = ClassRule(ROCK, 0.1, (ThresholdTerm("contrast", "below"),), max_extent_m=8)
+    regions = candidate_regions(dark, rule, 0.0625)
+    rgb = np.repeat(g[..., None], 3, axis=2).astype(np.float32) / 255.0
+    ent = np.zeros(g.shape, np.float32)
+    names = feature_names(SUN_GROUPS)
+    assert names[: len(feature_names())] == feature_names()
+    f_lit = candidate_features(regions, rgb, g, ent, SUN_GROUPS, (1.0, 0.0))[0]
+    f_wrong = candidate_features(regions, rgb, g, ent, SUN_GROUPS, (-1.0, 0.0))[0]
+    assert f_lit.shape == (len(names),) and np.isfinite(f_lit).all()
+    i = names.index("sun_ring_contrast")
+    assert f_lit[i] > 0.03 > -0.03 > f_wrong[i]
+    j = names.index("sun_lit_max")
+    assert f_lit[j] > f_wrong[j]
+    with pytest.raises(ValueError, match="sun direction"):
+        candidate_features(regions, rgb, g, ent, SUN_GROUPS)
