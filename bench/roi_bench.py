@@ -10,7 +10,7 @@ with OpenCV and BLAS on one thread (``--threads 1``).
 
 Usage (from the repository root, after ``source env.sh``)::
 
-    python bench/roi_bench.py --name eval --every 2 bags/atacama_1km_s1 bags/atacama_1km_s2
+    python bench/roi_bench.py --name eval bags/atacama_1km_s1 bags/atacama_1km_s2
     python bench/roi_bench.py --name recipes --every 2 --recipes bags/quick
 """
 
@@ -33,7 +33,7 @@ def _one_thread() -> None:
 
 
 def run_bag(bag: str, model: str | None, every: int, cfg, tag: str, work: Path,
-            vo: str | None = None) -> dict:
+            vo: str | None = None, gn: str | None = None) -> dict:
     """LN + evaluation of one bag with one configuration."""
     from roi_detector.cli import build_ln
     from roi_detector.evaluation import evaluate_ln
@@ -53,7 +53,7 @@ def run_bag(bag: str, model: str | None, every: int, cfg, tag: str, work: Path,
         wall = time.perf_counter() - t0
         ln_path = work / f"{name}_{tag}_{kind}_ln.geojson"
         ln.save(ln_path, stats)
-        rep = evaluate_ln(str(ln_path), bag, plot=str(work / f"{name}_{tag}_{kind}.png"))
+        rep = evaluate_ln(str(ln_path), bag, gn=gn, plot=str(work / f"{name}_{tag}_{kind}.png"))
         rep["stats"] = stats
         rep["wall_s"] = round(wall, 1)
         out[kind] = rep
@@ -66,8 +66,11 @@ def _line(rep: dict) -> str:
     ne = rep.get("node_error_m", {})
     m = rep["matcher"]["truth_gn"]
     return (f"rock R {pc['rock']['truth_found']}/{pc['rock']['truth_wanted']} "
+            f"(in view {pc['rock']['truth_in_view_found']}/{pc['rock']['truth_in_view']}) "
             f"P {pc['rock']['true_nodes']}/{pc['rock']['ln_nodes']}; outcrop R "
-            f"{pc['outcrop']['truth_found']}/{pc['outcrop']['truth_wanted']} P "
+            f"{pc['outcrop']['truth_found']}/{pc['outcrop']['truth_wanted']} "
+            f"(in view {pc['outcrop']['truth_in_view_found']}/"
+            f"{pc['outcrop']['truth_in_view']}) P "
             f"{pc['outcrop']['true_nodes']}/{pc['outcrop']['ln_nodes']}; class acc "
             f"{rep['classification_accuracy']}; node err median {ne.get('median')}; matcher "
             f"{m.get('status')} {m.get('reason', '')} err {m.get('error_m_mean')}; "
@@ -83,39 +86,48 @@ def write_markdown(path: Path, results: list[dict], meta: dict) -> None:
     lines = [f"# roi_bench: {meta['name']}", "",
              f"Command: `{meta['command']}`  ", f"Date: {meta['date']}; machine: "
              f"{meta['machine']}", "",
-             "| bag | config | odometry | rock recall | rock precision | outcrop recall | "
-             "outcrop precision | class. acc. | LN nodes | node err median / p90 (m) | "
-             "matcher (truth GN) | s/pair (1 thread) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| bag | config | odometry | rock recall (in view) | rock precision | "
+             "outcrop recall (in view) | outcrop precision | class. acc. | LN nodes | "
+             "node err median / p90 (m) | matcher (truth GN) | matcher (detected GN) | "
+             "s/pair (1 thread) |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         for kind in ("truth_odometry", "vo_odometry"):
             rep = r[kind]
             if "per_class" not in rep:
                 lines.append(f"| {r['bag']} | {r['config']} | {kind} | {rep['status']} |"
-                             " | | | | | | | |")
+                             " | | | | | | | | |")
                 continue
             pc = rep["per_class"]
             ne = rep.get("node_error_m", {})
-            m = rep["matcher"]["truth_gn"]
-            mtxt = m["status"] + (f", {m['error_m_mean']:.2f} m" if "error_m_mean" in m else
-                                  f" ({m.get('reason', '')})")
+
+            def _m(m):
+                if m is None:
+                    return "-"
+                return m["status"] + (f", {m['error_m_mean']:.2f} m" if "error_m_mean" in m
+                                      else f" ({m.get('reason', '')})")
             err = (f"{ne['median']:.2f} / {ne['p90']:.2f}" if ne else "-")
             lines.append(
                 f"| {r['bag']} | {r['config']} | {kind} | "
-                f"{pc['rock']['truth_found']}/{pc['rock']['truth_wanted']} | "
+                f"{pc['rock']['truth_found']}/{pc['rock']['truth_wanted']} "
+                f"({pc['rock']['truth_in_view_found']}/{pc['rock']['truth_in_view']}) | "
                 f"{_pct(pc['rock']['precision'])} ({pc['rock']['true_nodes']}/"
                 f"{pc['rock']['ln_nodes']}) | "
-                f"{pc['outcrop']['truth_found']}/{pc['outcrop']['truth_wanted']} | "
+                f"{pc['outcrop']['truth_found']}/{pc['outcrop']['truth_wanted']} "
+                f"({pc['outcrop']['truth_in_view_found']}/{pc['outcrop']['truth_in_view']}) | "
                 f"{_pct(pc['outcrop']['precision'])} ({pc['outcrop']['true_nodes']}/"
                 f"{pc['outcrop']['ln_nodes']}) | {_pct(rep['classification_accuracy'])} | "
-                f"{rep['ln_nodes']} | {err} | {mtxt} | "
+                f"{rep['ln_nodes']} | {err} | {_m(rep['matcher']['truth_gn'])} | "
+                f"{_m(rep['matcher'].get('gn'))} | "
                 f"{rep['stats']['detect_s_per_pair']:.3f} |")
     lines += ["", "Recall: truth ROIs above the rover thresholds within 15 m of the route found "
               "by an LN node of their class (DESIGN.md's rule: centre within max(1 m, half "
-              "the truth major axis)); precision: LN nodes of a class that match a truth ROI "
-              "of that class; classification accuracy: LN nodes matching a truth ROI that "
-              "carry its class. s/pair: detection (+ classification) per stereo pair, one "
-              "thread, on the shared 2-core machine (other jobs running)."]
+              "the truth major axis)); in view: the same over the truth ROIs whose centre "
+              "was in the left image, at most 20 m deep, in >= 3 stereo pairs; precision: "
+              "LN nodes of a class that match a truth ROI of that class; classification "
+              "accuracy: LN nodes matching a truth ROI that carry its class. s/pair: "
+              "detection (+ classification, elevation map) per stereo pair, one thread, on "
+              "the shared 2-core machine (other jobs running)."]
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text("\n".join(lines) + "\n")
     tmp.replace(path)
@@ -125,12 +137,15 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("bags", nargs="+")
     ap.add_argument("--name", default="eval")
-    ap.add_argument("--every", type=int, default=2)
+    ap.add_argument("--every", type=int, default=1,
+                    help="one stereo pair in N (the elevation map wants every view)")
     ap.add_argument("--model", default=None, help="rover model (.npz); default: committed")
     ap.add_argument("--vo", action="append", default=[],
                     help="BAG_NAME=DIR/vo.tum: rover_vo odometry of a bag")
+    ap.add_argument("--gn", action="append", default=[],
+                    help="BAG_NAME=GN.geojson: also match the LN against this (detected) GN")
     ap.add_argument("--recipes", action="store_true",
-                    help="also: paper rock recipe, no classifier")
+                    help="also the paper's per_pair method (and its Hessian rock mask)")
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args(argv)
     if args.threads == 1:
@@ -141,18 +156,20 @@ def main(argv: list[str] | None = None) -> int:
     from roi_detector.rover_candidates import RoverThresholds
     from roi_detector.rover_pipeline import RoverConfig
 
-    configs = [("default", RoverConfig(), args.model)]
+    configs = [("elevation_map", RoverConfig(), args.model)]
     if args.recipes:
-        configs += [("no_classifier", RoverConfig(), "none"),
-                    ("paper_rock_mask", RoverConfig(thresholds=RoverThresholds(
-                        rock_method="hessian")), args.model)]
+        configs += [("per_pair", RoverConfig(method="per_pair"), args.model),
+                    ("per_pair_paper_rock_mask", RoverConfig(
+                        method="per_pair", thresholds=RoverThresholds(rock_method="hessian")),
+                     args.model)]
     vo = dict(v.split("=", 1) for v in args.vo)
+    gns = dict(v.split("=", 1) for v in args.gn)
     work = RESULTS / f"roi_{args.name}_work"
     results = []
     for bag in args.bags:
         for tag, cfg, model in configs:
             results.append(run_bag(bag, model, args.every, cfg, tag, work,
-                                   vo.get(Path(bag).name)))
+                                   vo.get(Path(bag).name), gns.get(Path(bag).name)))
     meta = {"name": args.name, "command": "python bench/roi_bench.py " + " ".join(
         argv if argv is not None else sys.argv[1:]), "date": time.strftime("%Y-%m-%d %H:%M"),
             "machine": f"{os.cpu_count()} cores, shared with other jobs"}
