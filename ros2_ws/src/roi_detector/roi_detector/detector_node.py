@@ -167,7 +167,10 @@ class RoiDetectorNode(Node):
                                     [q.x, q.y, q.z, q.w], cov):
             self.bad("odometry out of order", "a /vo/odometry stamp went backwards")
             return
+        gaps = self.bad.counts.get("odometry gap", 0)
         self._track_waiting()
+        if self.bad.counts.get("odometry gap", 0) != gaps:
+            self.publish_status(msg.header.stamp)
 
     def _track_waiting(self) -> None:
         latest = self.odometry.latest_t
