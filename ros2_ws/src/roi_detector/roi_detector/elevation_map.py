@@ -20,11 +20,11 @@ footprint area, and height above the ground around them.
   down to ``rock_grow_height_m`` (hysteresis); kept when the region's height above the
   ring of ground around it exceeds the paper's 0.25 m and the convex hull of its cells
   (a rock's far side is seen late or never) exceeds the paper's 0.6 m^2.
-- **Outcrops**: pale tabular slabs. Each pair's image brightness is normalised by the
-  median of its ground pixels (auto-exposure and sun cancel) and mapped like the height;
-  connected cells brighter than the local ground by ``outcrop_brightness_ratio`` that
-  stand less than ``max_outcrop_height_m`` above it, over > 5.5 m^2 (the paper's
-  threshold).
+- **Outcrops**: pale tabular slabs. Each pair's colour saturation and value are
+  normalised by the pair's medians (auto-exposure and sun cancel) and mapped like the
+  height; connected cells far less saturated than the soil (``outcrop_max_saturation``),
+  not dark (``outcrop_min_value``) and standing less than ``max_outcrop_height_m`` above
+  the ground, over > 5.5 m^2 (the paper's threshold).
 - **Persistence** (the tracking of the paper's Sec. 4.2, done on the map): each detection
   round's regions are associated with the ROIs found so far by centre distance
   (``max(1 m, half the major axis)``); an ROI counts the rounds that found it and the
@@ -142,7 +142,7 @@ class MapRoi:
 
 
 class ElevationMap:
-    """Rolling elevation and brightness map in odom, with its ROIs.
+    """Rolling elevation and colour map in odom, with its ROIs.
 
     Args:
         cfg: parameters.
