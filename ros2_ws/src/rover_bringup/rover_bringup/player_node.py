@@ -67,6 +67,16 @@ class BagPlayer(Node):
         if not self.context.ok():
             raise ExternalShutdownException()
 
+    def _publish(self, pub: Publisher, msg) -> None:
+        """``pub.publish(msg)``; a context shut down by a signal between the last check and
+        this call (rclpy raises RCLError "publisher's context is invalid") is the same
+        shutdown as :meth:`_check_ok` reports, not a crash."""
+        try:
+            pub.publish(msg)
+        except RuntimeError:  # rclpy's RCLError derives from RuntimeError
+            self._check_ok()
+            raise
+
     def wait_for_subscribers(
         self, topics: Sequence[str], clock_subscribers: int, timeout_s: float
     ) -> list[str]:
@@ -97,7 +107,7 @@ class BagPlayer(Node):
         if stamp_ns <= self._last_clock_ns:
             return
         sec, nanosec = divmod(stamp_ns, NS_PER_S)
-        self._clock_pub.publish(Clock(clock=Time(sec=sec, nanosec=nanosec)))
+        self._publish(self._clock_pub, Clock(clock=Time(sec=sec, nanosec=nanosec)))
         self._last_clock_ns = stamp_ns
 
     def play(
@@ -141,7 +151,7 @@ class BagPlayer(Node):
             if not self._decodes(topic, stamp, data):
                 continue
             self.publish_clock(stamp)
-            self._topic_pubs[topic].publish(data)
+            self._publish(self._topic_pubs[topic], data)
             progress.sent += 1
 
     def _decodes(self, topic: str, stamp: int, data: bytes) -> bool:
