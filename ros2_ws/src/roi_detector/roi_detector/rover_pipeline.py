@@ -206,9 +206,9 @@ def records_in_view(records_odom: np.ndarray, pose, camera: StereoCamera,
     out["x"], out["y"], out["z"] = pb[ok, 0], pb[ok, 1], pb[ok, 2]
     yaw = float(np.arctan2(r_ob[1, 0], r_ob[0, 0]))
     c, s = np.cos(yaw), np.sin(yaw)
+    rot = np.array([[c, s], [-s, c]])  # odom -> base_link, x-y
     for r in out:  # covariance and ellipse rotated from odom into base_link
         cov = np.array([[r["cov_xx"], r["cov_xy"]], [r["cov_xy"], r["cov_yy"]]])
-        rot = np.array([[c, s], [-s, c]])
         cb = rot @ cov @ rot.T
         r["cov_xx"], r["cov_xy"], r["cov_yy"] = cb[0, 0], cb[0, 1], cb[1, 1]
         r["angle_rad"] = r["angle_rad"] - yaw
