@@ -97,17 +97,22 @@ class SunConfig:
 
 @dataclass
 class CameraConfig:
-    """Rectified stereo pair on a mast, modelled on the MER Navcam stereo bench.
+    """Rectified stereo pair on a mast: the MER Navcam bench with a wider lens.
 
     Source: Maki et al. (2003), "Mars Exploration Rover engineering cameras",
-    J. Geophys. Res. 108(E12), 8071: Navcams with 45 deg field of view and a 20 cm stereo
-    baseline on the mast, about 1.54 m above the ground. We keep the 45 deg horizontal
-    field of view on a 640x480 sensor (fx = 320 / tan 22.5 deg = 772.5 px).
+    J. Geophys. Res. 108(E12), 8071: Navcams with a 20 cm stereo baseline on the mast,
+    about 1.54 m above the ground, tilted down. MER's 45 deg field of view never saw half
+    of the ROIs within 15 m of a 1 km route (a fixed camera sees an ROI 4 m beside the
+    route only while it is 10-20 m ahead: 9-15 of 19-26 per route, docs/roi_detector.md);
+    newer navigation cameras are wider (ExoMars Rosalind Franklin NavCam 65 deg,
+    Perseverance Navcam 96 x 73 deg), and at 70 deg it sees 18-24 of them. We keep the
+    640x480 sensor (fx = 320 / tan 35 deg = 457 px): the same rendering and stereo cost,
+    depth error 1.7x MER's at equal range.
     """
 
     width: int = 640
     height: int = 480
-    hfov_deg: float = 45.0
+    hfov_deg: float = 70.0
     baseline_m: float = 0.20
     mast_height_m: float = 1.54  # left camera centre above base_link (ground plane)
     mast_x_m: float = 0.40  # forward of the rover centre
@@ -205,11 +210,13 @@ class WorldConfig:
 PRESETS: dict[str, dict[str, Any]] = {
     # The paper's scenario: 1.5 x 1.5 km, ~1 km route, ~600 m net, 20-30 ROIs passed.
     "atacama_1km": {},
-    # A few hundred metres, for the demo and the system tests.
+    # The demo: a shorter cut of the paper's scenario that still passes about as many
+    # ROIs (400 m, 18-28 ROIs within 15 m) on a denser site; at the paper's density a
+    # 300 m route passes 4-12, too few for any LN to be placed.
     "quick": {
         "site": {"extent_m": 700.0},
-        "route": {"length_m": 300.0, "rois_target": (8, 14), "edge_margin_m": 100.0},
-        "rocks": {"major_per_km2": 110.0, "clusters_per_km2": 12.0},
+        "route": {"length_m": 400.0, "rois_target": (18, 28), "edge_margin_m": 100.0},
+        "rocks": {"major_per_km2": 200.0, "clusters_per_km2": 15.0},
     },
     # Seconds: unit tests. A small square, a 12 m route through a rock cluster.
     "tiny": {

@@ -257,10 +257,14 @@ def test_rock_is_raised_in_stereo(bag: dict, messages: dict) -> None:
     info = messages["/stereo/left/camera_info"][0][1]
     rig, _, _ = _rig_from_bag(bag["dir"], info)
     fxb = -messages["/stereo/right/camera_info"][0][1].p[3]
+    # Rocks up to the depth where the stereo depth error (Z^2 / (fx B)) is what MER's
+    # 45 deg Navcam (fx B = 154.5 px m) has at 15 m: 11.5 m with the 70 deg lens.
+    max_depth = 15.0 * np.sqrt(fxb / 154.5)
     checked = 0
     for _i, rid, a, lm, rm in _frames_with_rocks(bag, messages, 1200):
         row = cat[cat["id"] == rid][0]
-        if row["label"] != 1 or checked >= 4 or np.median(a["z"][a["label"] == rid]) > 15:
+        if row["label"] != 1 or checked >= 4 or \
+                np.median(a["z"][a["label"] == rid]) > max_depth:
             continue
         disp = _sgbm(_decode(lm), _decode(rm))
         rock = (a["label"] == rid)

