@@ -32,7 +32,13 @@ from roi_detector.rover_candidates import (
     rover_candidates,
 )
 from roi_detector.rover_classifier import RoverClassifier
-from roi_detector.stereo import StereoCamera, StereoConfig, disparity, points_base
+from roi_detector.stereo import (
+    StereoCamera,
+    StereoConfig,
+    disparity,
+    mask_depth_edges,
+    points_base,
+)
 from roi_detector.tracking import (
     Observation,
     Tracker,
@@ -118,8 +124,10 @@ class RoverDetector:
         camera = self._camera(frame)
         left = cv2.cvtColor(frame.left, cv2.COLOR_BGR2GRAY)
         right = cv2.cvtColor(frame.right, cv2.COLOR_BGR2GRAY)
-        disp = self._disparity(left, right, None)
-        points = points_base(disp, camera, self._rays[::2, ::2], self.cfg.stereo.max_range_m)
+        st = self.cfg.stereo
+        disp = mask_depth_edges(self._disparity(left, right, None), st.edge_window_px,
+                                st.edge_max_relative_range)
+        points = points_base(disp, camera, self._rays[::2, ::2], st.max_range_m)
         h, w = points.shape[:2]
         small = cv2.resize(frame.left, (w, h), interpolation=cv2.INTER_AREA)
         return PairObservation(points=points,

@@ -122,3 +122,27 @@ def test_ground_surface_under_a_block():
     z[30:40, 30:40] = 0.5
     g = ground_surface(z, np.ones_like(z, bool), window_cells=32)
     assert np.abs(g).max() < 0.05
+
+
+def test_depth_edges_are_dropped_and_smooth_ground_kept():
+    """A rock (disparity 11.4 px, 8 m) in front of flat ground, whose disparity grows
+    linearly with the row below the horizon (20 rows above the image here): 6 px at the
+    top, 42 px at the bottom. The pixels along the rock's outline, where block matching
+    mixes the two, are dropped; the ground and the rock's inside are kept."""
+    from roi_detector.stereo import mask_depth_edges
+
+    rows = (0.3 * (np.arange(120) + 20)).astype(np.float32)
+    disp = np.repeat(rows[:, None], 160, axis=1)
+    disp[40:60, 70:90] = 11.4
+    disp[0, :5] = np.nan
+    out = mask_depth_edges(disp, 3, 0.15)
+    edge = np.zeros_like(disp, bool)
+    edge[39:61, 69:91] = True
+    edge[41:59, 71:89] = False
+    assert np.isnan(out[edge]).mean() > 0.7
+    assert np.isfinite(out[42:58, 72:88]).all()
+    ground = np.ones_like(disp, bool)
+    ground[37:63, 67:93] = False
+    ground[0, :5] = False
+    assert np.isfinite(out[ground]).all()
+    assert mask_depth_edges(disp, 3, 0.0) is disp
