@@ -39,9 +39,12 @@ from darces_matcher.vote import (
 )
 from roi_network.network import RoiNetwork
 from roi_network.records import as_records, xy
-from roi_network.transform import Rigid2D
+from roi_network.transform import Rigid2D, wrap_angle
 
 Status = Literal["fix", "no_fix"]
+#: The prior's region in :meth:`Matcher.track`: chi-square of 3 degrees of freedom at
+#: 99.7 % (3 sigma).
+PRIOR_CHI2 = 14.16
 
 
 @dataclass(frozen=True)
@@ -229,7 +232,9 @@ class MatchResult:
         reason: why (``"ok"``, ``"too_few_nodes"``, ``"no_control_triplet"``,
             ``"no_hypothesis"``, ``"insufficient_support"``, ``"unsupported_refit"``,
             ``"imprecise"``, ``"ambiguous"``, ``"label_mismatch"``); a fix found by the
-            label-blind fallback has reason ``"ok_label_blind"``.
+            label-blind fallback has reason ``"ok_label_blind"``; :meth:`Matcher.track`
+            gives ``"ok_tracked"`` on a fix, ``"outside_prior"`` when its fit left the
+            prior's 3-sigma region.
         map_T_odom: fitted transform (``odom`` -> ``map``) of the best hypothesis, also
             given on no_fix when there was one, for diagnostics; use it only on a fix.
         covariance: (3, 3) covariance of (x, y, yaw) of ``map_T_odom``, m^2 and rad^2.
@@ -385,6 +390,112 @@ class Matcher:
         if result.is_fix and self.config.probabilistic_refit:
             result = self._em_refit(result)
         return result
+
+    def track(
+        self,
+        ln: np.ndarray | RoiNetwork,
+        prior: Rigid2D,
+        prior_covariance: np.ndarray,
+        ln_sigma: np.ndarray | None = None,
+    ) -> MatchResult:
+        """Fit an LN near a known alignment: localization while driving, after a fix.
+
+        The global search (:meth:`match`) must find the LN anywhere on the GN, at any
+        heading: it needs a control triangle of three true nodes and odds that beat
+        every alignment it examined. Once the rover is localized the alignment is known
+        to within ``prior_covariance``, and the fit need only look there: the annealed
+        EM (:mod:`~darces_matcher.em_refit`) runs from ``prior``, its widest width the
+        prior's spread over the LN, and its alignment is decided on the same odds
+        against chance (:mod:`~darces_matcher.decision`), the alignments examined being
+        the distinct ones inside the prior's 3-sigma ellipsoid
+        (:meth:`prior_search_size`) instead of the triangle hypotheses of a global
+        search. A fit that leaves that ellipsoid is no fix (``outside_prior``): the
+        count would not cover it.
+
+        Args:
+            ln: LN records (:data:`~roi_network.records.ROI_DTYPE`) or network, ``odom``.
+            prior: the current estimate of ``map_T_odom``.
+            prior_covariance: (3, 3) covariance of its (x, y, yaw), m^2 and rad^2
+                (:class:`~darces_matcher.localization.MapOdomFilter`'s).
+            ln_sigma: as in :meth:`match`.
+
+        Returns:
+            A :class:`MatchResult` with reason ``"ok_tracked"`` on a fix.
+
+        Raises:
+            ValueError: if ``prior_covariance`` is not a finite, positive definite
+                (3, 3) matrix.
+        """
+        cfg = self.config
+        t_start = time.perf_counter()
+        p = np.asarray(prior_covariance, dtype=float)
+        if p.shape != (3, 3) or not np.all(np.isfinite(p)) or not np.all(
+                np.linalg.eigvalsh(0.5 * (p + p.T)) > 0.0):
+            raise ValueError("Matcher.track: prior_covariance must be a finite, positive "
+                             f"definite (3, 3) matrix, got {p.tolist()}")
+        records = as_records(ln.records if isinstance(ln, RoiNetwork) else ln)
+        kept = np.flatnonzero(np.isfinite(xy(records)).all(axis=1))
+        sigma = self.node_sigma(records, ln_sigma)[kept]
+        records = records[kept]
+        pts, labels = xy(records), records["label"].astype(np.int64)
+        if len(kept) < 3:
+            return MatchResult("no_fix", "too_few_nodes", timings_ms=_since(t_start, {}))
+        var = sigma**2 + cfg.gn_sigma_m**2
+        # The prior's 1-sigma spread over the LN: where the EM must start looking.
+        spread = float(np.sqrt(predicted_variance(pts, prior.yaw, p).max()))
+        w = cfg.outlier_prior
+        model = EmModel(self.index.tree, self._gn_labels, pts, labels, var,
+                        w / (1.0 - w) * self.gn_density,
+                        cfg.label_confusion if cfg.use_labels else 0.5)
+        fit = em_refit(model, prior.yaw, np.array([prior.tx, prior.ty]),
+                       anneal_start_m=max(cfg.anneal_start_m, spread),
+                       iterations=cfg.em_iterations)
+        n_tested = self.prior_search_size(pts, var, p)
+        odds = self.chance.odds(fit.yaw, fit.t, pts, labels, var)
+        verdict = decide(odds.log_odds, n_tested, [], cfg.false_match_rate)
+        fitted = Rigid2D(fit.yaw, fit.t[0], fit.t[1])
+        d = np.array([fit.t[0] - prior.tx, fit.t[1] - prior.ty,
+                      wrap_angle(fit.yaw - prior.yaw)])
+        covariance = pose_covariance(pts, fit.yaw, fit.matched / var)
+        position_sigma = float(np.sqrt(predicted_variance(pts, fit.yaw, covariance).max()))
+        if d @ np.linalg.solve(p, d) > PRIOR_CHI2:
+            status, reason = "no_fix", "outside_prior"
+        elif not verdict.accept:
+            status, reason = "no_fix", "insufficient_support"
+        elif position_sigma > cfg.max_position_sigma_m:
+            status, reason = "no_fix", "imprecise"
+        else:
+            status, reason = "fix", "ok_tracked"
+        return MatchResult(
+            status=status, reason=reason, map_T_odom=fitted, covariance=covariance,
+            inliers=np.column_stack([kept[fit.ln], fit.gn]).astype(np.int64),
+            support=len(fit.ln), margin=len(fit.ln), position_sigma_m=position_sigma,
+            log_odds=verdict.log_odds, false_match_probability=verdict.p_false,
+            timings_ms=_since(t_start, {}),
+        )
+
+    @staticmethod
+    def prior_search_size(pts: np.ndarray, var: np.ndarray, prior_covariance: np.ndarray
+                          ) -> float:
+        """Distinct alignments of an LN inside a prior's 3-sigma ellipsoid.
+
+        The ellipsoid ``d^T P^-1 d <= PRIOR_CHI2`` in (x, y, yaw) has volume
+        4/3 pi PRIOR_CHI2^(3/2) sqrt(det P); two alignments of the LN are told apart
+        when they differ by a node's 1-sigma error s (median over the nodes) in
+        translation or by s / r in heading (r the LN's RMS radius about its centroid):
+        a cell of s^2 (s / r). Both volumes are invariant to where the rotation is
+        taken about. At least 1.
+
+        Args:
+            pts: (N, 2) LN positions, ``odom``, metres.
+            var: (N,) per-axis position variance of each node, m^2.
+            prior_covariance: (3, 3) covariance of the prior's (x, y, yaw).
+        """
+        s = float(np.sqrt(np.median(var)))
+        r = max(float(np.sqrt(np.mean(np.sum((pts - pts.mean(axis=0)) ** 2, axis=1)))), s)
+        det = max(float(np.linalg.det(prior_covariance)), 0.0)
+        volume = 4.0 / 3.0 * np.pi * PRIOR_CHI2**1.5 * np.sqrt(det)
+        return max(1.0, volume / (s * s * (s / r)))
 
     def _em_refit(self, result: MatchResult) -> MatchResult:
         """Maximum-likelihood refit of a fix (EM, :mod:`~darces_matcher.em_refit`).

@@ -67,6 +67,12 @@ class MatcherNode(Node):
             ParameterDescriptor(description="re-match an LN that changed but did not grow "
                                 "after this long (node positions refined), seconds"),
         ).value
+        self.track = self.declare_parameter(
+            "track", True,
+            ParameterDescriptor(description="once localized, fit an LN the global search "
+                                "leaves without a fix near the current alignment "
+                                "(Matcher.track)"),
+        ).value
         filter_overrides = {
             f.name: self.declare_parameter(
                 f"localization.{f.name}", f.default,
@@ -131,6 +137,12 @@ class MatcherNode(Node):
         if not (grew or stale):
             return
         result = self.matcher.match(records)
+        alignment = self.filter.alignment
+        if not result.is_fix and self.track and alignment is not None:
+            searched_ms = result.timings_ms.get("total", 0.0)
+            result = self.matcher.track(records, alignment.map_T_odom, alignment.covariance)
+            result.timings_ms["search"] = searched_ms
+            result.timings_ms["total"] = result.timings_ms.get("total", 0.0) + searched_ms
         self.last_matched_size, self.last_match_time = len(records), now
         self.last_result = result
         try:

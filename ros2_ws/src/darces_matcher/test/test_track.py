@@ -1,0 +1,120 @@
+"""Matcher.track: fitting an LN near a known alignment (localization while driving)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from darces_matcher.gn_generator import GnSpec, generate_gn
+from darces_matcher.matcher import MatchConfig, Matcher
+from darces_matcher.simulate import SimOptions, iter_lns, ln_prefix, transform_error
+from roi_network.network import RoiNetwork
+from roi_network.records import xy
+from roi_network.transform import Rigid2D
+
+
+@pytest.fixture(scope="module")
+def gn() -> RoiNetwork:
+    return generate_gn(GnSpec(n_rois=120), seed=3)
+
+
+@pytest.fixture(scope="module")
+def matcher(gn: RoiNetwork) -> Matcher:
+    return Matcher(gn)
+
+
+@pytest.fixture(scope="module")
+def lns(gn: RoiNetwork) -> list:
+    return list(iter_lns(gn, SimOptions(), seed=7, max_lns=12))
+
+
+def _prior(truth: Rigid2D, centre_odom: np.ndarray, offset: np.ndarray, sigma_m: float,
+           sigma_yaw: float) -> tuple[Rigid2D, np.ndarray]:
+    """``truth`` moved by ``offset`` (dx, dy in map, dyaw about the LN's centre), and a
+    covariance of ``sigma_m`` / ``sigma_yaw`` about that centre (the lever arm to the
+    odom origin included, as MapOdomFilter's covariance has it)."""
+    c = truth.apply(centre_odom)
+    rot = Rigid2D(float(offset[2]), 0.0, 0.0).rotation
+    t = rot @ (np.array([truth.tx, truth.ty]) - c) + c + offset[:2]
+    lever = t - c
+    g = np.array([[1.0, 0.0, -lever[1]], [0.0, 1.0, lever[0]], [0.0, 0.0, 1.0]])
+    cov = g @ np.diag([sigma_m**2, sigma_m**2, sigma_yaw**2]) @ g.T
+    return Rigid2D(truth.yaw + float(offset[2]), t[0], t[1]), cov
+
+
+def test_track_pulls_a_wrong_prior_onto_the_ln(gn, matcher, lns) -> None:
+    gn_pts = xy(gn.records)
+    rng = np.random.default_rng(0)
+    for sim in lns:
+        offset = np.r_[rng.normal(0.0, 2.0, 2), rng.normal(0.0, np.radians(1.0))]
+        prior, cov = _prior(sim.map_T_odom, xy(sim.records).mean(axis=0), offset, 2.0,
+                            np.radians(1.0))
+        before = transform_error(prior, sim, gn_pts)
+        result = matcher.track(sim.records, prior, cov)
+        assert result.status == "fix" and result.reason == "ok_tracked", result.reason
+        after = transform_error(result.map_T_odom, sim, gn_pts)
+        # As good as the global search's fits of the same LNs (test_matcher: < 6 m), and
+        # closer than the prior wherever the prior was more than a metre off.
+        assert after < 6.0
+        assert after < max(before, 1.0)
+        # Inliers are mostly true correspondences (a far, drifted node may pair with a
+        # neighbour of its ROI, as in the global search's EM refit).
+        pairs = result.inliers
+        assert len(pairs) >= 6
+        assert np.mean(sim.truth_gn[pairs[:, 0]] == pairs[:, 1]) >= 0.8
+        assert np.all(np.linalg.eigvalsh(result.covariance) > 0)
+        assert np.isfinite(result.log_odds) and result.false_match_probability <= 1e-2
+
+
+def test_track_refuses_a_prior_far_from_the_truth(gn, matcher, lns) -> None:
+    for sim in lns:
+        prior, cov = _prior(sim.map_T_odom, xy(sim.records).mean(axis=0),
+                            np.array([60.0, -40.0, 0.0]), 2.0, np.radians(1.0))
+        result = matcher.track(sim.records, prior, cov)
+        assert result.status == "no_fix"
+        assert result.reason in ("insufficient_support", "outside_prior")
+
+
+def test_a_looser_prior_searches_more_alignments(gn, matcher, lns) -> None:
+    sim = lns[0]
+    pts = xy(sim.records)
+    var = sim.sigma**2 + matcher.config.gn_sigma_m**2
+    sizes = []
+    for sigma_m in (0.5, 2.0, 8.0):
+        _, cov = _prior(sim.map_T_odom, pts.mean(axis=0), np.zeros(3), sigma_m,
+                        np.radians(1.0))
+        sizes.append(matcher.prior_search_size(pts, var, cov))
+    # Volume of the prior: sigma_m^2 for the same heading sigma.
+    assert sizes[1] / sizes[0] == pytest.approx(16.0, rel=1e-6)
+    assert sizes[2] / sizes[1] == pytest.approx(16.0, rel=1e-6)
+    # A single alignment at least, however tight the prior.
+    _, tiny = _prior(sim.map_T_odom, pts.mean(axis=0), np.zeros(3), 1e-6, 1e-9)
+    assert matcher.prior_search_size(pts, var, tiny) == 1.0
+
+
+def test_track_keeps_the_odds_threshold(gn, lns) -> None:
+    """A prefix of a few nodes: the odds a fix needs grow with the prior's volume, so a
+    tight prior fixes a short LN that a loose one leaves without a fix."""
+    matcher = Matcher(gn, MatchConfig())
+    fixed = {}
+    for sigma_m in (0.5, 20.0):
+        count = 0
+        for sim in lns:
+            short = ln_prefix(sim, 6)
+            prior, cov = _prior(short.map_T_odom, xy(short.records).mean(axis=0),
+                                np.zeros(3), sigma_m, np.radians(0.2))
+            count += matcher.track(short.records, prior, cov).is_fix
+        fixed[sigma_m] = count
+    assert fixed[0.5] > fixed[20.0]
+
+
+def test_track_bad_input(gn, matcher, lns) -> None:
+    sim = lns[0]
+    with pytest.raises(ValueError, match="prior_covariance"):
+        matcher.track(sim.records, sim.map_T_odom, np.eye(2))
+    with pytest.raises(ValueError, match="prior_covariance"):
+        matcher.track(sim.records, sim.map_T_odom, np.diag([1.0, 1.0, -1.0]))
+    with pytest.raises(ValueError, match="prior_covariance"):
+        matcher.track(sim.records, sim.map_T_odom, np.full((3, 3), np.nan))
+    few = matcher.track(sim.records[:2], sim.map_T_odom, np.eye(3))
+    assert few.status == "no_fix" and few.reason == "too_few_nodes"
