@@ -22,6 +22,19 @@ The log-odds of the alignment is the sum over the LN of log LR_i, less the three
 largest terms: T was fitted to the nodes, three of them (a triangle) fix it, and their
 agreement is no evidence (astrometry.net leaves the quad's own stars out likewise).
 
+The outlier share w is not known in advance: a clean simulated LN has few nodes without
+a counterpart, a rover's LN on a detected GN most of them (false rover detections times
+orbital misses: about 70 % on the simulated bags). A fixed w = 0.3 charges each of those
+log(0.3) = -1.2 nats and kept fixes from such LNs. With ``marginal`` the odds integrate w
+out under a uniform prior instead::
+
+    LR = int_0^1 prod_i (w + (1 - w) E_i) dw
+
+(E_i the node's evidence, the sum above; a 64-point midpoint rule). Under chance each
+factor has expectation 1 for every w, so the integral does too and the bound below holds
+unchanged; the odds adapt to the LN's own outlier share, at the price of about half a nat
+per decade of plausible w against knowing it.
+
 Under the chance hypothesis the likelihood ratio has expectation 1, so a chance alignment
 reaches odds e^K with probability at most e^-K (Markov), and among the ``n_tested``
 alignments a search examines, the expected number that do is at most n_tested e^-K.
@@ -57,6 +70,8 @@ DENSITY_NEIGHBOURS = 8
 #: Terms left out of the log-odds: the degrees of freedom of a 2D rigid fit are fixed by
 #: three nodes (a control triangle).
 SPENT_NODES = 3
+#: Midpoints of 64 equal cells of (0, 1): the outlier shares of the marginal odds.
+_W_GRID = (np.arange(64) + 0.5) / 64
 
 
 def local_density(pts: np.ndarray, tree: cKDTree | None = None,
@@ -113,16 +128,20 @@ class ChanceModel:
         outlier_prior: w, share of LN nodes with no GN counterpart.
         label_confusion: probability that an LN node's class differs from its GN
             counterpart's.
+        marginal: integrate w out under a uniform prior (module docstring) instead of
+            fixing it at ``outlier_prior``.
     """
 
     def __init__(self, tree: cKDTree, gn_labels: np.ndarray, *, use_labels: bool,
-                 outlier_prior: float, label_confusion: float) -> None:
+                 outlier_prior: float, label_confusion: float,
+                 marginal: bool = False) -> None:
         self.tree = tree
         self.gn_labels = np.asarray(gn_labels, dtype=np.int64)
         self.density = local_density(np.asarray(tree.data), tree)
         self.use_labels = use_labels
         self.outlier_prior = outlier_prior
         self.label_confusion = label_confusion
+        self.marginal = marginal
         self.frequency = class_frequencies(self.gn_labels)
 
     def odds(self, yaw: float, t: np.ndarray, pts: np.ndarray, labels: np.ndarray,
@@ -152,10 +171,20 @@ class ChanceModel:
             ratio = ratio * np.where(agree, 1.0 - self.label_confusion,
                                      self.label_confusion) / freq[:, None]
         evidence = np.where(near, ratio, 0.0).sum(axis=1)
-        w = self.outlier_prior
-        node = np.log(w + (1.0 - w) * evidence)
-        spent = np.sort(node)[-SPENT_NODES:].sum() if len(node) > SPENT_NODES else node.sum()
-        return Odds(float(node.sum() - spent), node)
+        if not self.marginal:
+            w = self.outlier_prior
+            node = np.log(w + (1.0 - w) * evidence)
+            spent = (np.sort(node)[-SPENT_NODES:].sum() if len(node) > SPENT_NODES
+                     else node.sum())
+            return Odds(float(node.sum() - spent), node)
+        # LR_i grows with E_i whatever w: the spent nodes are the largest E_i.
+        rest = np.sort(evidence)[:-SPENT_NODES] if len(evidence) > SPENT_NODES else evidence[:0]
+        w = _W_GRID[:, None]
+        per_w = np.log(w + (1.0 - w) * rest[None, :]).sum(axis=1)
+        log_odds = float(np.logaddexp.reduce(per_w) - math.log(len(_W_GRID)))
+        # Per node: its log LR at the most likely w (diagnostics).
+        best = float(_W_GRID[int(np.argmax(per_w))])
+        return Odds(log_odds, np.log(best + (1.0 - best) * evidence))
 
 
 def false_match_probability(log_odds: float, n_tested: float,

@@ -160,3 +160,51 @@ def test_darces_eval_generates_a_family_gn_by_name(tmp_path: Path) -> None:
         assert sum(r["no_fix_reasons"].values()) == r["no_fix"]
         assert 0.0 <= r["no_fix_oracle_fit_rate"] <= 1.0
     assert darces_eval(["--synthetic", "no_such_gn", "--json", str(out)]) == 1
+
+
+def test_marginal_odds_integrate_the_outlier_share() -> None:
+    gn = family_gn("poisson_50", seed=1)
+    pts, labels = xy(gn.records), gn.records["label"].astype(np.int64)
+    tree = cKDTree(pts)
+    fixed = ChanceModel(tree, labels, use_labels=True, outlier_prior=0.3, label_confusion=0.1)
+    marginal = ChanceModel(tree, labels, use_labels=True, outlier_prior=0.3,
+                           label_confusion=0.1, marginal=True)
+    rng = np.random.default_rng(0)
+    nodes = np.arange(8)
+    true_pts = pts[nodes]
+    # The same 8 true nodes plus 24 false ones far from any ROI (75 % outliers).
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    cand = rng.uniform(lo, hi, (400, 2))
+    far = cand[tree.query(cand)[0] > 30.0][:24]
+    assert len(far) == 24
+    ln = np.vstack([true_pts, far])
+    ln_labels = np.r_[labels[nodes], np.zeros(24, dtype=np.int64) + ROCK]
+    var = np.full(len(ln), 0.5**2)
+    zero = np.zeros(2)
+    # Many outliers: each costs log(0.3) at a fixed share, next to nothing integrated.
+    assert (marginal.odds(0.0, zero, ln, ln_labels, var).log_odds
+            > fixed.odds(0.0, zero, ln, ln_labels, var).log_odds + 10.0)
+    # A clean LN: within a few nats of the fixed share (the cost of not knowing it).
+    clean_f = fixed.odds(0.0, zero, true_pts, labels[nodes], var[:8]).log_odds
+    clean_m = marginal.odds(0.0, zero, true_pts, labels[nodes], var[:8]).log_odds
+    assert clean_f - 4.0 < clean_m < clean_f + 4.0
+    # The integral itself: the mean over the share of the product of the node ratios
+    # (the three largest left out).
+    evidence = np.exp(fixed.odds(0.0, zero, ln, ln_labels, var).node_log_lr)
+    evidence = (evidence - 0.3) / 0.7
+    rest = np.sort(evidence)[:-3]
+    w = (np.arange(64) + 0.5) / 64
+    direct = np.log(np.mean(np.exp(np.log(w[:, None] + (1 - w[:, None]) * rest).sum(axis=1))))
+    assert marginal.odds(0.0, zero, ln, ln_labels, var).log_odds == pytest.approx(direct,
+                                                                                  rel=1e-6)
+    # A wrong alignment stays below even odds.
+    assert marginal.odds(0.0, np.array([7.0, 0.0]), ln, ln_labels, var).log_odds < 0.0
+
+
+def test_marginal_odds_keep_lns_of_another_gn_from_a_fix(sparse_gn) -> None:
+    matcher = Matcher(family_gn("poisson_50", seed=2), MatchConfig(marginal_outliers=True))
+    options = SimOptions(min_nodes=7, max_nodes=10, walks_per_pair=1, outliers=1.0)
+    for sim in iter_lns(sparse_gn, options, seed=3, max_lns=5):
+        result = matcher.match(sim.records)
+        assert not result.is_fix
+        assert np.isnan(result.false_match_probability) or result.false_match_probability > 0.5
