@@ -362,6 +362,17 @@ class Matcher:
             sigma = np.asarray(ln_sigma, dtype=float).reshape(len(records))
         return np.maximum(sigma, self.config.ln_sigma_floor_m)
 
+    def _finite_nodes(
+        self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The LN nodes with finite positions: (indices into the input, 1-sigma error per
+        axis, (K, 2) positions, class labels)."""
+        records = as_records(ln.records if isinstance(ln, RoiNetwork) else ln)
+        kept = np.flatnonzero(np.isfinite(xy(records)).all(axis=1))
+        sigma = self.node_sigma(records, ln_sigma)[kept]
+        records = records[kept]
+        return kept, sigma, xy(records), records["label"].astype(np.int64)
+
     def match(
         self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None = None
     ) -> MatchResult:
@@ -438,11 +449,7 @@ class Matcher:
                 np.linalg.eigvalsh(0.5 * (p + p.T)) > 0.0):
             raise ValueError("Matcher.track: prior_covariance must be a finite, positive "
                              f"definite (3, 3) matrix, got {p.tolist()}")
-        records = as_records(ln.records if isinstance(ln, RoiNetwork) else ln)
-        kept = np.flatnonzero(np.isfinite(xy(records)).all(axis=1))
-        sigma = self.node_sigma(records, ln_sigma)[kept]
-        records = records[kept]
-        pts, labels = xy(records), records["label"].astype(np.int64)
+        kept, sigma, pts, labels = self._finite_nodes(ln, ln_sigma)
         if len(kept) < 3:
             return MatchResult("no_fix", "too_few_nodes", timings_ms=_since(t_start, {}))
         var = sigma**2 + cfg.gn_sigma_m**2
@@ -657,12 +664,7 @@ class Matcher:
         cfg = self.config
         t_start = time.perf_counter()
         timings: dict[str, float] = {}
-        records = as_records(ln.records if isinstance(ln, RoiNetwork) else ln)
-        # Nodes with non-finite positions are left out; `kept` maps back to the input.
-        kept = np.flatnonzero(np.isfinite(xy(records)).all(axis=1))
-        sigma = self.node_sigma(records, ln_sigma)[kept]
-        records = records[kept]
-        pts, labels = xy(records), records["label"].astype(np.int64)
+        kept, sigma, pts, labels = self._finite_nodes(ln, ln_sigma)
         if len(kept) < 3:
             return MatchResult("no_fix", "too_few_nodes", timings_ms=_since(t_start, timings))
 
