@@ -219,7 +219,8 @@ def latency(run_dir: Path, rate: float) -> dict[str, Any]:
         "latency_bag_s": {"median": float(np.median(a)), "p95": float(np.percentile(a, 95)),
                           "max": float(a.max())},
         "latency_wall_s_p95": float(np.percentile(a, 95)) / rate if rate > 0 else None,
-        "note": "recorder receive time in bag time; at rate R, wall latency = bag / R",
+        "note": "recorder receive time in bag time (its sim time, which /clock at 100 Hz "
+                "wall may hold up to R / 100 bag s behind); at rate R, wall latency = bag / R",
     }
 
 

@@ -99,7 +99,10 @@ def test_bench_runs_and_compares_on_the_matcher_graph(
     assert entry['end_of_route']['final_error_m'] < 1.0
     assert entry['cpu_s']['darces_matcher'] > 0 and 'globloc_play' in entry['cpu_s']
     lat = entry['latency']
-    assert lat['global_poses'] == c['global_poses'] and lat['latency_bag_s']['median'] >= 0
+    # The recorder's receive time is its sim time: /clock ticks at most 100 times per wall
+    # second, so it may read up to rate / 100 bag seconds behind the pose's stamp.
+    assert lat['global_poses'] == c['global_poses']
+    assert lat['latency_bag_s']['median'] >= -5.0 / 100.0
     md = (results / 'e2e_test.md').read_text()
     assert '| route | True |' in md
     run = yaml.safe_load((Path(entry['run_dir']) / 'run.yaml').read_text())
