@@ -88,7 +88,10 @@ def _start_run(globloc_cmd, tmp_path: Path, bag_dir: Path, env, *extra: str):
          '--params', str(tmp_path / 'params.yaml'), '--out', str(tmp_path / 'out'),
          '--run-id', 'r1', '--settle', '1', *extra],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        start_new_session=True)  # its own process group, as a shell job: Ctrl-C reaches all
+        start_new_session=True,  # its own process group, as a shell job: Ctrl-C reaches all
+        # SIGINT as a terminal gives it, even when pytest runs where it is ignored (a
+        # background job): a process that inherits SIG_IGN keeps ignoring it.
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def _node_process(root: psutil.Process, name: str) -> psutil.Process:
