@@ -6,10 +6,11 @@
 RUN_DIR is a ``globloc run`` directory (its ``outputs/`` bag holds every /local_network
 and /vo/odometry message of the run); BAG_DIR the bag it ran on (``gn.geojson``,
 ``truth/trajectory.tum``). The darces_matcher node's logic without ROS: each LN that grew
-is matched (``Matcher.match``, then ``Matcher.track`` near the estimate when localized
-and the variant tracks), folded into ``MapOdomFilter``, and every odometry pose mapped
-into ``map``. The LN and the odometry are the run's own, so a matcher or filter setting
-is judged in seconds on the LNs the perception really built, instead of a 10-25 min run.
+is matched (``Matcher.match_or_track``, as the node does: the global search, then tracking
+near the estimate when localized and the variant tracks), folded into
+``MapOdomFilter``, and every odometry pose mapped into ``map``. The LN and the odometry
+are the run's own, so a matcher or filter setting is judged in seconds on the LNs the
+perception really built, instead of a 10-25 min run.
 (The node also re-matches an LN that changed without growing every 10 s; the replay does
 not, so its refinements are fewer.)
 
@@ -99,10 +100,11 @@ def replay(lns: list, odometry: list, gn, truth_xy: np.ndarray, dist: np.ndarray
                 continue
             last_size = len(rec)
             t0 = time.perf_counter()
-            result = matcher.match(rec)
-            estimate = filt.alignment
-            if not result.is_fix and track and estimate is not None:
-                result = matcher.track(rec, estimate.map_T_odom, estimate.covariance)
+            estimate = filt.alignment if track else None
+            if estimate is None:
+                result = matcher.match_or_track(rec)
+            else:
+                result = matcher.match_or_track(rec, estimate.map_T_odom, estimate.covariance)
             ms.append(1e3 * (time.perf_counter() - t0))
             event = filt.update(result, xy(rec), gn_xy)
             key = f"{event}:{result.reason}"

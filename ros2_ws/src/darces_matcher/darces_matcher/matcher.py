@@ -20,7 +20,7 @@ from typing import Literal
 import numpy as np
 
 from darces_matcher.decision import ChanceModel, decide
-from darces_matcher.em_refit import EmModel, em_refit, gn_density
+from darces_matcher.em_refit import EmFit, EmModel, em_refit, gn_density
 from darces_matcher.gn_index import GnIndex
 from darces_matcher.hypotheses import (
     apply_batch,
@@ -455,21 +455,14 @@ class Matcher:
         var = sigma**2 + cfg.gn_sigma_m**2
         # The prior's 1-sigma spread over the LN: where the EM must start looking.
         spread = float(np.sqrt(predicted_variance(pts, prior.yaw, p).max()))
-        w = cfg.outlier_prior
-        model = EmModel(self.index.tree, self._gn_labels, pts, labels, var,
-                        w / (1.0 - w) * self.gn_density,
-                        cfg.label_confusion if cfg.use_labels else 0.5)
-        fit = em_refit(model, prior.yaw, np.array([prior.tx, prior.ty]),
-                       anneal_start_m=max(cfg.anneal_start_m, spread),
-                       iterations=cfg.em_iterations)
+        fit = self._em_fit(pts, labels, var, prior, max(cfg.anneal_start_m, spread))
         n_tested = self.prior_search_size(pts, var, p)
         odds = self.chance.odds(fit.yaw, fit.t, pts, labels, var)
         verdict = decide(odds.log_odds, n_tested, [], cfg.false_match_rate)
         fitted = Rigid2D(fit.yaw, fit.t[0], fit.t[1])
         d = np.array([fit.t[0] - prior.tx, fit.t[1] - prior.ty,
                       wrap_angle(fit.yaw - prior.yaw)])
-        covariance = pose_covariance(pts, fit.yaw, fit.matched / var)
-        position_sigma = float(np.sqrt(predicted_variance(pts, fit.yaw, covariance).max()))
+        covariance, position_sigma = _em_covariance(pts, var, fit)
         # The precision test of the global search stands: without it, on atacama_1km seed
         # 3's LN against the truth catalogue, two wrong pairs 600 m from the rest of the
         # LN (inside their 2.5 sigma gates) turned the alignment by 1.2 deg and the final
@@ -489,6 +482,26 @@ class Matcher:
             log_odds=verdict.log_odds, false_match_probability=verdict.p_false,
             timings_ms=_since(t_start, {}),
         )
+
+    def match_or_track(
+        self,
+        ln: np.ndarray | RoiNetwork,
+        prior: Rigid2D | None = None,
+        prior_covariance: np.ndarray | None = None,
+        ln_sigma: np.ndarray | None = None,
+    ) -> MatchResult:
+        """The global search (:meth:`match`); when it gives no fix and a prior alignment is
+        given (the rover is localized), :meth:`track` near it. The darces_matcher node's
+        decision for each LN. ``timings_ms["total"]`` covers both; ``"search"`` is the
+        global search's share when tracking ran."""
+        result = self.match(ln, ln_sigma)
+        if result.is_fix or prior is None:
+            return result
+        searched_ms = result.timings_ms.get("total", 0.0)
+        result = self.track(ln, prior, prior_covariance, ln_sigma)
+        result.timings_ms["search"] = searched_ms
+        result.timings_ms["total"] = result.timings_ms.get("total", 0.0) + searched_ms
+        return result
 
     @staticmethod
     def prior_search_size(pts: np.ndarray, var: np.ndarray, prior_covariance: np.ndarray
@@ -513,6 +526,18 @@ class Matcher:
         volume = 4.0 / 3.0 * np.pi * PRIOR_CHI2**1.5 * np.sqrt(det)
         return max(1.0, volume / (s * s * (s / r)))
 
+    def _em_fit(self, pts: np.ndarray, labels: np.ndarray, var: np.ndarray, start: Rigid2D,
+                anneal_start_m: float) -> EmFit:
+        """The annealed EM (:func:`~darces_matcher.em_refit.em_refit`) of an LN (``odom``
+        positions, labels, per-axis variances) from the alignment ``start``."""
+        cfg = self.config
+        w = cfg.outlier_prior
+        model = EmModel(self.index.tree, self._gn_labels, pts, labels, var,
+                        w / (1.0 - w) * self.gn_density,
+                        cfg.label_confusion if cfg.use_labels else 0.5)
+        return em_refit(model, start.yaw, np.array([start.tx, start.ty]),
+                        anneal_start_m=anneal_start_m, iterations=cfg.em_iterations)
+
     def _em_refit(self, result: MatchResult) -> MatchResult:
         """Maximum-likelihood refit of a fix (EM, :mod:`~darces_matcher.em_refit`).
 
@@ -529,13 +554,7 @@ class Matcher:
         # label-blind fallback prepares the same nodes, positions and weights).
         kept, pts, labels, _, weights = self._last
         var = 1.0 / weights
-        confusion = cfg.label_confusion if cfg.use_labels else 0.5
-        w = cfg.outlier_prior
-        model = EmModel(self.index.tree, self._gn_labels, pts, labels, var,
-                        w / (1.0 - w) * self.gn_density, confusion)
-        T = result.map_T_odom
-        fit = em_refit(model, T.yaw, np.array([T.tx, T.ty]),
-                       anneal_start_m=cfg.anneal_start_m, iterations=cfg.em_iterations)
+        fit = self._em_fit(pts, labels, var, result.map_T_odom, cfg.anneal_start_m)
         if cfg.decision == "odds":
             # The decision again, on the maximum-likelihood alignment.
             searched = self._blind if result.reason == "ok_label_blind" else self
@@ -550,9 +569,7 @@ class Matcher:
         if withheld:
             result.status, result.reason = "no_fix", "insufficient_support"
         else:
-            # Each node informs the fit by its probability of having a counterpart.
-            covariance = pose_covariance(pts, fit.yaw, fit.matched / var)
-            spread = float(np.sqrt(predicted_variance(pts, fit.yaw, covariance).max()))
+            covariance, spread = _em_covariance(pts, var, fit)
             if spread <= cfg.max_position_sigma_m:
                 result.map_T_odom = Rigid2D(fit.yaw, fit.t[0], fit.t[1])
                 result.covariance, result.position_sigma_m = covariance, spread
@@ -964,6 +981,13 @@ def _displacement(mapped: np.ndarray, ref: np.ndarray, node_tol: np.ndarray) -> 
         node_tol: (N,) node tolerances, metres.
     """
     return np.max(np.linalg.norm(mapped - ref, axis=-1) / node_tol, axis=-1)
+
+
+def _em_covariance(pts: np.ndarray, var: np.ndarray, fit: EmFit) -> tuple[np.ndarray, float]:
+    """(x, y, yaw) covariance of an EM fit, each node informing it by its probability of
+    having a counterpart, and the largest predicted 1-sigma error of a mapped node, m."""
+    covariance = pose_covariance(pts, fit.yaw, fit.matched / var)
+    return covariance, float(np.sqrt(predicted_variance(pts, fit.yaw, covariance).max()))
 
 
 def _ms(t0: float) -> float:

@@ -136,13 +136,12 @@ class MatcherNode(Node):
                  and now - self.last_match_time >= self.max_rematch_period_s)
         if not (grew or stale):
             return
-        result = self.matcher.match(records)
-        alignment = self.filter.alignment
-        if not result.is_fix and self.track and alignment is not None:
-            searched_ms = result.timings_ms.get("total", 0.0)
-            result = self.matcher.track(records, alignment.map_T_odom, alignment.covariance)
-            result.timings_ms["search"] = searched_ms
-            result.timings_ms["total"] = result.timings_ms.get("total", 0.0) + searched_ms
+        alignment = self.filter.alignment if self.track else None
+        if alignment is None:
+            result = self.matcher.match_or_track(records)
+        else:
+            result = self.matcher.match_or_track(records, alignment.map_T_odom,
+                                                 alignment.covariance)
         self.last_matched_size, self.last_match_time = len(records), now
         self.last_result = result
         try:

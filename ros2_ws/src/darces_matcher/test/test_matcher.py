@@ -12,17 +12,6 @@ from roi_network.network import RoiNetwork
 from roi_network.records import OUTCROP, ROCK, empty_records, xy
 from roi_network.transform import Rigid2D
 
-
-@pytest.fixture(scope="module")
-def gn() -> RoiNetwork:
-    return generate_gn(GnSpec(n_rois=120), seed=3)
-
-
-@pytest.fixture(scope="module")
-def matcher(gn: RoiNetwork) -> Matcher:
-    return Matcher(gn)
-
-
 #: Exact recovery of a noiseless LN: by the hard least-squares refit, to rounding; by
 #: the default EM refit (the mixture's maximum likelihood, where nearby GN nodes of the
 #: wide-sigma far nodes keep a little weight), to a fraction of a millimetre.

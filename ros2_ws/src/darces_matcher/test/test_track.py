@@ -5,22 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from darces_matcher.gn_generator import GnSpec, generate_gn
 from darces_matcher.matcher import MatchConfig, Matcher
 from darces_matcher.simulate import SimOptions, iter_lns, ln_prefix, transform_error
 from roi_network.network import RoiNetwork
 from roi_network.records import xy
 from roi_network.transform import Rigid2D
-
-
-@pytest.fixture(scope="module")
-def gn() -> RoiNetwork:
-    return generate_gn(GnSpec(n_rois=120), seed=3)
-
-
-@pytest.fixture(scope="module")
-def matcher(gn: RoiNetwork) -> Matcher:
-    return Matcher(gn)
 
 
 @pytest.fixture(scope="module")
@@ -118,3 +107,35 @@ def test_track_bad_input(gn, matcher, lns) -> None:
         matcher.track(sim.records, sim.map_T_odom, np.full((3, 3), np.nan))
     few = matcher.track(sim.records[:2], sim.map_T_odom, np.eye(3))
     assert few.status == "no_fix" and few.reason == "too_few_nodes"
+
+
+def test_match_or_track_tracks_only_when_the_search_fails_and_a_prior_is_given(gn, lns) -> None:
+    matcher = Matcher(gn, MatchConfig())
+    gn_pts = xy(gn.records)
+    # A whole LN: the global search fixes it, the prior is not used.
+    sim = lns[0]
+    prior, cov = _prior(sim.map_T_odom, xy(sim.records).mean(axis=0), np.zeros(3), 0.5,
+                        np.radians(0.2))
+    result = matcher.match_or_track(sim.records, prior, cov)
+    assert result.is_fix and result.reason != "ok_tracked" and "search" not in result.timings_ms
+    # Five-node prefixes: where the search gives no fix, the prior decides (on these 12
+    # LNs the search leaves one prefix unfixed, which the 0.5 m prior fixes).
+    tracked = 0
+    for sim in lns:
+        short = ln_prefix(sim, 5)
+        prior, cov = _prior(short.map_T_odom, xy(short.records).mean(axis=0), np.zeros(3),
+                            0.5, np.radians(0.2))
+        searched = matcher.match(short.records)
+        without = matcher.match_or_track(short.records)
+        assert without.status == searched.status and without.reason == searched.reason
+        result = matcher.match_or_track(short.records, prior, cov)
+        if searched.is_fix:
+            assert result.reason == searched.reason
+            continue
+        assert "search" in result.timings_ms
+        assert result.timings_ms["total"] >= result.timings_ms["search"]
+        if result.is_fix:
+            tracked += 1
+            assert result.reason == "ok_tracked"
+            assert transform_error(result.map_T_odom, short, gn_pts) < 6.0
+    assert tracked >= 1
