@@ -34,7 +34,19 @@ from rover_vo.tum import write_atomic, write_tum
 
 
 def peak_rss_mb() -> float:
-    """Peak resident set size of this process (MB)."""
+    """Peak resident set size of this process (MB): ``VmHWM`` of ``/proc/self/status``.
+
+    Not ``getrusage``'s ``ru_maxrss``: Linux carries that across ``fork`` and ``execve``,
+    so a process started by a big parent (the bench) reports the parent's peak.
+    ``ru_maxrss`` is the fallback where ``/proc`` is missing.
+    """
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
     import resource
 
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
