@@ -89,6 +89,8 @@ class CovarianceOptions:
 
     translation_sigma_per_m: float = 0.01  #: 1-sigma translation error per metre driven
     rotation_sigma_deg_per_sqrt_m: float = 0.02  #: 1-sigma heading random walk (deg/sqrt m)
+    scale_sigma: float = 0.003  #: prior 1-sigma of the systematic scale error (0.3 %)
+    heading_rate_sigma_deg_per_100m: float = 0.05  #: prior 1-sigma of the heading-rate bias
     propagation_translation_sigma: float = 0.5  #: per metre, when vision is unavailable
     propagation_floor_m: float = 0.05  #: per frame without vision, even with no step
     unseen_rotation_sigma_deg: float = 10.0  #: per frame with neither vision nor gyro

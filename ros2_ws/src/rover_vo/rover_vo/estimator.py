@@ -26,7 +26,7 @@ from rover_vo.keyframes import Keyframe, make_keyframe
 from rover_vo.motion import estimate_motion, refine_motion
 from rover_vo.propagator import ImuInterval, Propagator
 from rover_vo.rig import RigError, StereoRig, rig_from_camera_info
-from rover_vo.state import OdomState, step_noise
+from rover_vo.state import OdomState, step_noise, systematic_prior
 from rover_vo.zero_velocity import image_motion_px, is_stationary
 
 #: Kinds of bad input counted in /vo/status (``bad_input.<kind>``).
@@ -311,7 +311,9 @@ class VoEstimator:
             iv = self.propagator.interval(t - 1.0, t)
             if iv is not None:
                 R0 = self._gravity_tilt(iv.mean_accel)  # gravity gives roll and pitch
-        self.state = OdomState(t, R0)
+        c = self.cfg.covariance
+        self.state = OdomState(t, R0, P=systematic_prior(
+            c.scale_sigma, c.heading_rate_sigma_deg_per_100m))
         self._new_keyframe(image, left, right)
         self.last_image = left
         self.source = "initial"

@@ -1,10 +1,18 @@
 """The odometry state: pose of base_link in odom, its covariance, distance driven.
 
-Error state ``[dp (odom, m), dtheta (odom, rad)]`` with ``R = Exp(dtheta) R_hat``. A motion
-step ``b0_T_b1 = (dR, dp)`` composes as ``p' = p + R dp``, ``R' = R dR``; its noise is
-given in the body frame and rotated into odom, and the heading uncertainty couples into
-position through ``-[R dp]_x``: the covariance grows with the distance driven, faster
-than linearly once the heading is uncertain, as odometry error does.
+Error state ``[dp (odom, m), dtheta (odom, rad), ds, db]`` with ``R = Exp(dtheta) R_hat``.
+A motion step ``b0_T_b1 = (dR, dp)`` composes as ``p' = p + R dp``, ``R' = R dR``; its
+noise is given in the body frame and rotated into odom, and the heading uncertainty
+couples into position through ``-[R dp]_x``: the covariance grows with the distance driven,
+faster than linearly once the heading is uncertain, as odometry error does.
+
+Two of the errors are systematic, not random walks, and are carried as constant states
+with a prior: ``ds``, the relative scale error of the stereo odometry (calibration and
+disparity bias make every step a little long or short, so the along-track error grows
+linearly with distance), entering position as ``R dp ds``; and ``db``, a heading-rate bias
+(rad per metre driven, about the body's up axis), entering the attitude as
+``R e_z |dp| db``. Only the 6x6 pose block (``cov``) is published; the full 8x8 ``P`` keeps
+the correlations that make these errors grow as they do.
 """
 
 from __future__ import annotations
@@ -19,15 +27,32 @@ def skew(v: np.ndarray) -> np.ndarray:
     return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
 
 
+N_ERR = 8  #: error-state size: dp (3), dtheta (3), scale, heading rate
+
+
+def systematic_prior(scale_sigma: float, heading_rate_sigma_deg_per_100m: float) -> np.ndarray:
+    """8x8 initial ``P``: the pose known exactly, the systematic errors from their priors."""
+    P = np.zeros((N_ERR, N_ERR))
+    P[6, 6] = scale_sigma**2
+    P[7, 7] = np.radians(heading_rate_sigma_deg_per_100m / 100.0) ** 2
+    return P
+
+
 @dataclass
 class OdomState:
-    """Pose ``odom_T_base`` at time ``t`` with a 6x6 covariance and the distance driven."""
+    """Pose ``odom_T_base`` at time ``t``, its error covariance ``P`` (8x8, see the module)
+    and the distance driven."""
 
     t: float
     R: np.ndarray = field(default_factory=lambda: np.eye(3))
     p: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    cov: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
+    P: np.ndarray = field(default_factory=lambda: np.zeros((N_ERR, N_ERR)))
     distance_m: float = 0.0
+
+    @property
+    def cov(self) -> np.ndarray:
+        """6x6 pose covariance ``[dp, dtheta]`` (odom), the marginal of ``P``."""
+        return self.P[:6, :6]
 
     def matrix(self) -> np.ndarray:
         """4x4 ``odom_T_base``."""
@@ -36,7 +61,7 @@ class OdomState:
         return T
 
     def copy(self) -> OdomState:
-        return OdomState(self.t, self.R.copy(), self.p.copy(), self.cov.copy(), self.distance_m)
+        return OdomState(self.t, self.R.copy(), self.p.copy(), self.P.copy(), self.distance_m)
 
     def compose(self, t: float, dR: np.ndarray, dp: np.ndarray, Q_body: np.ndarray) -> OdomState:
         """The state after the body moved by ``b0_T_b1 = (dR, dp)``, with noise ``Q_body``.
@@ -46,13 +71,16 @@ class OdomState:
             dR, dp: the motion in the old body frame.
             Q_body: 6x6 covariance of ``[dp, dtheta]`` in the old body frame.
         """
-        F = np.eye(6)
-        F[:3, 3:] = -skew(self.R @ dp)
-        G = np.zeros((6, 6))
+        step = self.R @ dp
+        F = np.eye(N_ERR)
+        F[:3, 3:6] = -skew(step)
+        F[:3, 6] = step  # scale error: the step was (1 + ds) times longer
+        F[3:6, 7] = self.R[:, 2] * float(np.linalg.norm(dp))  # heading-rate bias
+        G = np.zeros((N_ERR, 6))
         G[:3, :3] = self.R
-        G[3:, 3:] = self.R
-        cov = F @ self.cov @ F.T + G @ Q_body @ G.T
-        return OdomState(t, self.R @ dR, self.p + self.R @ dp, 0.5 * (cov + cov.T),
+        G[3:6, 3:] = self.R
+        P = F @ self.P @ F.T + G @ Q_body @ G.T
+        return OdomState(t, self.R @ dR, self.p + step, 0.5 * (P + P.T),
                          self.distance_m + float(np.linalg.norm(dp)))
 
     def ros_covariance(self) -> np.ndarray:
