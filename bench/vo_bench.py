@@ -231,6 +231,7 @@ def markdown(summaries: list[dict], meta: dict) -> str:
                 f"{m['ape_rmse_m']:.2f} | {m['final_error_pct']:.3f} | {speed} | "
                 f"{r.get('peak_rss_mb', '')} | {h.get('mean_nees_2dof', '')} | "
                 f"{h.get('share_in_95pct_ellipse', '')} |")
+    lines += spread(summaries)
     lines += ["", "Methods: `paper` = frame to frame + IMU (the paper's mode, the default); `vo` ="
               " frame to frame, vision alone; `keyframes` = keyframes + IMU; `kiss_icp` = KISS-ICP"
               " 1.3.0"
@@ -238,6 +239,36 @@ def markdown(summaries: list[dict], meta: dict) -> str:
               " bag (rosbags deserialisation of 50 Hz IMU); in brackets the estimator alone.",
               ""]
     return "\n".join(lines)
+
+
+def spread(summaries: list[dict]) -> list[str]:
+    """Per method, min / median / max over the bags of a preset (``<preset>_s<seed>``)."""
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for s in summaries:
+        name = Path(s["bag"]).name
+        preset = name.rsplit("_s", 1)[0] if "_s" in name else name
+        for method, row in s["rows"].items():
+            groups.setdefault((preset, method), []).append(row)
+    lines = ["", "Spread over seeds (min / median / max):", "",
+             "| preset | method | seeds | drift % | heading deg/100 m | final error % | "
+             "NEES xy |", "|---|---|---|---|---|---|---|"]
+    for (preset, method), rows in groups.items():
+        if len(rows) < 2:
+            continue
+
+        def mmm(values: list[float]) -> str:
+            v = np.asarray([x for x in values if x is not None], dtype=float)
+            if len(v) == 0:
+                return ""
+            return f"{v.min():.3f} / {np.median(v):.3f} / {v.max():.3f}"
+
+        lines.append(
+            f"| {preset} | {method} | {len(rows)} | "
+            f"{mmm([r['metrics']['kitti_drift_pct'] for r in rows])} | "
+            f"{mmm([r['metrics']['heading_drift_deg_per_100m'] for r in rows])} | "
+            f"{mmm([r['metrics']['final_error_pct'] for r in rows])} | "
+            f"{mmm([r.get('honesty', {}).get('mean_nees_2dof') for r in rows])} |")
+    return lines
 
 
 def main() -> int:
