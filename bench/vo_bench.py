@@ -132,6 +132,21 @@ def kiss_icp_odometry(bag: Path, out: Path, max_range_m: float = 30.0) -> dict:
     return report
 
 
+def rgbd_odometry(bag: Path, out: Path) -> dict:
+    """OpenCV contrib's dense RGB-D odometry on SGBM depth (bench/rgbd_baseline.py), in its
+    own process with the contrib ``cv2`` first on the path; writes out/vo.tum."""
+    import rgbd_baseline
+
+    site = rgbd_baseline.ensure_contrib()
+    env = dict(os.environ) | ONE_CORE
+    env["PYTHONPATH"] = os.pathsep.join([str(site), env.get("PYTHONPATH", "")])
+    cmd = [sys.executable, str(Path(rgbd_baseline.__file__)), str(bag), str(out)]
+    proc = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stderr[-2000:]}")
+    return json.loads((out / "vo_report.json").read_text())
+
+
 def covariance_honesty(run: Path, truth: Path) -> dict:
     """Horizontal error (first pose aligned) against the published covariance.
 
@@ -172,9 +187,9 @@ def bench_method(bag: Path, method: str, force: bool) -> dict:
     print(f"[vo_bench] {bag.name}: {method}", file=sys.stderr)
     # A finished run whose summary was not written (an interrupted bench) is reused.
     done = (out / "vo.tum").is_file() and (out / "vo_report.json").is_file() and not force
-    if method == "kiss_icp":
+    if method in THIRD_PARTY:
         report = (json.loads((out / "vo_report.json").read_text()) if done
-                  else kiss_icp_odometry(bag, out))
+                  else THIRD_PARTY[method](bag, out))
         row = {"metrics": evaluate(out / "vo.tum", truth).as_dict(), "report": report}
     else:
         report = (json.loads((out / "vo_report.json").read_text()) if done
@@ -197,7 +212,7 @@ def bench_method(bag: Path, method: str, force: bool) -> dict:
 def collect(bag: Path) -> dict:
     """Every cached method row of a bag."""
     rows = {}
-    for method in (*MODES, "kiss_icp"):
+    for method in (*MODES, *THIRD_PARTY):
         row_path = RESULTS / "vo_runs" / bag.name / method / "row.json"
         if row_path.is_file():
             rows[method] = json.loads(row_path.read_text())
@@ -235,7 +250,9 @@ def markdown(summaries: list[dict], meta: dict) -> str:
     lines += ["", "Methods: `paper` = frame to frame + IMU (the paper's mode, the default); `vo` ="
               " frame to frame, vision alone; `keyframes` = keyframes + IMU; `kiss_icp` = KISS-ICP"
               " 1.3.0"
-              " on SGBM stereo point clouds of the same pairs. pairs/CPU s counts reading the"
+              " on SGBM stereo point clouds of the same pairs; `opencv_rgbd` = OpenCV 4.14 contrib"
+              " `rgbd.RgbdOdometry` (dense photometric, Steinbruecker et al. 2011) on the left"
+              " image and SGBM depth, half resolution. pairs/CPU s counts reading the"
               " bag (rosbags deserialisation of 50 Hz IMU); in brackets the estimator alone.",
               ""]
     return "\n".join(lines)
@@ -271,11 +288,14 @@ def spread(summaries: list[dict]) -> list[str]:
     return lines
 
 
+THIRD_PARTY = {"kiss_icp": kiss_icp_odometry, "opencv_rgbd": rgbd_odometry}
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--bags", nargs="+", required=True, type=Path)
-    p.add_argument("--methods", nargs="+", default=[*MODES, "kiss_icp"],
-                   choices=[*MODES, "kiss_icp"], help="methods to run (cached ones are reused)")
+    p.add_argument("--methods", nargs="+", default=[*MODES, *THIRD_PARTY],
+                   choices=[*MODES, *THIRD_PARTY], help="methods to run (cached ones are reused)")
     p.add_argument("--force", action="store_true", help="recompute cached runs")
     p.add_argument("--summary-only", action="store_true", help="only rebuild the summary")
     args = p.parse_args()

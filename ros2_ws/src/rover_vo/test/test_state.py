@@ -11,7 +11,7 @@ from rover_vo.state import OdomState, step_noise, systematic_prior
 def drive(state: OdomState, steps: int, step_m: float, yaw_per_step: float = 0.0) -> OdomState:
     dR = Rotation.from_euler("z", yaw_per_step).as_matrix()
     Q = step_noise(step_m, 0.01, 0.02)
-    for k in range(steps):
+    for _ in range(steps):
         state = state.compose(state.t + 0.1, dR, np.array([step_m, 0.0, 0.0]), Q)
     return state
 
