@@ -63,22 +63,12 @@ def kiss_icp_odometry(bag: Path, out: Path, max_range_m: float = 30.0) -> dict:
     import cv2
     from kiss_icp.config import KISSConfig
     from kiss_icp.kiss_icp import KissICP
+    from rgbd_baseline import stereo_pairs
 
-    from rover_vo.bag import read_messages, rover_params
-    from rover_vo.messages import (
-        TOPIC_LEFT,
-        TOPIC_LEFT_INFO,
-        TOPIC_RIGHT,
-        TOPIC_RIGHT_INFO,
-        decode_image,
-        stamp_ns,
-    )
-    from rover_vo.rig import rig_from_camera_info
     from rover_vo.state import OdomState
     from rover_vo.tum import write_tum
 
     cv2.setNumThreads(1)
-    params = rover_params(bag)
     cfg = KISSConfig()
     cfg.data.deskew = False
     cfg.data.max_range = max_range_m
@@ -89,29 +79,10 @@ def kiss_icp_odometry(bag: Path, out: Path, max_range_m: float = 30.0) -> dict:
     sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=48, blockSize=5,
                                  P1=8 * 25, P2=32 * 25, uniquenessRatio=10,
                                  speckleWindowSize=50, speckleRange=2)
-    infos: dict[str, object] = {}
-    pending: dict[int, dict] = {}
-    rig = None
     states = []
     cpu = 0.0
-    for topic, msg in read_messages(bag):
-        if topic in (TOPIC_LEFT_INFO, TOPIC_RIGHT_INFO):
-            infos[topic] = msg
-            continue
-        if topic not in (TOPIC_LEFT, TOPIC_RIGHT):
-            continue
-        pair = pending.setdefault(stamp_ns(msg), {})
-        pair[topic] = msg
-        if len(pair) < 2 or len(infos) < 2:
-            continue
-        t_ns = stamp_ns(msg)
-        del pending[t_ns]
+    for t_ns, left, right, rig in stereo_pairs(bag):
         c0 = time.process_time()
-        if rig is None:
-            rig = rig_from_camera_info(infos[TOPIC_LEFT_INFO], infos[TOPIC_RIGHT_INFO], params)
-        left, right = decode_image(pair[TOPIC_LEFT]), decode_image(pair[TOPIC_RIGHT])
-        if left is None or right is None:
-            continue
         small_l, small_r = cv2.pyrDown(left), cv2.pyrDown(right)
         disp = sgbm.compute(small_l, small_r).astype(np.float32) / 16.0
         v, u = np.nonzero(disp > 1.0)
