@@ -109,6 +109,14 @@ def play(options: PlayOptions) -> int:
                 player = BagPlayer(selected, classes)
                 try:
                     return _play(player, bag, options, names, wait_topics, start_ns)
+                except RuntimeError:
+                    # A signal shuts the context down between two rcl calls (publish, the
+                    # acknowledgement wait, a subscription count): rclpy raises RCLError
+                    # ("publisher's context is invalid", a RuntimeError) from whichever
+                    # came next. That is the interruption it is, not a crash.
+                    if player.context.ok():
+                        raise
+                    raise ExternalShutdownException() from None
                 finally:
                     player.destroy_node()
         except (KeyboardInterrupt, ExternalShutdownException):

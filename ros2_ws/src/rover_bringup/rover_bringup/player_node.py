@@ -67,16 +67,6 @@ class BagPlayer(Node):
         if not self.context.ok():
             raise ExternalShutdownException()
 
-    def _publish(self, pub: Publisher, msg) -> None:
-        """``pub.publish(msg)``; a context shut down by a signal between the last check and
-        this call (rclpy raises RCLError "publisher's context is invalid") is the same
-        shutdown as :meth:`_check_ok` reports, not a crash."""
-        try:
-            pub.publish(msg)
-        except RuntimeError:  # rclpy's RCLError derives from RuntimeError
-            self._check_ok()
-            raise
-
     def wait_for_subscribers(
         self, topics: Sequence[str], clock_subscribers: int, timeout_s: float
     ) -> list[str]:
@@ -107,7 +97,7 @@ class BagPlayer(Node):
         if stamp_ns <= self._last_clock_ns:
             return
         sec, nanosec = divmod(stamp_ns, NS_PER_S)
-        self._publish(self._clock_pub, Clock(clock=Time(sec=sec, nanosec=nanosec)))
+        self._clock_pub.publish(Clock(clock=Time(sec=sec, nanosec=nanosec)))
         self._last_clock_ns = stamp_ns
 
     def play(
@@ -160,7 +150,7 @@ class BagPlayer(Node):
             if now >= next_tick:
                 self.publish_clock(stamp)
                 next_tick = now + clock_period_s
-            self._publish(self._topic_pubs[topic], data)
+            self._topic_pubs[topic].publish(data)
             progress.sent += 1
         if last_stamp is not None:
             self.publish_clock(last_stamp)

@@ -150,3 +150,34 @@ def test_play_sqlite_bag_with_start_and_topics_as_fast_as_possible(
         ['--rate', '0', '--start', '1', '--topics', *topics],
     )
     _check(received, expected, clock_range, 'rate 0 (as fast as possible), sqlite3')
+
+
+@pytest.mark.parametrize('shut_down', [True, False])
+def test_rcl_error_after_a_signal_is_an_interruption(
+    tmp_path: Path, bagfactory: ModuleType, ros_env: dict[str, str], monkeypatch, shut_down: bool
+):
+    """A signal shuts the context down between two rcl calls of the player (CI once saw
+    get_subscription_count raise RCLError "publisher's context is invalid" after the last
+    message): that is the interruption it is, exit 130, not a traceback. The same error with
+    the context still up is a real failure and propagates."""
+    import rclpy
+
+    from rover_bringup import play as play_module
+
+    for key in ('ROS_DOMAIN_ID', 'ROS_AUTOMATIC_DISCOVERY_RANGE'):
+        monkeypatch.setenv(key, ros_env[key])
+    bagfactory.write_bag(tmp_path / 'bag', bagfactory.BagSpec(duration_s=0.1))
+
+    def racing_play(player, *args):
+        if shut_down:
+            rclpy.shutdown(context=player.context)  # what the SIGINT handler does
+        raise RuntimeError("failed to get subscription count: publisher's context is invalid")
+
+    monkeypatch.setattr(play_module, '_play', racing_play)
+    options = play_module.PlayOptions(bag=tmp_path / 'bag', wait_timeout_s=0)
+    if shut_down:
+        assert play_module.play(options) == play_module.EXIT_INTERRUPTED
+    else:
+        with pytest.raises(RuntimeError, match='context is invalid'):
+            play_module.play(options)
+    assert not rclpy.ok()
