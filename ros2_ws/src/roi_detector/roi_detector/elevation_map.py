@@ -62,6 +62,14 @@ class ElevationMapConfig:
             6-20 m ahead.
         disparity_sigma_px: 1-sigma disparity error that weights each point.
         height_floor_m: smallest vertical sigma of a point (texture, rendering, JPEG).
+        placement_gradient: terrain gradient that turns the horizontal part of a
+            point's range error into a height error of the cell it lands in. The
+            vertical part alone is small at the grazing angles of far points (0.13 m at
+            15 m for the 0.2 m baseline), while their horizontal error is ~1 m: far
+            views of a rock face land in the ground around it and the ground's in the
+            rock, averaging its height away. 0.5 (a rock's flank) makes a view from
+            15 m weigh ~1/40 of one from 6 m (chosen on the training bags s101/s102:
+            docs/roi_detector.md); 0 is the vertical error alone.
         ground_window_m: side of the opening that finds the ground (wider than the
             largest rock footprint, ~2.8 m across).
         rock_seed_height_m: cells this high above the ground seed a rock (paper: 0.25).
@@ -72,7 +80,9 @@ class ElevationMapConfig:
             grazing angle or not at all: on the training bag train_quick_s101 the rocks
             found measured 0.30-0.58 m for 0.5-1.2 m), while the stereo noise of the
             70 deg lens makes bumps of 0.26-0.36 m: 0.35 kept 4 of those 6 rocks and
-            dropped 12 of 13 false ones there (docs/roi_detector.md).
+            dropped 12 of 13 false ones there. With far views weighted down
+            (``placement_gradient``) heights are measured less low, and 0.30 is the
+            threshold chosen with it on s101/s102 (docs/roi_detector.md).
         rock_min_area_m2: the paper's rover rock threshold.
         rock_max_area_m2: larger regions are terrain, not one rock.
         rock_min_ring_seen: the observed fraction of the ring of ground around a rock
@@ -81,7 +91,8 @@ class ElevationMapConfig:
         rock_min_relief_ratio: a rock's height over the equivalent diameter of its
             footprint at half that height is at least this (flatter regions are
             terrain swells).
-        min_cell_weight: cells with less accumulated weight (1/m^2) are unobserved.
+        min_cell_weight: cells with less accumulated weight (1/m^2) are unobserved
+            (30: the weighted mean height within 0.18 m, 1 sigma).
         min_pairs: cells seen by fewer stereo pairs are unobserved.
         max_cell_sd_m: cells whose height spreads more than this across the pairs that
             saw them (a stereo mismatch of one view) are unobserved.
@@ -105,15 +116,16 @@ class ElevationMapConfig:
     max_range_m: float = 20.0
     disparity_sigma_px: float = 0.5
     height_floor_m: float = 0.02
+    placement_gradient: float = 0.5
     ground_window_m: float = 3.2
     rock_seed_height_m: float = 0.25
     rock_grow_height_m: float = 0.1
-    rock_min_height_m: float = 0.35
+    rock_min_height_m: float = 0.30
     rock_min_area_m2: float = 0.6
     rock_max_area_m2: float = 9.0
     rock_min_ring_seen: float = 0.25
     rock_min_relief_ratio: float = 0.25
-    min_cell_weight: float = 100.0
+    min_cell_weight: float = 30.0
     min_pairs: int = 3
     max_cell_sd_m: float = 0.4
     max_pair_weight: float = 2500.0
@@ -219,6 +231,10 @@ class ElevationMap:
         # Vertical sigma: the range error along the ray times the ray's vertical part.
         sig_r = dist**2 / fxb * c.disparity_sigma_px
         sig_z = np.hypot(sig_r * np.abs(rel[:, 2]) / np.maximum(dist, 1e-6), c.height_floor_m)
+        # A point misplaced along its ray lands in another cell: over terrain of gradient
+        # g that is a height error of g times the horizontal part of the range error.
+        sig_z = np.hypot(sig_z, c.placement_gradient * sig_r * np.hypot(rel[:, 0], rel[:, 1])
+                         / np.maximum(dist, 1e-6))
         wt = 1.0 / sig_z**2
         ij = np.floor((pts[:, :2] - self.origin) / c.cell_m).astype(np.int64)
         inside = (ij >= 0).all(axis=1) & (ij < self.n).all(axis=1)

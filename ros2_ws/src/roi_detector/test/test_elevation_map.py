@@ -146,3 +146,24 @@ def test_depth_edges_are_dropped_and_smooth_ground_kept():
     ground[0, :5] = False
     assert np.isfinite(out[ground]).all()
     assert mask_depth_edges(disp, 3, 0.0) is disp
+
+
+def test_a_far_view_misplaced_along_its_ray_weighs_less():
+    """A cell seen from 4 m at ground height and from 18 m at 0.3 m (a rock face whose
+    points the far view's range error of ~1 m put in this cell): the horizontal part of the
+    range error, times the terrain gradient, makes the far view count for little."""
+
+    def cell_height(gradient):
+        emap = ElevationMap(ElevationMapConfig(placement_gradient=gradient, min_pairs=1,
+                                               min_cell_weight=1.0))
+        near = np.tile([4.02, 0.02, 0.0], (20, 1))[:, None, :]  # base_link at (0, 0)
+        far = np.tile([18.02, 0.02, 0.3], (20, 1))[:, None, :]  # base_link at (-14, 0)
+        emap.integrate(near, None, np.eye(3), np.zeros(3), CAMERA, FXB)
+        emap.integrate(far, None, np.eye(3), np.array([-14.0, 0.0, 0.0]), CAMERA, FXB)
+        z, seen = emap.heights()
+        ij = np.floor((np.array([4.02, 0.02]) - emap.origin) / emap.cfg.cell_m).astype(int)
+        assert seen[ij[0], ij[1]]
+        return z[ij[0], ij[1]]
+
+    assert cell_height(0.0) > 0.1  # both views capped at one pair's weight: the mean
+    assert cell_height(0.5) < 0.03
