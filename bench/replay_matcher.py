@@ -45,6 +45,7 @@ VARIANTS: dict[str, tuple[dict, bool]] = {
     "marginal": ({"marginal_outliers": True}, True),
     "triplets48": ({"n_triplets": 48}, True),
     "marginal_triplets48": ({"marginal_outliers": True, "n_triplets": 48}, True),
+    "absolute": ({"ln_sigma_relative": False}, True),
 }
 #: chi-square, 2 degrees of freedom, 99.73 % (3 sigma)
 _CHI2_2D_3SIGMA = 11.83

@@ -60,6 +60,14 @@ class MatchConfig:
             Larger: more robust to drift, more random hypotheses and votes.
         gn_sigma_m: 1-sigma position error of a GN node per axis (orbital), metres.
         ln_sigma_floor_m: smallest 1-sigma LN position error per axis, metres.
+        ln_sigma_relative: take the records' covariance relative to the LN's least
+            uncertain node. An LN placed by odometry carries, at every node, the error
+            the odometry had accumulated before the LN began (the covariance since the
+            start of the drive): an offset and a turn common to all its nodes, which the
+            alignment absorbs. Only the growth beyond the smallest node variance (less
+            ``ln_sigma_floor_m``^2, kept as that node's own detection error) tells the
+            nodes apart. No effect on an LN whose first node is precise, nor on an
+            explicit ``ln_sigma``.
         min_tol_m: smallest node tolerance in the edge tolerance d_D, metres.
         min_gate_m: smallest verification gate, metres: a node within this of a GN node
             of its class under a hypothesis votes for it. Too tight and the precise
@@ -166,6 +174,7 @@ class MatchConfig:
     n_sigma: float = 3.0
     gn_sigma_m: float = 0.3
     ln_sigma_floor_m: float = 0.2
+    ln_sigma_relative: bool = True
     min_tol_m: float = 1.0
     min_gate_m: float = 2.5
     max_tol_m: float = 30.0
@@ -353,11 +362,16 @@ class Matcher:
         """1-sigma position error per axis of each LN node, metres.
 
         From ``ln_sigma`` when given, else from the records' covariance (cov_xx, cov_yy),
-        floored at ``ln_sigma_floor_m``.
+        relative to the least uncertain node when ``ln_sigma_relative``; floored at
+        ``ln_sigma_floor_m``.
         """
         if ln_sigma is None:
             var = 0.5 * (records["cov_xx"].astype(float) + records["cov_yy"].astype(float))
-            sigma = np.sqrt(np.clip(np.nan_to_num(var), 0.0, None))
+            var = np.clip(np.nan_to_num(var), 0.0, None)
+            if self.config.ln_sigma_relative and len(var):
+                var = np.clip(var - max(var.min() - self.config.ln_sigma_floor_m**2, 0.0),
+                              0.0, None)
+            sigma = np.sqrt(var)
         else:
             sigma = np.asarray(ln_sigma, dtype=float).reshape(len(records))
         return np.maximum(sigma, self.config.ln_sigma_floor_m)

@@ -188,6 +188,32 @@ def test_ln_error_model_argument(gn: RoiNetwork, matcher: Matcher) -> None:
     assert result.timings_ms["total"] > 0
 
 
+def test_relative_node_sigma_drops_the_common_odometry_error(gn: RoiNetwork) -> None:
+    # An LN observed late in a drive: every node carries the odometry covariance since
+    # the start (here 6 m, 1 sigma, on top of its own drift), an error common to all its
+    # nodes that the alignment absorbs.
+    sims = _lns(gn, 6)
+    late = []
+    for sim in sims:
+        rec = sim.records.copy()
+        rec["cov_xx"] = rec["cov_yy"] = sim.sigma**2 + 36.0
+        late.append(rec)
+    absolute = Matcher(gn, MatchConfig(ln_sigma_relative=False))
+    relative = Matcher(gn)
+    for sim, rec in zip(sims, late, strict=True):
+        # Relative to the least uncertain node: each node's own drift, floored.
+        expected = np.maximum(np.sqrt(np.clip(sim.sigma**2 - sim.sigma.min() ** 2
+                                              + 0.2**2, 0, None)), 0.2)
+        assert np.allclose(relative.node_sigma(rec, None), expected, atol=1e-3)
+        assert np.all(absolute.node_sigma(rec, None) >= 5.99)
+        # The late LN is placed as well as the same LN seen from its own start.
+        result = relative.match(rec)
+        assert result.status == "fix", result.reason
+        assert transform_error(result.map_T_odom, sim, xy(gn.records)) < 6.0
+    # With the absolute covariance the late LNs' gates are too wide to place them.
+    assert sum(absolute.match(rec).is_fix for rec in late) < len(late)
+
+
 def test_robust_to_outliers_and_label_flips(gn: RoiNetwork, matcher: Matcher) -> None:
     gn_pts = xy(gn.records)
     lns = _lns(gn, 20, outliers=0.3, label_flips=0.1)
