@@ -369,8 +369,8 @@ class Matcher:
             var = 0.5 * (records["cov_xx"].astype(float) + records["cov_yy"].astype(float))
             var = np.clip(np.nan_to_num(var), 0.0, None)
             if self.config.ln_sigma_relative and len(var):
-                var = np.clip(var - max(var.min() - self.config.ln_sigma_floor_m**2, 0.0),
-                              0.0, None)
+                # Never below min(var.min(), floor^2) >= 0: no clip needed.
+                var = var - max(var.min() - self.config.ln_sigma_floor_m**2, 0.0)
             sigma = np.sqrt(var)
         else:
             sigma = np.asarray(ln_sigma, dtype=float).reshape(len(records))
@@ -383,8 +383,12 @@ class Matcher:
         axis, (K, 2) positions, class labels)."""
         records = as_records(ln.records if isinstance(ln, RoiNetwork) else ln)
         kept = np.flatnonzero(np.isfinite(xy(records)).all(axis=1))
-        sigma = self.node_sigma(records, ln_sigma)[kept]
+        if ln_sigma is not None:
+            ln_sigma = np.asarray(ln_sigma, dtype=float).reshape(len(records))[kept]
+        # The nodes the matcher uses only: an ignored node must not set the least
+        # uncertain node of ``ln_sigma_relative``.
         records = records[kept]
+        sigma = self.node_sigma(records, ln_sigma)
         return kept, sigma, xy(records), records["label"].astype(np.int64)
 
     def match(

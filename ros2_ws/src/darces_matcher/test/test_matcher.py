@@ -212,6 +212,12 @@ def test_relative_node_sigma_drops_the_common_odometry_error(gn: RoiNetwork) -> 
         assert transform_error(result.map_T_odom, sim, xy(gn.records)) < 6.0
     # With the absolute covariance the late LNs' gates are too wide to place them.
     assert sum(absolute.match(rec).is_fix for rec in late) < len(late)
+    # A node without a position is ignored, also as the least uncertain node.
+    rec = late[0].copy()
+    rec["x"][0], rec["cov_xx"][0], rec["cov_yy"][0] = np.nan, 0.0, 0.0
+    kept = np.arange(1, len(rec))
+    assert np.allclose(relative._finite_nodes(rec, None)[1],
+                       relative.node_sigma(rec[kept], None))
 
 
 def test_robust_to_outliers_and_label_flips(gn: RoiNetwork, matcher: Matcher) -> None:
