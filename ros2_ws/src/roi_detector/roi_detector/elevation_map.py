@@ -230,11 +230,12 @@ class ElevationMap:
         self._recentre(np.asarray(t_odom_base[:2], float))
         # Vertical sigma: the range error along the ray times the ray's vertical part.
         sig_r = dist**2 / fxb * c.disparity_sigma_px
-        sig_z = np.hypot(sig_r * np.abs(rel[:, 2]) / np.maximum(dist, 1e-6), c.height_floor_m)
+        sig_r_per_m = sig_r / np.maximum(dist, 1e-6)
+        sig_z = np.hypot(sig_r_per_m * np.abs(rel[:, 2]), c.height_floor_m)
         # A point misplaced along its ray lands in another cell: over terrain of gradient
         # g that is a height error of g times the horizontal part of the range error.
-        sig_z = np.hypot(sig_z, c.placement_gradient * sig_r * np.hypot(rel[:, 0], rel[:, 1])
-                         / np.maximum(dist, 1e-6))
+        sig_z = np.hypot(sig_z, c.placement_gradient * sig_r_per_m
+                         * np.hypot(rel[:, 0], rel[:, 1]))
         wt = 1.0 / sig_z**2
         ij = np.floor((pts[:, :2] - self.origin) / c.cell_m).astype(np.int64)
         inside = (ij >= 0).all(axis=1) & (ij < self.n).all(axis=1)
