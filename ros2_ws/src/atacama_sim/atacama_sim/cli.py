@@ -22,6 +22,9 @@ def main(argv: list[str] | None = None) -> int:
                      help="projected CRS (default EPSG:32719; e.g. IAU_2015:49910 for Mars)")
     gen.add_argument("--site-lonlat", type=float, nargs=2, default=None,
                      metavar=("LON", "LAT"), help="map-frame origin, degrees")
+    gen.add_argument("--orbital-only", action="store_true",
+                     help="the orbital image, truth and world.yaml only: no traverse, no "
+                          "rosbag (training data for orbital_gn train)")
     gen.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
 
@@ -36,7 +39,8 @@ def main(argv: list[str] | None = None) -> int:
     cfg = make_config(args.preset, args.seed, overrides)
     from atacama_sim.generate import generate  # deferred: heavy imports
 
-    stats = generate(cfg, args.out, progress=not args.no_progress)
+    stats = generate(cfg, args.out, progress=not args.no_progress,
+                     orbital_only=args.orbital_only)
     summary = {k: stats[k] for k in ("rois", "route", "timing_s", "render_s_per_stereo_frame")}
     print(json.dumps(summary, indent=1))
     return 0

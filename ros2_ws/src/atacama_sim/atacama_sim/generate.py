@@ -54,51 +54,16 @@ def _contact_choice(rig: StereoRig, traj, cam_idx: np.ndarray,
     return chosen
 
 
-def generate(cfg: WorldConfig, out: Path, progress: bool = True,
-             keep_aux: bool = False) -> dict[str, Any]:
-    """Write the bag directory ``out``; return the statistics written to world.yaml.
-
-    ``keep_aux``: also return per-frame rendered depth/labels of the left camera
-    (tests only: memory grows with the number of frames).
-    """
-    t_start = time.perf_counter()
-    out = Path(out)
-    if (out / "rosbag").exists():
-        shutil.rmtree(out / "rosbag")
-    (out / "truth").mkdir(parents=True, exist_ok=True)
-    timings: dict[str, float] = {}
-
-    t0 = time.perf_counter()
-    world = World.build(cfg)
-    cat = world.rocks.catalogue
-    route = plan_route(cfg.route, cat, world.terrain.extent, cfg.seed)
-    rate = cfg.imu.rate_hz
-    traj = drive(route, cfg.route, world.terrain, rate, cfg.seed)
-    imu = synthesize_imu(traj, cfg.imu, cfg.seed)
-    cam_idx = camera_indices(traj, cfg.route.frame_spacing_m, cfg.route.stop_frame_period_s,
-                             rate)
-    gt_step = max(1, round(rate / cfg.route.gt_rate_hz))
-    gt_idx = np.union1d(np.arange(0, len(traj.t), gt_step), cam_idx)
-    rig = StereoRig.from_config(cfg.camera)
-    timings["world_s"] = time.perf_counter() - t0
-
-    renderer = SceneRenderer(world.terrain, world.textures, world.rocks,
-                             (cfg.albedo.soil_rgb, cfg.albedo.gravel_rgb,
-                              cfg.albedo.pavement_rgb), (cfg.camera.width, cfg.camera.height))
-    bar = tqdm(total=orbital_tiles(world) + len(cam_idx), unit="step", disable=not progress,
-               desc=f"atacama_sim {cfg.preset}")
-    t0 = time.perf_counter()
-    bar.set_postfix_str("orbital")
-    orb = render_orbital(world, renderer, out / "orbital.tif", out / "truth/orbital_labels.tif",
-                         progress=lambda: bar.update(1))
-    timings["orbital_s"] = time.perf_counter() - t0
-
+def _traverse(cfg: WorldConfig, rig: StereoRig, renderer, traj, imu, cam_idx: np.ndarray,
+              gt_idx: np.ndarray, cat, out: Path, bar, keep_aux: bool, seen_px: np.ndarray,
+              frames_contact: list, aux: list, timings: dict[str, float]) -> dict[str, int]:
+    """Drive the route: write IMU, ground truth and stereo pairs to ``out/rosbag`` in time
+    order; fill ``seen_px`` (per ROI, most pixels in one left view), ``frames_contact``,
+    ``aux`` and ``timings``; return the message counts per topic."""
     contact = _contact_choice(rig, traj, cam_idx, cat)
     rot = traj.rotations()
     cam_set = {int(k): i for i, k in enumerate(cam_idx)}
     gt_set = set(gt_idx.tolist())
-    seen_px = np.zeros(len(cat) + 1, np.int64)
-    frames_contact, aux = [], []
     t0 = time.perf_counter()
     render_s = 0.0
     bar.set_postfix_str("traverse")
@@ -148,12 +113,71 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
     renderer.release()
     timings["traverse_s"] = time.perf_counter() - t0
     timings["render_s"] = render_s
+    return counts
+
+
+def generate(cfg: WorldConfig, out: Path, progress: bool = True,
+             keep_aux: bool = False, orbital_only: bool = False) -> dict[str, Any]:
+    """Write the bag directory ``out``; return the statistics written to world.yaml.
+
+    ``keep_aux``: also return per-frame rendered depth/labels of the left camera
+    (tests only: memory grows with the number of frames).
+    ``orbital_only``: write the world's orbital products and truth (``orbital.tif``,
+    ``truth/``, ``world.yaml``, ``contact_sheet.png``) but no traverse: no ``rosbag/``, no
+    ``rover.yaml`` (training data for the orbital classifiers, at a sixth of the time).
+    """
+    t_start = time.perf_counter()
+    out = Path(out)
+    if (out / "rosbag").exists():
+        shutil.rmtree(out / "rosbag")
+    if orbital_only:
+        (out / "rover.yaml").unlink(missing_ok=True)  # no traverse: no rig of its own
+    (out / "truth").mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+
+    t0 = time.perf_counter()
+    world = World.build(cfg)
+    cat = world.rocks.catalogue
+    route = plan_route(cfg.route, cat, world.terrain.extent, cfg.seed)
+    rate = cfg.imu.rate_hz
+    traj = drive(route, cfg.route, world.terrain, rate, cfg.seed)
+    imu = synthesize_imu(traj, cfg.imu, cfg.seed)
+    cam_idx = camera_indices(traj, cfg.route.frame_spacing_m, cfg.route.stop_frame_period_s,
+                             rate)
+    gt_step = max(1, round(rate / cfg.route.gt_rate_hz))
+    gt_idx = np.union1d(np.arange(0, len(traj.t), gt_step), cam_idx)
+    rig = StereoRig.from_config(cfg.camera)
+    timings["world_s"] = time.perf_counter() - t0
+
+    renderer = SceneRenderer(world.terrain, world.textures, world.rocks,
+                             (cfg.albedo.soil_rgb, cfg.albedo.gravel_rgb,
+                              cfg.albedo.pavement_rgb), (cfg.camera.width, cfg.camera.height))
+    n_traverse = 0 if orbital_only else len(cam_idx)
+    bar = tqdm(total=orbital_tiles(world) + n_traverse, unit="step", disable=not progress,
+               desc=f"atacama_sim {cfg.preset}")
+    t0 = time.perf_counter()
+    bar.set_postfix_str("orbital")
+    orb = render_orbital(world, renderer, out / "orbital.tif", out / "truth/orbital_labels.tif",
+                         progress=lambda: bar.update(1))
+    timings["orbital_s"] = time.perf_counter() - t0
+
+    seen_px = np.zeros(len(cat) + 1, np.int64)
+    frames_contact: list = []
+    aux: list = []
+    counts: dict[str, int] = {}
+    if orbital_only:
+        bar.close()
+        renderer.release()
+    else:
+        counts = _traverse(cfg, rig, renderer, traj, imu, cam_idx, gt_idx, cat, out, bar,
+                           keep_aux, seen_px, frames_contact, aux, timings)
 
     write_truth_rois(cat, cfg, world.origin, out / "truth/rois.geojson")
     # TUM stamps are bag time in seconds (= header stamps), like the pipeline's outputs
     t_abs = cfg.start_time_ns * 1e-9 + traj.t[gt_idx]
     write_tum(out / "truth/trajectory.tum", t_abs, traj.p[gt_idx], traj.q[gt_idx])
-    write_rover_yaml(out / "rover.yaml", rig, cfg)
+    if not orbital_only:
+        write_rover_yaml(out / "rover.yaml", rig, cfg)
     sheet = contact_sheet(orb["rgb"], world.terrain.extent, route.path, cat, frames_contact,
                           f"{cfg.preset} seed {cfg.seed}: {len(cat)} ROIs, "
                           f"route {route.length:.0f} m, net {route.net:.0f} m")
@@ -169,7 +193,7 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
                  "outcrops": int(np.sum(cat["label"] == 2)),
                  "clutter_rocks": len(world.rocks.clutter),
                  "within_roi_range_of_route": len(route.rois_passed),
-                 "seen_by_left_camera_200px": len(seen)},
+                 "seen_by_left_camera_200px": None if orbital_only else len(seen)},
         "route": {"length_m": round(route.length, 2), "net_m": round(route.net, 2),
                   "duration_s": round(float(traj.t[-1]), 2),
                   "stereo_frames": n_frames,
@@ -178,10 +202,13 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
                                        round(float(world.terrain.base.max()), 2)],
                     "slope_p95_deg": round(float(np.percentile(world.terrain.slope_deg(),
                                                                95)), 2)},
+        "orbital_only": orbital_only,
         "messages": counts,
         "timing_s": {k: round(v, 2) for k, v in timings.items()},
-        "render_s_per_stereo_frame": round(render_s / max(1, n_frames), 4),
-        "total_s_per_stereo_frame": round(timings["traverse_s"] / max(1, n_frames), 4),
+        "render_s_per_stereo_frame": round(timings.get("render_s", 0.0) / max(1, n_frames),
+                                           4),
+        "total_s_per_stereo_frame": round(timings.get("traverse_s", 0.0) / max(1, n_frames),
+                                          4),
     }
     write_world_yaml(out / "world.yaml", cfg, stats)
     if keep_aux:

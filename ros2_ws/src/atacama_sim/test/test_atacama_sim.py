@@ -436,3 +436,30 @@ def test_same_seed_same_bag(bag: dict, tmp_path: Path) -> None:
     for name in ("truth/rois.geojson", "truth/trajectory.tum", "truth/orbital_labels.tif",
                  "orbital.tif", "rover.yaml"):
         assert (again / name).read_bytes() == (bag["dir"] / name).read_bytes(), name
+
+
+def test_orbital_only_writes_the_same_orbital_products_and_no_traverse(
+        bag: dict, tmp_path: Path) -> None:
+    """``--orbital-only`` (training data for the orbital classifiers) writes the orbital
+    image, its labels, the truth and world.yaml of the full run byte for byte, and no
+    rosbag or rover.yaml (a stale one from a full run is removed)."""
+    from atacama_sim.cli import main
+
+    out = tmp_path / "tiny_orbital"
+    (out / "rosbag").mkdir(parents=True)
+    (out / "rover.yaml").write_text("stale")
+    cfg = make_config("tiny", SEED, LENS)
+    stats = generate(cfg, out, progress=False, orbital_only=True)
+    assert not (out / "rosbag").exists() and not (out / "rover.yaml").exists()
+    for name in ("truth/rois.geojson", "truth/trajectory.tum", "truth/orbital_labels.tif",
+                 "orbital.tif"):
+        assert (out / name).read_bytes() == (bag["dir"] / name).read_bytes(), name
+    assert stats["orbital_only"] is True and stats["messages"] == {}
+    derived = yaml.safe_load((out / "world.yaml").read_text())["derived"]
+    assert derived["orbital_only"] is True
+    assert derived["rois"]["seen_by_left_camera_200px"] is None
+    # The CLI flag reaches it.
+    assert main(["generate", "--preset", "tiny", "--seed", str(SEED), "--orbital-only",
+                 "--no-progress", "--out", str(tmp_path / "cli")]) == 0
+    assert (tmp_path / "cli" / "orbital.tif").is_file()
+    assert not (tmp_path / "cli" / "rosbag").exists()
