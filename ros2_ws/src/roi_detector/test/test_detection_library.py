@@ -334,8 +334,82 @@ def test_gradient_boosting_classifier_round_trips(tmp_path):
     assert meta["classifiers"]["outcrop_orbital"]["config"]["kind"] == "gradient_boosting"
     np.testing.assert_array_equal(loaded["outcrop_orbital"].predict_proba(xt),
                                   clf.predict_proba(xt))
+    # Stored as trees: the file does not hold the training set.
+    with np.load(tmp_path / "g.npz", allow_pickle=False) as z:
+        assert "outcrop_orbital__x" not in z.files and "outcrop_orbital__trees_value" in z.files
+    assert meta["classifiers"]["outcrop_orbital"]["stored"] == "trees"
+    assert meta["classifiers"]["outcrop_orbital"]["n_samples"] == 200
     with pytest.raises(ValueError, match="kind"):
         ClassifierConfig(kind="svm")
+
+
+def test_tree_ensemble_evaluates_as_scikit_learn_does():
+    """The stored trees give scikit-learn's probabilities exactly, NaN routing included,
+    and the model file does not grow with the training set."""
+    from sklearn.ensemble import HistGradientBoostingClassifier
+    from sklearn.pipeline import Pipeline
+    from sklearn.preprocessing import StandardScaler
+
+    from roi_detector.classifier import TreeEnsemble
+
+    rng = np.random.default_rng(7)
+    x = rng.normal(0, 3, (3000, 5)).astype(np.float32)
+    x[rng.random(x.shape) < 0.05] = np.nan
+    y = ((np.nan_to_num(x[:, 0]) + x[:, 1] ** 2 / 4 + rng.normal(0, 1, 3000)) > 1).astype(int)
+    pipe = Pipeline([("scale", StandardScaler()),
+                     ("gbt", HistGradientBoostingClassifier(
+                         max_iter=60, class_weight="balanced", early_stopping=False,
+                         random_state=0))]).fit(x, y)
+    trees = TreeEnsemble.from_pipeline(pipe)
+    xt = rng.normal(0, 3, (2000, 5)).astype(np.float32)
+    xt[rng.random(xt.shape) < 0.05] = np.nan
+    np.testing.assert_array_equal(trees.predict_proba(xt), pipe.predict_proba(xt)[:, 1])
+    again = TreeEnsemble.from_arrays(trees.to_arrays("p_"), "p_")
+    np.testing.assert_array_equal(again.predict_proba(xt), pipe.predict_proba(xt)[:, 1])
+    broken = trees.to_arrays("p_")
+    broken["p_left"] = broken["p_left"] + 10**6
+    with pytest.raises(ValueError, match="out of range"):
+        TreeEnsemble.from_arrays(broken, "p_")
+
+
+def test_boosted_model_file_size_does_not_grow_with_training_set(tmp_path):
+    """The stored trees are bounded by the tree count and leaves, not by the samples."""
+    names = tuple(f"f{i}" for i in range(6))
+    cfg = ClassifierConfig(kind="gradient_boosting")
+    sizes = []
+    for n in (4000, 40000):
+        x, y = _toy_data(9, n=n)
+        clf = BinaryClassifier("rock_orbital", names, cfg).fit(x, y)
+        save_classifiers(tmp_path / f"m{n}.npz", {"rock_orbital": clf}, {})
+        sizes.append((tmp_path / f"m{n}.npz").stat().st_size)
+        loaded, _ = load_classifiers(tmp_path / f"m{n}.npz")
+        np.testing.assert_array_equal(loaded["rock_orbital"].predict_proba(x[:50]),
+                                      clf.predict_proba(x[:50]))
+        # 200 trees of at most 31 leaves (61 nodes) whatever the training set's size.
+        assert loaded["rock_orbital"]._trees.value.size <= 200 * 61
+    # A training set of 40000 x 6 float16 alone is 480 kB.
+    assert sizes[1] < 480_000 / 2
+
+
+def test_first_format_model_files_still_load(tmp_path):
+    """A file of format /1 (boosted trees stored as their training set) is re-fitted."""
+    import json
+
+    x, y = _toy_data(4, n=200)
+    names = tuple(f"f{i}" for i in range(6))
+    meta = {"format": "globloc-roi-classifiers/1", "provenance": {}, "library_versions": {},
+            "classifiers": {"rock_orbital": {
+                "feature_names": list(names), "n_samples": 200, "n_positive": int(y.sum()),
+                "config": {"n_components": 8, "k": 5, "weights": "uniform",
+                           "kind": "gradient_boosting"}}}}
+    np.savez(tmp_path / "old.npz", rock_orbital__x=x.astype(np.float16),
+             rock_orbital__y=y.astype(np.uint8),
+             meta_json=np.frombuffer(json.dumps(meta).encode(), np.uint8))
+    loaded, _ = load_classifiers(tmp_path / "old.npz")
+    fresh = BinaryClassifier("rock_orbital", names,
+                             ClassifierConfig(kind="gradient_boosting")).fit(x, y)
+    np.testing.assert_array_equal(loaded["rock_orbital"].predict_proba(x),
+                                  fresh.predict_proba(x))
 
 
 def test_sun_direction_px_on_a_north_up_image():
