@@ -32,9 +32,12 @@ import psutil
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
 WORK = ROOT / "out" / "bench_orbital_gn"
-DEFAULT_BAGS = ["/work/bags/atacama_1km_s1", "/work/bags/atacama_1km_s2",
-                "/work/bags/atacama_1km_s3", "/work/bags/quick"]
-TRAIN_BAGS = ["/work/bags/train_quick_s101", "/work/bags/train_quick_s102"]
+DEFAULT_BAGS = [str(ROOT / "bags" / n) for n in ("atacama_1km_s1", "atacama_1km_s2",
+                                                 "atacama_1km_s3", "quick")]
+#: The committed models' training set (``make orbital-model``).
+TRAIN_BAGS = [str(ROOT / "bags" / n) for n in (
+    "train_quick_s101", "train_quick_s102",
+    *(f"train_orbital_1km_s{s}" for s in range(101, 107)))]
 
 
 def _exe(name: str) -> str:
@@ -92,8 +95,8 @@ def cmd_quality(args) -> None:
     out_json = RESULTS / "orbital_gn_quality.json"
     results = json.loads(out_json.read_text()) if out_json.exists() and args.append else {}
     results.setdefault("runs", [])
-    results["machine"] = ("2 cores shared with other helpers' jobs (load average "
-                          f"{psutil.getloadavg()[0]:.1f} at start); 2 dask worker processes")
+    results["machine"] = (f"{psutil.cpu_count()} cores, load average "
+                          f"{psutil.getloadavg()[0]:.1f} at start; 2 dask worker processes")
     for bag in map(Path, args.bags):
         ortho = bag / "orbital.tif"
         if not ortho.is_file():
@@ -193,11 +196,15 @@ def cmd_centres(args) -> None:
 
 
 def _vrt_mosaic(ortho: Path, k: int, out: Path) -> Path:
-    """A k x k mosaic of one raster as a GDAL VRT (no pixel copied to disk)."""
+    """A k x k mosaic of one raster as a GDAL VRT (no pixel copied to disk), with the
+    source's metadata tags (the sun direction among them)."""
     import rasterio
     with rasterio.open(ortho) as ds:
         w, h, t, crs, n = ds.width, ds.height, ds.transform, ds.crs.to_wkt(), ds.count
         dtype = {"uint8": "Byte", "uint16": "UInt16", "float32": "Float32"}[ds.dtypes[0]]
+        tags = ds.tags()
+    meta = "<Metadata>" + "".join(f"<MDI key=\"{escape(k)}\">{escape(v)}</MDI>"
+                                  for k, v in tags.items()) + "</Metadata>"
     bands = []
     for b in range(1, n + 1):
         srcs = "".join(
@@ -208,15 +215,15 @@ def _vrt_mosaic(ortho: Path, k: int, out: Path) -> Path:
         bands.append(f"<VRTRasterBand dataType=\"{dtype}\" band=\"{b}\">{srcs}</VRTRasterBand>")
     out.write_text(
         f"<VRTDataset rasterXSize=\"{k * w}\" rasterYSize=\"{k * h}\"><SRS>{escape(crs)}</SRS>"
-        f"<GeoTransform>{t.c}, {t.a}, {t.b}, {t.f}, {t.d}, {t.e}</GeoTransform>"
+        f"<GeoTransform>{t.c}, {t.a}, {t.b}, {t.f}, {t.d}, {t.e}</GeoTransform>" + meta
         + "".join(bands) + "</VRTDataset>")
     return out
 
 
 def cmd_scale(args) -> None:
     out_json = RESULTS / "orbital_gn_scale.json"
-    results = {"machine": ("2 cores shared with other helpers' jobs (load average "
-                           f"{psutil.getloadavg()[0]:.1f} at start); 2 dask worker processes"),
+    results = {"machine": (f"{psutil.cpu_count()} cores, load average "
+                           f"{psutil.getloadavg()[0]:.1f} at start; 2 dask worker processes"),
                "source": str(args.ortho), "tile_px": args.tile_px, "runs": []}
     for k in args.tiles:
         vrt = _vrt_mosaic(Path(args.ortho).resolve(), k, WORK / f"mosaic_{k}x{k}.vrt")
