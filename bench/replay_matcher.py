@@ -46,6 +46,7 @@ VARIANTS: dict[str, tuple[dict, bool]] = {
     "triplets48": ({"n_triplets": 48}, True),
     "marginal_triplets48": ({"marginal_outliers": True, "n_triplets": 48}, True),
     "absolute": ({"ln_sigma_relative": False}, True),
+    "anchor_least": ({"localized_anchor_newest": False}, True),
 }
 #: chi-square, 2 degrees of freedom, 99.73 % (3 sigma)
 _CHI2_2D_3SIGMA = 11.83
@@ -116,8 +117,10 @@ def replay(lns: list, odometry: list, gn, truth_xy: np.ndarray, dist: np.ndarray
                 line = f"{dist[i]:7.1f} m  {key:32s} LN {len(rec):3d} support {result.support:3d}"
                 if result.map_T_odom is not None:
                     off = np.linalg.norm(result.map_T_odom.apply(here) - oracle.apply(here))
+                    now = np.linalg.norm(result.map_T_odom.apply(here) - truth_xy[i])
                     line += (f"  fit off oracle {off:6.2f} m, "
-                             f"{np.degrees(result.map_T_odom.yaw - oracle.yaw):+.2f} deg")
+                             f"{np.degrees(result.map_T_odom.yaw - oracle.yaw):+.2f} deg, "
+                             f"off truth at the rover {now:6.2f} m")
                 print(line, file=events_out)
         filt.predict(here, cov)
         if filt.localized:

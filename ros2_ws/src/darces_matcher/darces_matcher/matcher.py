@@ -68,6 +68,16 @@ class MatchConfig:
             ``ln_sigma_floor_m``^2, kept as that node's own detection error) tells the
             nodes apart. No effect on an LN whose first node is precise, nor on an
             explicit ``ln_sigma``.
+        localized_anchor_newest: once the rover is localized (:meth:`match_or_track`
+            given a prior), take the covariance relative to the LN's most uncertain node
+            instead: the newest, the odometry's error growing as the rover drives. Each
+            node's sigma is then its drift relative to where the rover is now, and the
+            alignment fitted is the one that places the rover, not the LN's start: with
+            a heading drift one rigid alignment of a 1 km LN cannot hold at both ends
+            (atacama_1km seed 3: a refit of the whole LN 9 nodes strong put the rover
+            20 m off after 900 m, 2 deg of drift over a 600 m lever arm), and the old
+            nodes weigh less. The first fix keeps the least uncertain node as anchor (its
+            odds need the whole LN).
         min_tol_m: smallest node tolerance in the edge tolerance d_D, metres.
         min_gate_m: smallest verification gate, metres: a node within this of a GN node
             of its class under a hypothesis votes for it. Too tight and the precise
@@ -175,6 +185,7 @@ class MatchConfig:
     gn_sigma_m: float = 0.3
     ln_sigma_floor_m: float = 0.2
     ln_sigma_relative: bool = True
+    localized_anchor_newest: bool = True
     min_tol_m: float = 1.0
     min_gate_m: float = 2.5
     max_tol_m: float = 30.0
@@ -258,6 +269,7 @@ class MatchResult:
         runner_up: inliers of the best distinct alternative (0 if none).
         margin: support - runner_up.
         position_sigma_m: largest predicted 1-sigma error per axis of a mapped LN node
+            (of the newest node once localized, ``MatchConfig.localized_anchor_newest``)
             under the fit's covariance, metres.
         n_triplets: control triplets tried.
         n_hypotheses: triangle hypotheses verified.
@@ -329,6 +341,10 @@ class Matcher:
         self._blind: Matcher | None = None
         #: (alignments examined, odds of the distinct alternatives) of the last search.
         self._last_search: tuple[float, list[float]] = (1.0, [])
+        #: Where the last LN's fit is judged precise (``max_position_sigma_m``), as
+        #: indices into its finite nodes: None, every node; with ``anchor_newest``, the
+        #: newest node (where the rover is).
+        self._judged: np.ndarray | None = None
         #: GN ROIs per square metre: the EM's outlier density (a node with no
         #: counterpart is as likely anywhere).
         self.gn_density = gn_density(self.index.pts)
@@ -358,26 +374,35 @@ class Matcher:
             return 3000
         return max(30000, int(0.3 * len(self.index.pts)))
 
-    def node_sigma(self, records: np.ndarray, ln_sigma: np.ndarray | None) -> np.ndarray:
+    def node_sigma(self, records: np.ndarray, ln_sigma: np.ndarray | None,
+                   anchor_newest: bool = False) -> np.ndarray:
         """1-sigma position error per axis of each LN node, metres.
 
         From ``ln_sigma`` when given, else from the records' covariance (cov_xx, cov_yy),
-        relative to the least uncertain node when ``ln_sigma_relative``; floored at
+        relative to the least uncertain node when ``ln_sigma_relative`` (to the most
+        uncertain one, the newest, with ``anchor_newest``); floored at
         ``ln_sigma_floor_m``.
         """
         if ln_sigma is None:
             var = 0.5 * (records["cov_xx"].astype(float) + records["cov_yy"].astype(float))
             var = np.clip(np.nan_to_num(var), 0.0, None)
             if self.config.ln_sigma_relative and len(var):
-                # Never below min(var.min(), floor^2) >= 0: no clip needed.
-                var = var - max(var.min() - self.config.ln_sigma_floor_m**2, 0.0)
+                floor2 = self.config.ln_sigma_floor_m**2
+                if anchor_newest:
+                    # Drift relative to the newest node, which keeps its own detection
+                    # error (up to floor^2).
+                    var = var.max() - var + min(var.max(), floor2)
+                else:
+                    # Never below min(var.min(), floor^2) >= 0: no clip needed.
+                    var = var - max(var.min() - floor2, 0.0)
             sigma = np.sqrt(var)
         else:
             sigma = np.asarray(ln_sigma, dtype=float).reshape(len(records))
         return np.maximum(sigma, self.config.ln_sigma_floor_m)
 
     def _finite_nodes(
-        self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None
+        self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None,
+        anchor_newest: bool = False,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The LN nodes with finite positions: (indices into the input, 1-sigma error per
         axis, (K, 2) positions, class labels)."""
@@ -388,11 +413,24 @@ class Matcher:
         # The nodes the matcher uses only: an ignored node must not set the least
         # uncertain node of ``ln_sigma_relative``.
         records = records[kept]
-        sigma = self.node_sigma(records, ln_sigma)
+        sigma = self.node_sigma(records, ln_sigma, anchor_newest)
+        self._judged = None
+        if anchor_newest and len(records):
+            # The newest node: the most uncertain in the odometry's error.
+            raw = (0.5 * (records["cov_xx"].astype(float) + records["cov_yy"].astype(float))
+                   if ln_sigma is None else ln_sigma)
+            self._judged = np.array([int(np.argmax(np.nan_to_num(raw)))])
         return kept, sigma, xy(records), records["label"].astype(np.int64)
 
+    def _spread(self, pts: np.ndarray, yaw: float, covariance: np.ndarray) -> float:
+        """Largest predicted 1-sigma error per axis of a node mapped by a fit, m, over
+        the nodes the fit is judged at (all, or the newest: see ``_judged``)."""
+        at = pts if self._judged is None else pts[self._judged]
+        return float(np.sqrt(predicted_variance(at, yaw, covariance).max()))
+
     def match(
-        self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None = None
+        self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None = None,
+        anchor_newest: bool = False,
     ) -> MatchResult:
         """Fit an LN onto the GN.
 
@@ -401,6 +439,8 @@ class Matcher:
             ln_sigma: optional (N,) 1-sigma position error per axis of each LN node,
                 metres (the LN error model: VO drift grows with distance travelled);
                 default: from the records' covariance.
+            anchor_newest: the records' covariance is taken relative to the newest node
+                (see ``MatchConfig.localized_anchor_newest``).
 
         Returns:
             The :class:`MatchResult`; never raises on a degenerate LN.
@@ -420,7 +460,7 @@ class Matcher:
         5. the probabilistic refit of a fix (:func:`~darces_matcher.em_refit.em_refit`)
            and the decision again on its alignment (:meth:`_em_refit`).
         """
-        result = self._match_semantic(ln, ln_sigma)
+        result = self._match_semantic(ln, ln_sigma, anchor_newest)
         if result.is_fix and self.config.probabilistic_refit:
             result = self._em_refit(result)
         return result
@@ -431,6 +471,7 @@ class Matcher:
         prior: Rigid2D,
         prior_covariance: np.ndarray,
         ln_sigma: np.ndarray | None = None,
+        anchor_newest: bool = False,
     ) -> MatchResult:
         """Fit an LN near a known alignment: localization while driving, after a fix.
 
@@ -451,7 +492,7 @@ class Matcher:
             prior: the current estimate of ``map_T_odom``.
             prior_covariance: (3, 3) covariance of its (x, y, yaw), m^2 and rad^2
                 (:class:`~darces_matcher.localization.MapOdomFilter`'s).
-            ln_sigma: as in :meth:`match`.
+            ln_sigma, anchor_newest: as in :meth:`match`.
 
         Returns:
             A :class:`MatchResult` with reason ``"ok_tracked"`` on a fix.
@@ -467,7 +508,7 @@ class Matcher:
                 np.linalg.eigvalsh(0.5 * (p + p.T)) > 0.0):
             raise ValueError("Matcher.track: prior_covariance must be a finite, positive "
                              f"definite (3, 3) matrix, got {p.tolist()}")
-        kept, sigma, pts, labels = self._finite_nodes(ln, ln_sigma)
+        kept, sigma, pts, labels = self._finite_nodes(ln, ln_sigma, anchor_newest)
         if len(kept) < 3:
             return MatchResult("no_fix", "too_few_nodes", timings_ms=_since(t_start, {}))
         var = sigma**2 + cfg.gn_sigma_m**2
@@ -480,7 +521,8 @@ class Matcher:
         fitted = Rigid2D(fit.yaw, fit.t[0], fit.t[1])
         d = np.array([fit.t[0] - prior.tx, fit.t[1] - prior.ty,
                       wrap_angle(fit.yaw - prior.yaw)])
-        covariance, position_sigma = _em_covariance(pts, var, fit)
+        covariance = _em_covariance(pts, var, fit)
+        position_sigma = self._spread(pts, fit.yaw, covariance)
         # The precision test of the global search stands: without it, on atacama_1km seed
         # 3's LN against the truth catalogue, two wrong pairs 600 m from the rest of the
         # LN (inside their 2.5 sigma gates) turned the alignment by 1.2 deg and the final
@@ -510,13 +552,15 @@ class Matcher:
     ) -> MatchResult:
         """The global search (:meth:`match`); when it gives no fix and a prior alignment is
         given (the rover is localized), :meth:`track` near it. The darces_matcher node's
-        decision for each LN. ``timings_ms["total"]`` covers both; ``"search"`` is the
-        global search's share when tracking ran."""
-        result = self.match(ln, ln_sigma)
+        decision for each LN. Once localized, node sigmas are relative to the newest node
+        (``MatchConfig.localized_anchor_newest``). ``timings_ms["total"]`` covers both;
+        ``"search"`` is the global search's share when tracking ran."""
+        newest = prior is not None and self.config.localized_anchor_newest
+        result = self.match(ln, ln_sigma, newest)
         if result.is_fix or prior is None:
             return result
         searched_ms = result.timings_ms.get("total", 0.0)
-        result = self.track(ln, prior, prior_covariance, ln_sigma)
+        result = self.track(ln, prior, prior_covariance, ln_sigma, newest)
         result.timings_ms["search"] = searched_ms
         result.timings_ms["total"] = result.timings_ms.get("total", 0.0) + searched_ms
         return result
@@ -587,7 +631,8 @@ class Matcher:
         if withheld:
             result.status, result.reason = "no_fix", "insufficient_support"
         else:
-            covariance, spread = _em_covariance(pts, var, fit)
+            covariance = _em_covariance(pts, var, fit)
+            spread = self._spread(pts, fit.yaw, covariance)
             if spread <= cfg.max_position_sigma_m:
                 result.map_T_odom = Rigid2D(fit.yaw, fit.t[0], fit.t[1])
                 result.covariance, result.position_sigma_m = covariance, spread
@@ -598,11 +643,12 @@ class Matcher:
         return result
 
     def _match_semantic(
-        self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None
+        self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None,
+        anchor_newest: bool = False,
     ) -> MatchResult:
         """The labelled search, the label-blind polish of its fix, or the label-blind
         fallback when it gives none (soft semantics)."""
-        result = self._match(ln, ln_sigma)
+        result = self._match(ln, ln_sigma, anchor_newest)
         cfg = self.config
         if (result.is_fix and cfg.use_labels and cfg.label_fallback
                 and cfg.polish_label_blind and not cfg.probabilistic_refit):
@@ -617,7 +663,7 @@ class Matcher:
         # again on geometry only, and keep that fix if its inliers mostly agree on class
         # (a class-swapped LN finds its geometric match but fails this check).
         blind = self._blind_matcher()
-        second = blind._match(ln, ln_sigma)
+        second = blind._match(ln, ln_sigma, anchor_newest)
         for stage, ms in second.timings_ms.items():
             key = "total" if stage == "total" else f"blind_{stage}"
             result.timings_ms[key] = result.timings_ms.get(key, 0.0) + ms
@@ -676,7 +722,7 @@ class Matcher:
         agree = labels[ln_in] == self._gn_labels[gn_in]
         if len(ln_in) > result.support and agree.mean() >= cfg.min_label_agreement:
             covariance = pose_covariance(pts[ln_in], yaw, weights[ln_in])
-            spread = float(np.sqrt(predicted_variance(pts, yaw, covariance).max()))
+            spread = self._spread(pts, yaw, covariance)
             if spread <= cfg.max_position_sigma_m:
                 result.map_T_odom = Rigid2D(yaw, t[0], t[1])
                 result.covariance, result.position_sigma_m = covariance, spread
@@ -694,12 +740,13 @@ class Matcher:
                                                     label_fallback=False))
         return self._blind
 
-    def _match(self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None) -> MatchResult:
+    def _match(self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None,
+               anchor_newest: bool = False) -> MatchResult:
         """One search (labelled or not, as configured); see :meth:`match`."""
         cfg = self.config
         t_start = time.perf_counter()
         timings: dict[str, float] = {}
-        kept, sigma, pts, labels = self._finite_nodes(ln, ln_sigma)
+        kept, sigma, pts, labels = self._finite_nodes(ln, ln_sigma, anchor_newest)
         if len(kept) < 3:
             return MatchResult("no_fix", "too_few_nodes", timings_ms=_since(t_start, timings))
 
@@ -859,7 +906,7 @@ class Matcher:
         agreeing = (partner[pool.ln_idx] == pool.gn_idx).all(axis=1)
         votes = len(np.unique(pool.source[agreeing]))
         covariance = pose_covariance(pts[best.ln], best.yaw, weights[best.ln])
-        spread = float(np.sqrt(predicted_variance(pts, best.yaw, covariance).max()))
+        spread = self._spread(pts, best.yaw, covariance)
         status: Status = "fix"
         reason = "ok"
         log_odds = p_false = float("nan")
@@ -1001,11 +1048,10 @@ def _displacement(mapped: np.ndarray, ref: np.ndarray, node_tol: np.ndarray) -> 
     return np.max(np.linalg.norm(mapped - ref, axis=-1) / node_tol, axis=-1)
 
 
-def _em_covariance(pts: np.ndarray, var: np.ndarray, fit: EmFit) -> tuple[np.ndarray, float]:
+def _em_covariance(pts: np.ndarray, var: np.ndarray, fit: EmFit) -> np.ndarray:
     """(x, y, yaw) covariance of an EM fit, each node informing it by its probability of
-    having a counterpart, and the largest predicted 1-sigma error of a mapped node, m."""
-    covariance = pose_covariance(pts, fit.yaw, fit.matched / var)
-    return covariance, float(np.sqrt(predicted_variance(pts, fit.yaw, covariance).max()))
+    having a counterpart."""
+    return pose_covariance(pts, fit.yaw, fit.matched / var)
 
 
 def _ms(t0: float) -> float:

@@ -144,3 +144,59 @@ def test_match_or_track_tracks_only_when_the_search_fails_and_a_prior_is_given(g
             assert result.reason == "ok_tracked"
             assert transform_error(result.map_T_odom, short, gn_pts) < 6.0
     assert tracked >= 1
+
+
+def _bent_ln(gn: RoiNetwork, sim, drift_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The ROIs of a simulated route, placed in ``odom`` by an odometry whose heading
+    drifts by ``drift_deg`` over the route (a bend about its start), node covariance
+    growing as 1 % of the distance travelled: (records in route order, odom positions,
+    map positions)."""
+    from roi_network.records import empty_records
+
+    route = xy(gn.records)[sim.trajectory]
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(route, axis=0), axis=1))])
+    a = np.radians(drift_deg) * s / s[-1]
+    d = route - route[0]
+    bent = route[0] + np.column_stack([np.cos(a) * d[:, 0] - np.sin(a) * d[:, 1],
+                                       np.sin(a) * d[:, 0] + np.cos(a) * d[:, 1]])
+    odom = sim.map_T_odom.inverse().apply(bent)
+    rec = empty_records(len(route))
+    rec["x"], rec["y"] = odom[:, 0], odom[:, 1]
+    rec["id"] = np.arange(len(route))
+    rec["label"] = gn.records["label"][sim.trajectory]
+    rec["cov_xx"] = rec["cov_yy"] = (0.01 * s) ** 2 + 0.04
+    return rec, odom, route
+
+
+def test_once_localized_the_fit_places_the_rover_not_the_ln_start(gn: RoiNetwork) -> None:
+    """A 1 km LN whose odometry heading drifted 3 deg: one rigid alignment cannot hold
+    at both ends. Anchored at the LN's least uncertain node (its start) the fit places
+    the rover, at the newest node, about 15 m off; once localized the matcher anchors
+    the node sigmas at the newest node and judges the fit's precision there."""
+    from darces_matcher.simulate import SimOptions, iter_lns
+
+    least = Matcher(gn, MatchConfig(localized_anchor_newest=False))
+    newest = Matcher(gn)
+    assert newest.config.localized_anchor_newest
+    prior_cov = np.diag([15.0**2, 15.0**2, np.radians(2.0) ** 2])
+    placed = 0
+    sims = list(iter_lns(gn, SimOptions(noise_fraction=0.0), seed=7, max_lns=8))
+    for sim in sims:
+        rec, odom, route = _bent_ln(gn, sim, 3.0)
+        first = least.match(rec)  # the first fix: no prior, the least uncertain anchor
+        assert first.is_fix, first.reason
+        assert np.linalg.norm(first.map_T_odom.apply(odom[-1:]) - route[-1]) > 8.0
+        same = least.match_or_track(rec, first.map_T_odom, prior_cov)
+        assert np.linalg.norm(same.map_T_odom.apply(odom[-1:]) - route[-1]) > 8.0
+        result = newest.match_or_track(rec, first.map_T_odom, prior_cov)
+        if result.is_fix:
+            placed += 1
+            assert np.linalg.norm(result.map_T_odom.apply(odom[-1:]) - route[-1]) < 1.0
+            # Judged where the rover is: the newest node's predicted error.
+            assert result.position_sigma_m <= newest.config.max_position_sigma_m
+    assert placed >= 6
+    # The newest node's own sigma is the floor; the start's is the drift between them.
+    sigma = newest.node_sigma(rec, None, anchor_newest=True)
+    assert sigma[-1] == pytest.approx(0.2, abs=1e-6)
+    assert sigma[0] == pytest.approx(np.sqrt(rec["cov_xx"][-1] - rec["cov_xx"][0] + 0.04),
+                                     rel=1e-5)
