@@ -69,6 +69,12 @@ def run_measured(cmd: list[str]) -> dict:
             "stdout": out.strip()}
 
 
+def _machine() -> str:
+    """The machine line of a results file: cores and the load when the part started."""
+    return (f"{psutil.cpu_count()} cores, load average {psutil.getloadavg()[0]:.1f} at "
+            "start; 2 dask worker processes")
+
+
 def raster_mpx(path: str) -> float:
     import rasterio
     with rasterio.open(path) as ds:
@@ -95,8 +101,7 @@ def cmd_quality(args) -> None:
     out_json = RESULTS / "orbital_gn_quality.json"
     results = json.loads(out_json.read_text()) if out_json.exists() and args.append else {}
     results.setdefault("runs", [])
-    results["machine"] = (f"{psutil.cpu_count()} cores, load average "
-                          f"{psutil.getloadavg()[0]:.1f} at start; 2 dask worker processes")
+    results["machine"] = _machine()
     for bag in map(Path, args.bags):
         ortho = bag / "orbital.tif"
         if not ortho.is_file():
@@ -222,8 +227,7 @@ def _vrt_mosaic(ortho: Path, k: int, out: Path) -> Path:
 
 def cmd_scale(args) -> None:
     out_json = RESULTS / "orbital_gn_scale.json"
-    results = {"machine": (f"{psutil.cpu_count()} cores, load average "
-                           f"{psutil.getloadavg()[0]:.1f} at start; 2 dask worker processes"),
+    results = {"machine": _machine(),
                "source": str(args.ortho), "tile_px": args.tile_px, "runs": []}
     for k in args.tiles:
         vrt = _vrt_mosaic(Path(args.ortho).resolve(), k, WORK / f"mosaic_{k}x{k}.vrt")

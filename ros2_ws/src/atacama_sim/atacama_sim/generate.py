@@ -109,8 +109,6 @@ def _traverse(cfg: WorldConfig, rig: StereoRig, renderer, traj, imu, cam_idx: np
                 frames_contact.append((left, lab, t))
             bar.update(1)
         counts = dict(bag.counts)
-    bar.close()
-    renderer.release()
     timings["traverse_s"] = time.perf_counter() - t0
     timings["render_s"] = render_s
     return counts
@@ -165,12 +163,11 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
     frames_contact: list = []
     aux: list = []
     counts: dict[str, int] = {}
-    if orbital_only:
-        bar.close()
-        renderer.release()
-    else:
+    if not orbital_only:
         counts = _traverse(cfg, rig, renderer, traj, imu, cam_idx, gt_idx, cat, out, bar,
                            keep_aux, seen_px, frames_contact, aux, timings)
+    bar.close()
+    renderer.release()
 
     write_truth_rois(cat, cfg, world.origin, out / "truth/rois.geojson")
     # TUM stamps are bag time in seconds (= header stamps), like the pipeline's outputs

@@ -384,8 +384,7 @@ class Matcher:
         ``ln_sigma_floor_m``.
         """
         if ln_sigma is None:
-            var = 0.5 * (records["cov_xx"].astype(float) + records["cov_yy"].astype(float))
-            var = np.clip(np.nan_to_num(var), 0.0, None)
+            var = _records_var(records)
             if self.config.ln_sigma_relative and len(var):
                 floor2 = self.config.ln_sigma_floor_m**2
                 if anchor_newest:
@@ -417,9 +416,8 @@ class Matcher:
         self._judged = None
         if anchor_newest and len(records):
             # The newest node: the most uncertain in the odometry's error.
-            raw = (0.5 * (records["cov_xx"].astype(float) + records["cov_yy"].astype(float))
-                   if ln_sigma is None else ln_sigma)
-            self._judged = np.array([int(np.argmax(np.nan_to_num(raw)))])
+            raw = _records_var(records) if ln_sigma is None else np.nan_to_num(ln_sigma)
+            self._judged = np.array([int(np.argmax(raw))])
         return kept, sigma, xy(records), records["label"].astype(np.int64)
 
     def _spread(self, pts: np.ndarray, yaw: float, covariance: np.ndarray) -> float:
@@ -1046,6 +1044,13 @@ def _displacement(mapped: np.ndarray, ref: np.ndarray, node_tol: np.ndarray) -> 
         node_tol: (N,) node tolerances, metres.
     """
     return np.max(np.linalg.norm(mapped - ref, axis=-1) / node_tol, axis=-1)
+
+
+def _records_var(records: np.ndarray) -> np.ndarray:
+    """Per-axis position variance of LN records from their covariance, m^2 (a missing or
+    negative one as 0)."""
+    var = 0.5 * (records["cov_xx"].astype(float) + records["cov_yy"].astype(float))
+    return np.clip(np.nan_to_num(var), 0.0, None)
 
 
 def _em_covariance(pts: np.ndarray, var: np.ndarray, fit: EmFit) -> np.ndarray:

@@ -94,9 +94,18 @@ class TreeEnsemble:
     right: np.ndarray
     is_leaf: np.ndarray
 
-    FIELDS: ClassVar[tuple[str, ...]] = ("mean", "scale", "baseline", "roots", "value",
-                                         "feature", "threshold", "missing_left", "left",
-                                         "right", "is_leaf")
+    #: Each field's dtype in memory (to_arrays stores the index fields as int32).
+    DTYPES: ClassVar[dict[str, type]] = {
+        "mean": np.float64, "scale": np.float64, "baseline": np.float64,
+        "roots": np.int64, "value": np.float64, "feature": np.int64,
+        "threshold": np.float64, "missing_left": bool, "left": np.int64,
+        "right": np.int64, "is_leaf": bool}
+
+    @classmethod
+    def _typed(cls, **fields: Any) -> TreeEnsemble:
+        out = {k: np.asarray(fields[k]).astype(t) for k, t in cls.DTYPES.items()}
+        out["baseline"] = float(out["baseline"])
+        return cls(**out)
 
     @classmethod
     def from_pipeline(cls, pipeline: Pipeline) -> TreeEnsemble:
@@ -114,16 +123,13 @@ class TreeEnsemble:
             start += n.size
         cat = np.concatenate([n for n, _ in nodes])
         off = np.concatenate([np.full(n.size, o, np.int64) for n, o in nodes])
-        return cls(mean=np.asarray(scaler.mean_, np.float64),
-                   scale=np.asarray(scaler.scale_, np.float64),
-                   baseline=float(np.ravel(gbt._baseline_prediction)[0]),
-                   roots=np.asarray(roots, np.int64), value=cat["value"].astype(np.float64),
-                   feature=cat["feature_idx"].astype(np.int64),
-                   threshold=cat["num_threshold"].astype(np.float64),
-                   missing_left=cat["missing_go_to_left"].astype(bool),
-                   left=cat["left"].astype(np.int64) + off,
-                   right=cat["right"].astype(np.int64) + off,
-                   is_leaf=cat["is_leaf"].astype(bool))
+        return cls._typed(mean=scaler.mean_, scale=scaler.scale_,
+                          baseline=np.ravel(gbt._baseline_prediction)[0], roots=roots,
+                          value=cat["value"], feature=cat["feature_idx"],
+                          threshold=cat["num_threshold"],
+                          missing_left=cat["missing_go_to_left"],
+                          left=cat["left"].astype(np.int64) + off,
+                          right=cat["right"].astype(np.int64) + off, is_leaf=cat["is_leaf"])
 
     def raw_score(self, x: np.ndarray) -> np.ndarray:
         """(N,) raw score (log-odds) of float32 features ``x`` (N, F)."""
@@ -153,12 +159,12 @@ class TreeEnsemble:
         """The fields as arrays named ``prefix + field`` (indices as int32)."""
         small = {"roots", "feature", "left", "right"}
         return {f"{prefix}{k}": np.asarray(getattr(self, k)).astype(np.int32) if k in small
-                else np.asarray(getattr(self, k)) for k in self.FIELDS}
+                else np.asarray(getattr(self, k)) for k in self.DTYPES}
 
     @classmethod
     def from_arrays(cls, data: dict[str, np.ndarray], prefix: str) -> TreeEnsemble:
         """Inverse of :meth:`to_arrays`; raises KeyError or ValueError when inconsistent."""
-        a = {k: data[f"{prefix}{k}"] for k in cls.FIELDS}
+        a = {k: data[f"{prefix}{k}"] for k in cls.DTYPES}
         m = a["value"].size
         for k in ("feature", "threshold", "missing_left", "left", "right", "is_leaf"):
             if a[k].shape != (m,):
@@ -169,13 +175,7 @@ class TreeEnsemble:
                              | (a["right"] >= m)
                              | (a["feature"] < 0) | (a["feature"] >= a["mean"].size))).any():
             raise ValueError("tree node indices out of range")
-        return cls(mean=a["mean"].astype(np.float64), scale=a["scale"].astype(np.float64),
-                   baseline=float(a["baseline"]), roots=a["roots"].astype(np.int64),
-                   value=a["value"].astype(np.float64), feature=a["feature"].astype(np.int64),
-                   threshold=a["threshold"].astype(np.float64),
-                   missing_left=a["missing_left"].astype(bool),
-                   left=a["left"].astype(np.int64), right=a["right"].astype(np.int64),
-                   is_leaf=a["is_leaf"].astype(bool))
+        return cls._typed(**a)
 
 
 @dataclass
