@@ -143,12 +143,14 @@ class RoiDetectorNode(Node):
         if left is None or right is None or left.shape != right.shape:
             self.bad("undecodable image", f"stereo pair at {stamp * 1e-9:.3f} s "
                      f"({left_msg.format!r})")
+            self.publish_status(left_msg.header.stamp)  # the skip shows at once
             return
         frame = StereoFrame(stamp, left, right, self.left_k, self.right_p)
         try:
             obs = self.detector.observe(frame)
         except ValueError as exc:  # inconsistent CameraInfo: named field
             self.bad("bad camera_info", str(exc))
+            self.publish_status(left_msg.header.stamp)
             return
         self.n_pairs += 1
         self.waiting.append((_stamp_s(left_msg.header.stamp), left_msg.header.stamp, obs))
