@@ -167,3 +167,52 @@ def test_a_far_view_misplaced_along_its_ray_weighs_less():
 
     assert cell_height(0.0) > 0.1  # both views capped at one pair's weight: the mean
     assert cell_height(0.5) < 0.03
+
+
+def _dark_where_raised(pts, swell=True, value=0.35):
+    """Appearance (relative saturation, value) of the points: soil 1, 1; the points
+    standing above the terrain at ``value``."""
+    app = np.ones((len(pts), 1, 2), np.float32)
+    raised = pts[:, 0, 2] - _terrain(pts[:, 0, 0], pts[:, 0, 1], swell) > 0.05
+    app[raised, 0, 1] = value
+    return app
+
+
+def test_a_rock_is_darker_than_the_soil():
+    pts = _scene()
+    emap = ElevationMap(ElevationMapConfig(detect_every=2))
+    _drive(emap, pts, appearance=_dark_where_raised(pts))
+    rec = emap.to_records()
+    assert len(rec) == 1 and rec["label"][0] == ROCK
+    assert np.hypot(rec["x"][0] - 9.0, rec["y"][0] - 2.0) < 0.3
+    # The same block with the soil's brightness is a bump of soil, unless the test is off.
+    emap = ElevationMap(ElevationMapConfig(detect_every=2))
+    _drive(emap, pts, appearance=_dark_where_raised(pts, value=1.0))
+    assert len(emap.to_records()) == 0
+    emap = ElevationMap(ElevationMapConfig(detect_every=2, rock_dark_value=0.0))
+    _drive(emap, pts, appearance=_dark_where_raised(pts, value=1.0))
+    assert len(emap.to_records()) == 1
+
+
+def test_two_rocks_joined_by_low_cells_are_two_regions():
+    """Two 1 x 1 m blocks 0.5 m tall, 1.6 m apart, joined by a 0.15 m ridge of debris."""
+    x, y = np.meshgrid(np.arange(2.0, 16.0, 0.05), np.arange(-8.0, 8.0, 0.05))
+    x, y = x.ravel(), y.ravel()
+    z = _terrain(x, y, swell=False)
+    a = (np.abs(x - 9.0) < 0.5) & (np.abs(y - 1.3) < 0.5)
+    b = (np.abs(x - 9.0) < 0.5) & (np.abs(y + 1.3) < 0.5)
+    ridge = (np.abs(x - 9.0) < 0.3) & (np.abs(y) < 0.9)
+    z = z + np.where(a | b, 0.5, np.where(ridge, 0.15, 0.0))
+    pts = np.column_stack([x, y, z + RNG.normal(0, 0.01, len(x))])[:, None, :]
+    app = _dark_where_raised(pts, swell=False)
+    found = {}
+    for split in (True, False):
+        emap = ElevationMap(ElevationMapConfig(detect_every=2, rock_split_peaks=split))
+        _drive(emap, pts, appearance=app)
+        found[split] = emap.to_records()
+    two = found[True]
+    assert len(two) == 2 and np.all(two["label"] == ROCK), two
+    assert np.allclose(np.sort(two["y"]), [-1.3, 1.3], atol=0.3)
+    assert np.all(two["area_m2"] < 1.8)
+    # As one connected region the pair is one rock between them (or none: too large).
+    assert len(found[False]) <= 1
