@@ -51,6 +51,8 @@ RESULTS = Path(__file__).resolve().parent / "results"
 #: Metrics of the continuous estimate aggregated over bags.
 METRICS = ("final_error_m", "rmse_after_first_fix_m", "distance_before_first_fix_m",
            "false_fixes", "consistency_3sigma")
+#: Distances along the route at which the ROIs passed are counted (see rois_passed).
+PASSED_MARKS_M = (100, 200, 300)
 
 
 def _globloc() -> list[str]:
@@ -224,6 +226,37 @@ def latency(run_dir: Path, rate: float) -> dict[str, Any]:
     }
 
 
+def rois_passed(route_xy: np.ndarray, roi_xy: np.ndarray, marks_m=PASSED_MARKS_M
+                ) -> dict[int, int]:
+    """How many of the ROIs ``roi_xy`` (N, 2) the route ``route_xy`` (M, 2) has passed
+    (reached its closest point to them) by each distance along it in ``marks_m``: what
+    bounds how early any LN can hold enough ROIs for a fix."""
+    route_xy, roi_xy = np.asarray(route_xy, float), np.asarray(roi_xy, float).reshape(-1, 2)
+    along = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(route_xy, axis=0), axis=1))]
+    if len(roi_xy) == 0:
+        return {int(m): 0 for m in marks_m}
+    from scipy.spatial import cKDTree
+
+    _, k = cKDTree(route_xy).query(roi_xy)
+    at = along[k]
+    return {int(m): int(np.count_nonzero(at <= m)) for m in marks_m}
+
+
+def counted_rois_passed(bag: Path) -> dict[str, Any] | None:
+    """:func:`rois_passed` for the ROIs ``roi_detector eval``'s recall counts (above the
+    rover thresholds, within 15 m of the route), from the bag's truth; None without it."""
+    try:
+        from roi_detector.truth import Truth
+
+        truth = Truth.load(bag)
+    except (OSError, ValueError):
+        return None
+    r = truth.rois
+    counted = truth.above_thresholds() & truth.near_route(15.0)
+    by = rois_passed(truth.trajectory.p[:, :2], np.column_stack([r["x"], r["y"]])[counted])
+    return {"counted": int(counted.sum()), "by_m": by}
+
+
 def _spread(values: list[float]) -> dict[str, float] | None:
     v = [x for x in values if x is not None]
     if not v:
@@ -256,6 +289,7 @@ def bench_bag(bag: Path, args: argparse.Namespace, run_id: str) -> dict[str, Any
         entry["realtime_factor_of_cpu"] = total / d if d else None
     entry["end_of_route"] = end_of_route_alignment(run_dir, Path(run["bag"]["dir"]))
     entry["latency"] = latency(run_dir, args.rate)
+    entry["rois_passed"] = counted_rois_passed(Path(run["bag"]["dir"]))
     return entry
 
 
@@ -288,6 +322,15 @@ def markdown(report: dict[str, Any]) -> str:
             f"| {_fmt(c.get('final_error_m'))} | {_fmt(c.get('rmse_after_first_fix_m'))} "
             f"| {_fmt(c.get('false_fixes'))} "
             f"| {_fmt(None if cons is None else 100 * cons, 1)} % | {paper} | {ran} |")
+    marks = " / ".join(str(m) for m in PASSED_MARKS_M)
+    lines += ["", f"ROIs the recall counts (above the rover thresholds, within 15 m of the "
+              f"route) that the route has passed by {marks} m: what bounds the first fix:", ""]
+    for e in report["bags"]:
+        rp = e.get("rois_passed")
+        if rp:
+            lines.append(f"- {Path(e['bag']).name}: "
+                         + " / ".join(str(rp["by_m"].get(m, rp["by_m"].get(str(m))))
+                                      for m in PASSED_MARKS_M) + f" of {rp['counted']}")
     lines += ["", f"Paper (end-of-route alignment on its 1 km route): {PAPER_FINAL_ERROR_M} m.",
               "", "Spread over bags (continuous estimate):", ""]
     for k, v in report["spread"].items():

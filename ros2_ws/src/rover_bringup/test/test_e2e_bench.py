@@ -107,3 +107,15 @@ def test_bench_runs_and_compares_on_the_matcher_graph(
     assert '| route | True |' in md
     run = yaml.safe_load((Path(entry['run_dir']) / 'run.yaml').read_text())
     assert run['outputs']['files']['local_network.csv'] == 24
+
+
+def test_rois_passed_counts_by_the_closest_point_along_the_route(bench: ModuleType):
+    route = np.c_[np.arange(0.0, 400.0, 0.5), np.zeros(800)]  # 400 m east
+    rois = np.array([[50.0, 10.0], [150.0, -3.0], [199.0, 14.0], [250.0, 2.0],
+                     [390.0, -5.0]])
+    assert bench.rois_passed(route, rois, (100, 200, 300)) == {100: 1, 200: 3, 300: 4}
+    # A route that turns back: a ROI is passed where the route comes closest to it.
+    back = np.vstack([route, route[::-1] + np.array([0.0, 20.0])])  # back at 419.5 m
+    assert bench.rois_passed(back, np.array([[100.0, 19.0]]), (200, 700, 720)) == {
+        200: 0, 700: 0, 720: 1}
+    assert bench.rois_passed(route, np.zeros((0, 2)), (100,)) == {100: 0}
