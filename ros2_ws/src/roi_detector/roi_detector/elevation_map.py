@@ -40,6 +40,8 @@ Pure numpy/scipy/OpenCV: no ROS, no truth.
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import cv2
@@ -215,6 +217,11 @@ class ElevationMap:
         self._next_id = 1
         self._pairs = 0
         self._touched: list[np.ndarray] = []  # cell index boxes touched since last round
+        #: Diagnostics: if set, called for every rock region a detection round examines,
+        #: ``trace(verdict, centre_xy_odom, measured)``, verdict one of ``small``,
+        #: ``ring_unseen``, ``low``, ``area``, ``flat`` (the test that rejected it) or
+        #: ``rock`` (``bench/roi_diag.py``).
+        self.trace: Callable[[str, np.ndarray, dict], None] | None = None
 
     # -- integration -----------------------------------------------------------------
 
@@ -406,7 +413,10 @@ class ElevationMap:
             pad = tuple(slice(max(s.start - 6, 0), s.stop + 6) for s in sl)
             reg = lab[pad] == k
             cells = np.argwhere(reg)
+            corner = np.array([pad[0].start, pad[1].start])
+            trace = functools.partial(self._trace_region, cells + corner + off)
             if len(cells) * c.cell_m**2 < 0.25 * c.rock_min_area_m2:
+                trace("small", cells=len(cells))
                 continue
             # The ground around the rock: a plane through the ring of cells 0.1-0.5 m
             # outside it (a slope is no rock), which must be mostly observed (at the
@@ -414,19 +424,22 @@ class ElevationMap:
             ring = ndimage.binary_dilation(reg, iterations=5) & ring_all[pad]
             ring_seen = ring & seen[pad]
             if ring_seen.sum() < max(8, c.rock_min_ring_seen * ring.sum()):
+                trace("ring_unseen", ring_seen=float(ring_seen.sum() / max(ring.sum(), 1)))
                 continue
             rc = np.argwhere(ring_seen)
             plane = _plane(rc, z[pad][ring_seen])
             if plane is None:
+                trace("ring_unseen", ring_seen=float(ring_seen.sum() / max(ring.sum(), 1)))
                 continue
             above = z[pad][reg] - (plane[0] * cells[:, 0] + plane[1] * cells[:, 1] + plane[2])
             height = float(np.percentile(above, 95))
             if height <= c.rock_min_height_m:
+                trace("low", height_m=height)
                 continue
-            corner = np.array([pad[0].start, pad[1].start])
             r = self._measure(ROCK, cells + corner, off, float(np.median(z[pad][ring_seen])),
                               height)
             if r is None or not c.rock_min_area_m2 < r.area_m2 < c.rock_max_area_m2:
+                trace("area", height_m=height, area_m2=None if r is None else r.area_m2)
                 continue
             # Rocks are not flat: height over equivalent diameter is 0.3-0.8 for boulders
             # (Golombek et al. 2008 on Mars); a broad low bump is terrain. The diameter is
@@ -434,9 +447,18 @@ class ElevationMap:
             # cells a little above the ground (stereo smear around the rock, grown at
             # 0.1 m) widens the footprint but not the width at half height.
             half = max(int(np.count_nonzero(above >= 0.5 * height)), 1) * c.cell_m**2
-            if height / np.sqrt(4 * half / np.pi) >= c.rock_min_relief_ratio:
+            relief = height / np.sqrt(4 * half / np.pi)
+            if relief >= c.rock_min_relief_ratio:
                 out.append(r)
+            trace("rock" if relief >= c.rock_min_relief_ratio else "flat", height_m=height,
+                  area_m2=r.area_m2, relief=float(relief))
         return out
+
+    def _trace_region(self, cells: np.ndarray, verdict: str, **measured) -> None:
+        """Report a rock region (cell indices in the window) to :attr:`trace`, if set."""
+        if self.trace is not None:
+            xy = (cells.mean(axis=0) + 0.5) * self.cfg.cell_m + self.origin
+            self.trace(verdict, xy, measured)
 
     def _split_peaks(self, rel: np.ndarray, seeds: np.ndarray, mask: np.ndarray):
         """Label ``mask`` with one region per peak: seed cells within

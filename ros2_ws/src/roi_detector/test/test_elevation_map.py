@@ -216,3 +216,24 @@ def test_two_rocks_joined_by_low_cells_are_two_regions():
     assert np.all(two["area_m2"] < 1.8)
     # As one connected region the pair is one rock between them (or none: too large).
     assert len(found[False]) <= 1
+
+
+def test_trace_reports_each_rock_region_and_the_test_that_rejected_it():
+    events = []
+    emap = ElevationMap(ElevationMapConfig(detect_every=2))
+    emap.trace = lambda verdict, xy, measured: events.append((verdict, xy, measured))
+    pts = _scene()
+    _drive(emap, pts, appearance=_dark_where_raised(pts))
+    rocks = [(xy, m) for v, xy, m in events if v == "rock"]
+    assert rocks and all(np.hypot(*(xy - [9.0, 2.0])) < 0.4 for xy, _ in rocks)
+    assert all(0.4 < m["height_m"] < 0.6 and m["area_m2"] > 0.6 for _, m in rocks)
+    # A block 0.2 m tall is a region too low to be a rock.
+    events.clear()
+    emap = ElevationMap(ElevationMapConfig(detect_every=2, rock_seed_height_m=0.15))
+    emap.trace = lambda verdict, xy, measured: events.append((verdict, xy, measured))
+    low = pts.copy()
+    raised = low[:, 0, 2] - _terrain(low[:, 0, 0], low[:, 0, 1]) > 0.05
+    low[raised, 0, 2] -= 0.3 * (low[raised, 0, 2] - _terrain(9.0, 2.0)) / 0.5
+    _drive(emap, low, appearance=_dark_where_raised(pts))
+    assert events and {v for v, _, _ in events} == {"low"}, events
+    assert len(emap.to_records()) == 0

@@ -1,0 +1,119 @@
+"""Per truth rock, why the rover's elevation map did or did not find it.
+
+Runs the LN of a bag with the truth trajectory as odometry (``roi_detector ln``'s library
+path, detection geometry alone) while recording every rock region the map's detection
+rounds examined and the test that rejected it (``ElevationMap.trace``). Then, for each
+truth rock the recall counts (above the rover thresholds, within 15 m of the route): its
+closest approach to the route, the stereo pairs that had it in view, whether the LN holds
+it, and the furthest stage any region near it reached, with what that region measured:
+
+``none`` (no rock region near it: no dark cell stood high enough in a well-observed
+map), ``small``, ``ring_unseen`` (the ground around it unobserved), ``low``
+(height under the threshold), ``area``, ``flat`` (relief ratio), ``rock`` (a region passed
+every test; if the LN still misses it, its centre fell outside the matching radius or the
+ROI flickered across rounds).
+
+Evaluation code: reads truth/. Usage (from the repository root, after ``source env.sh``)::
+
+    python bench/roi_diag.py bags/quick [--json OUT.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+#: Stages a rock region goes through, in order (ElevationMap.trace verdicts).
+STAGES = ("none", "small", "ring_unseen", "low", "area", "flat", "rock")
+
+
+def furthest(verdicts: list[tuple[str, dict]]) -> tuple[str, dict]:
+    """The furthest stage among the verdicts of the regions near one rock, and the last
+    measurement at that stage."""
+    if not verdicts:
+        return "none", {}
+    best = max(STAGES.index(v) for v, _ in verdicts)
+    last = [m for v, m in verdicts if STAGES.index(v) == best][-1]
+    return STAGES[best], last
+
+
+def diagnose(bag: str) -> list[dict]:
+    """One row per counted truth rock (see the module)."""
+    from roi_detector.cli import build_ln
+    from roi_detector.inputs import load_rover_params
+    from roi_detector.truth import Truth, match_to_truth
+    from roi_network.records import ROCK, xy
+
+    truth = Truth.load(bag)
+    events: list[tuple[str, np.ndarray, dict]] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        odom = Path(tmp) / "truth_odom.tum"
+        truth.write_odom_tum(odom)
+        ln, _ = build_ln(bag, str(odom), None, log=lambda m: None,
+                         trace=lambda v, p, m: events.append((v, np.array(p), m)))
+    r = truth.rois
+    counted = np.flatnonzero(truth.above_thresholds() & truth.near_route(15.0)
+                             & (r["label"] == ROCK))
+    nodes = ln.network().records
+    found = set()
+    if len(nodes):
+        node_map = truth.odom_to_map(np.column_stack([xy(nodes), np.zeros(len(nodes))]))
+        j, _ = match_to_truth(node_map[:, :2], r)
+        ok = (j >= 0) & (nodes["label"] == ROCK) & (r["label"][np.maximum(j, 0)] == ROCK)
+        found = set(j[ok].tolist())
+    ev_map = (truth.odom_to_map(np.column_stack([np.array([p for _, p, _ in events]),
+                                                 np.zeros(len(events))]))[:, :2]
+              if events else np.zeros((0, 2)))
+    views = truth.views(load_rover_params(Path(bag) / "rover.yaml"), 20.0)
+    route = truth.trajectory.p[:, :2]
+    rows = []
+    for i in counted:
+        gate = max(1.0, 0.5 * r["major_m"][i]) + 0.5
+        near = np.linalg.norm(ev_map - xy(r[i:i + 1]), axis=1) < gate
+        stage, measured = furthest([(events[k][0], events[k][2]) for k in np.flatnonzero(near)])
+        rows.append({"id": int(r["id"][i]), "area_m2": float(r["area_m2"][i]),
+                     "height_m": float(r["height_m"][i]),
+                     "route_distance_m": float(np.min(np.linalg.norm(route - xy(r[i:i + 1]),
+                                                                     axis=1))),
+                     "views": int(views[i]), "in_ln": bool(i in found), "stage": stage,
+                     "measured": {k: (None if v is None else round(float(v), 3))
+                                  for k, v in measured.items()}})
+    return rows
+
+
+def markdown(bag: str, rows: list[dict]) -> str:
+    """The rows as a Markdown table, with the count per stage."""
+    lines = [f"# roi_diag: {bag}", "",
+             "| truth id | area m^2 | height m | from route m | views | in LN "
+             "| furthest stage | measured |",
+             "|---|---|---|---|---|---|---|---|"]
+    for w in sorted(rows, key=lambda w: w["route_distance_m"]):
+        m = ", ".join(f"{k} {v}" for k, v in w["measured"].items())
+        lines.append(f"| {w['id']} | {w['area_m2']:.2f} | {w['height_m']:.2f} "
+                     f"| {w['route_distance_m']:.1f} | {w['views']} | {w['in_ln']} "
+                     f"| {w['stage']} | {m} |")
+    counts = {s: sum(w["stage"] == s for w in rows) for s in STAGES}
+    lines += ["", f"In the LN: {sum(w['in_ln'] for w in rows)} of {len(rows)}; furthest stage: "
+              + ", ".join(f"{s} {n}" for s, n in counts.items() if n)]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("bag", help="bag directory with truth/")
+    ap.add_argument("--json", type=Path, help="write the rows here")
+    args = ap.parse_args(argv)
+    rows = diagnose(args.bag)
+    sys.stdout.write(markdown(args.bag, rows))
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
