@@ -416,7 +416,7 @@ class ElevationMap:
             corner = np.array([pad[0].start, pad[1].start])
             trace = functools.partial(self._trace_region, cells + corner + off)
             if len(cells) * c.cell_m**2 < 0.25 * c.rock_min_area_m2:
-                trace("small", cells=len(cells))
+                trace("small", n_cells=len(cells))
                 continue
             # The ground around the rock: a plane through the ring of cells 0.1-0.5 m
             # outside it (a slope is no rock), which must be mostly observed (at the
@@ -454,7 +454,7 @@ class ElevationMap:
                   area_m2=r.area_m2, relief=float(relief))
         return out
 
-    def _trace_region(self, cells: np.ndarray, verdict: str, **measured) -> None:
+    def _trace_region(self, cells: np.ndarray, verdict: str, /, **measured) -> None:
         """Report a rock region (cell indices in the window) to :attr:`trace`, if set."""
         if self.trace is not None:
             xy = (cells.mean(axis=0) + 0.5) * self.cfg.cell_m + self.origin

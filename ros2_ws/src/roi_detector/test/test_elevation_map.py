@@ -237,3 +237,14 @@ def test_trace_reports_each_rock_region_and_the_test_that_rejected_it():
     _drive(emap, low, appearance=_dark_where_raised(pts))
     assert events and {v for v, _, _ in events} == {"low"}, events
     assert len(emap.to_records()) == 0
+    # A dark block 0.3 x 0.3 m is a region too small to measure.
+    events.clear()
+    tiny = pts.copy()
+    x, y = tiny[:, 0, 0], tiny[:, 0, 1]
+    tiny[:, 0, 2] = np.where((np.abs(x - 9.0) < 0.15) & (np.abs(y - 2.0) < 0.15),
+                             _terrain(x, y) + 0.5, _terrain(x, y))
+    emap = ElevationMap(ElevationMapConfig(detect_every=2))
+    emap.trace = lambda verdict, xy, measured: events.append((verdict, xy, measured))
+    _drive(emap, tiny, appearance=_dark_where_raised(tiny))
+    assert events and {v for v, _, _ in events} == {"small"}, events
+    assert all(m["n_cells"] < 15 for _, _, m in events)
