@@ -3,24 +3,16 @@ and the odometry of a straight drive, a GN, a truth trajectory."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-BENCH = Path(__file__).resolve().parents[1] / "bench" / "replay_matcher.py"
-
 
 @pytest.fixture(scope="module")
-def replay():
-    spec = importlib.util.spec_from_file_location("replay_matcher_under_test", BENCH)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+def replay(bench_script):
+    return bench_script("replay_matcher")
 
 
 def _run(tmp_path: Path) -> tuple[Path, Path]:
