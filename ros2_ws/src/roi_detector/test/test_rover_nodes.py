@@ -155,6 +155,9 @@ def test_roi_detector_and_ln_builder_nodes_on_tiny(tiny_bag, tmp_path):
 
         assert spin_until(lambda: all(p.get_subscription_count() > 0 for p in pubs.values())
                           and odom_pub.get_subscription_count() > 0, 30)
+        # Our writers see the node's readers before its readers have matched our writers:
+        # best-effort samples sent in between are lost (CI once got no pair at all).
+        spin_until(lambda: False, 2.0)
         msgs = _bag_messages(tiny_bag)
         lefts = [deserialize_message(bytes(r), CompressedImage)
                  for r in msgs["/stereo/left/image_raw/compressed"]]
