@@ -252,7 +252,7 @@ def counted_rois_passed(bag: Path) -> dict[str, Any] | None:
     except (OSError, ValueError):
         return None
     r = truth.rois
-    counted = truth.above_thresholds() & truth.near_route(15.0)
+    counted = truth.counted(15.0)
     by = rois_passed(truth.trajectory.p[:, :2], np.column_stack([r["x"], r["y"]])[counted])
     return {"counted": int(counted.sum()), "by_m": by}
 
@@ -329,8 +329,8 @@ def markdown(report: dict[str, Any]) -> str:
         rp = e.get("rois_passed")
         if rp:
             lines.append(f"- {Path(e['bag']).name}: "
-                         + " / ".join(str(rp["by_m"].get(m, rp["by_m"].get(str(m))))
-                                      for m in PASSED_MARKS_M) + f" of {rp['counted']}")
+                         + " / ".join(str(rp["by_m"][m]) for m in PASSED_MARKS_M)
+                         + f" of {rp['counted']}")
     lines += ["", f"Paper (end-of-route alignment on its 1 km route): {PAPER_FINAL_ERROR_M} m.",
               "", "Spread over bags (continuous estimate):", ""]
     for k, v in report["spread"].items():

@@ -45,8 +45,9 @@ def furthest(verdicts: list[tuple[str, dict]]) -> tuple[str, dict]:
 def diagnose(bag: str) -> list[dict]:
     """One row per counted truth rock (see the module)."""
     from roi_detector.cli import build_ln
+    from roi_detector.evaluation import match_nodes, true_nodes
     from roi_detector.inputs import load_rover_params
-    from roi_detector.truth import Truth, match_to_truth
+    from roi_detector.truth import Truth
     from roi_network.records import ROCK, xy
 
     truth = Truth.load(bag)
@@ -57,15 +58,10 @@ def diagnose(bag: str) -> list[dict]:
         ln, _ = build_ln(bag, str(odom), None, log=lambda m: None,
                          trace=lambda v, p, m: events.append((v, np.array(p), m)))
     r = truth.rois
-    counted = np.flatnonzero(truth.above_thresholds() & truth.near_route(15.0)
-                             & (r["label"] == ROCK))
+    counted = np.flatnonzero(truth.counted(15.0) & (r["label"] == ROCK))
     nodes = ln.network().records
-    found = set()
-    if len(nodes):
-        node_map = truth.odom_to_map(np.column_stack([xy(nodes), np.zeros(len(nodes))]))
-        j, _ = match_to_truth(node_map[:, :2], r)
-        ok = (j >= 0) & (nodes["label"] == ROCK) & (r["label"][np.maximum(j, 0)] == ROCK)
-        found = set(j[ok].tolist())
+    _, j = match_nodes(nodes, truth)
+    found = set(j[true_nodes(nodes, r, j, ROCK)].tolist())
     ev_map = (truth.odom_to_map(np.column_stack([np.array([p for _, p, _ in events]),
                                                  np.zeros(len(events))]))[:, :2]
               if events else np.zeros((0, 2)))

@@ -423,11 +423,9 @@ class ElevationMap:
             # edge of the seen terrain the ground is a guess).
             ring = ndimage.binary_dilation(reg, iterations=5) & ring_all[pad]
             ring_seen = ring & seen[pad]
-            if ring_seen.sum() < max(8, c.rock_min_ring_seen * ring.sum()):
-                trace("ring_unseen", ring_seen=float(ring_seen.sum() / max(ring.sum(), 1)))
-                continue
-            rc = np.argwhere(ring_seen)
-            plane = _plane(rc, z[pad][ring_seen])
+            plane = None
+            if ring_seen.sum() >= max(8, c.rock_min_ring_seen * ring.sum()):
+                plane = _plane(np.argwhere(ring_seen), z[pad][ring_seen])
             if plane is None:
                 trace("ring_unseen", ring_seen=float(ring_seen.sum() / max(ring.sum(), 1)))
                 continue

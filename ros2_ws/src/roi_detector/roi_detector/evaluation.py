@@ -42,11 +42,8 @@ def evaluate_ln(ln_path: str, bag_dir: str, gn: str | None = None,
     truth = Truth.load(bag_dir)
     ln = read_geojson(ln_path).records
     t = truth.rois
-    pts = truth.odom_to_map(np.column_stack([ln["x"], ln["y"], ln["z"]])) if len(ln) else \
-        np.zeros((0, 3))
-    # Matching by position only, then judged by class.
-    j_any, _ = match_to_truth(pts[:, :2], t)
-    wanted = truth.above_thresholds() & truth.near_route(radius_m)
+    pts, j_any = match_nodes(ln, truth)
+    wanted = truth.counted(radius_m)
     in_view = wanted & (truth.views(load_rover_params(Path(bag_dir) / "rover.yaml"),
                                     view_depth_m) >= min_views)
     report: dict = {"ln": str(ln_path), "bag": str(bag_dir), "ln_nodes": len(ln),
@@ -56,8 +53,7 @@ def evaluate_ln(ln_path: str, bag_dir: str, gn: str | None = None,
     for label in (ROCK, OUTCROP):
         name = LABEL_NAMES[label]
         mine = ln["label"] == label
-        truth_of = np.where(j_any >= 0, t["label"][np.clip(j_any, 0, None)], 0)
-        tp_nodes = mine & (j_any >= 0) & (truth_of == label)
+        tp_nodes = true_nodes(ln, t, j_any, label)
         found = set(j_any[tp_nodes].tolist())
         wanted_c = np.flatnonzero(wanted & (t["label"] == label))
         hits = sum(1 for i in wanted_c if i in found)
@@ -90,6 +86,22 @@ def evaluate_ln(ln_path: str, bag_dir: str, gn: str | None = None,
     if plot:
         _plot(plot, truth, pts, ln, wanted)
     return report
+
+
+def match_nodes(ln: np.ndarray, truth: Truth) -> tuple[np.ndarray, np.ndarray]:
+    """LN node positions in map (N, 3) and, per node, the truth ROI it matches by position
+    alone (DESIGN.md's rule; -1 for none): the class is judged by :func:`true_nodes`."""
+    pts = truth.odom_to_map(np.column_stack([ln["x"], ln["y"], ln["z"]])) if len(ln) else \
+        np.zeros((0, 3))
+    j_any, _ = match_to_truth(pts[:, :2], truth.rois)
+    return pts, j_any
+
+
+def true_nodes(ln: np.ndarray, truth_rois: np.ndarray, j_any: np.ndarray,
+               label: int) -> np.ndarray:
+    """Mask of the LN nodes of class ``label`` that match a truth ROI of that class."""
+    truth_of = np.where(j_any >= 0, truth_rois["label"][np.clip(j_any, 0, None)], 0)
+    return (ln["label"] == label) & (j_any >= 0) & (truth_of == label)
 
 
 def _true_map_t_odom(truth: Truth) -> Rigid2D:

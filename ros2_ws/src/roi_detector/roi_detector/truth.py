@@ -55,6 +55,11 @@ class Truth:
         outcrop = (r["label"] == OUTCROP) & (r["area_m2"] > OUTCROP_MIN_AREA_M2)
         return rock | outcrop
 
+    def counted(self, radius_m: float = 15.0) -> np.ndarray:
+        """Boolean mask of the truth ROIs the recall counts: above the rover thresholds
+        and within ``radius_m`` of the route."""
+        return self.above_thresholds() & self.near_route(radius_m)
+
     def near_route(self, radius_m: float = 15.0) -> np.ndarray:
         """Boolean mask of truth ROIs within ``radius_m`` of the route (x-y)."""
         route = self.trajectory.p[:, :2]
