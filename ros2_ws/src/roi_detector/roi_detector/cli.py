@@ -112,7 +112,7 @@ def _cmd_ln(args) -> int:
     from roi_detector.tracking import TrackerConfig
 
     cfg = RoverConfig(method=args.method, tracker=TrackerConfig(min_obs=args.min_obs),
-                      ln=LnConfig(min_obs=args.min_obs))
+                      ln=LnConfig(min_obs=args.min_obs), far_rocks=args.far_rocks)
     ln, stats = build_ln(args.bag, args.odometry, args.model, cfg, args.every, args.drift)
     meta = {"source_bag": str(Path(args.bag).resolve()), "odometry": str(args.odometry),
             "model": args.model or str(_installed_model()), **stats}
@@ -176,6 +176,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--min-obs", type=int, default=3,
                    help="observations (per_pair) or detection rounds in a row "
                    "(elevation_map) that make an LN node")
+    p.add_argument("--far-rocks", action="store_true",
+                   help="elevation_map: also triangulate rocks beyond the map's stereo range "
+                   "(roi_detector.far_rocks)")
     p.add_argument("--drift", type=float, default=0.01,
                    help="odometry 1-sigma error per metre travelled (TUM has no covariance)")
     p.set_defaults(func=_cmd_ln)

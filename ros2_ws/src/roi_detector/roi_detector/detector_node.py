@@ -80,6 +80,12 @@ class RoiDetectorNode(Node):
             d(description=f"one of {METHODS}: ROIs found in the drive's elevation map "
               "(default), or detected per pair and tracked (the paper's)"),
         ).value
+        far_rocks = self.declare_parameter(
+            "far_rocks", RoverConfig().far_rocks,
+            d(description="elevation_map method: also triangulate dark blobs beyond the "
+              "map's stereo range from the rover's motion (roi_detector.far_rocks; off: "
+              "its precision is low where sub-threshold rocks abound)"),
+        ).value
         if len(extrinsic) != 7 or not any(extrinsic):
             raise ValueError("parameter 'base_to_left_camera' is not set (pass the bag's "
                              "rover.yaml as a params file)")
@@ -88,7 +94,8 @@ class RoiDetectorNode(Node):
         classifier = load_classifier(model or None)
         if method not in METHODS:
             raise ValueError(f"parameter 'method': unknown '{method}' (one of {METHODS})")
-        cfg = RoverConfig(method=method, tracker=TrackerConfig(min_obs=int(min_obs)))
+        cfg = RoverConfig(method=method, tracker=TrackerConfig(min_obs=int(min_obs)),
+                          far_rocks=bool(far_rocks))
         self.bad = BadInput(lambda m: self.get_logger().warning(m))
         self.detector = RoverDetector(extrinsic, classifier, cfg, self.bad)
         self.mapper = DriveMapper(cfg)

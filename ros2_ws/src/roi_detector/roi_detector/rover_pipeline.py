@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 
 from roi_detector.elevation_map import ElevationMap, ElevationMapConfig, appearance
+from roi_detector.far_rocks import Blob, FarRock, FarRockConfig, FarRockTracker, dark_blobs
 from roi_detector.inputs import StereoFrame
 from roi_detector.local_network import LnConfig, LocalNetwork
 from roi_detector.rover_candidates import (
@@ -46,7 +47,7 @@ from roi_detector.tracking import (
     observation_covariance,
     tracks_to_records,
 )
-from roi_network.records import empty_records
+from roi_network.records import ROCK, empty_records
 
 
 @dataclass(frozen=True)
@@ -55,10 +56,14 @@ class RoverConfig:
 
     Attributes:
         method: ``"elevation_map"`` or ``"per_pair"`` (the paper's; see the module).
+        far_rocks: elevation_map method: also triangulate the rocks the map cannot reach
+            (:mod:`roi_detector.far_rocks`).
     """
 
     method: str = "elevation_map"
     elevation_map: ElevationMapConfig = field(default_factory=ElevationMapConfig)
+    far_rocks: bool = False
+    far: FarRockConfig = field(default_factory=FarRockConfig)
     stereo: StereoConfig = field(default_factory=StereoConfig)
     thresholds: RoverThresholds = field(default_factory=RoverThresholds)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
@@ -77,11 +82,13 @@ class PairObservation:
         records: per_pair method: the pair's classified detections (ROI records).
         points: elevation_map method: (H/2, W/2, 3) stereo points, NaN where invalid.
         appearance: elevation_map method: (H/2, W/2, 2) relative saturation and value.
+        blobs: elevation_map method with ``far_rocks``: the pair's dark blobs.
     """
 
     records: np.ndarray | None = None
     points: np.ndarray | None = None
     appearance: np.ndarray | None = None
+    blobs: list[Blob] | None = None
 
 
 class RoverDetector:
@@ -125,13 +132,16 @@ class RoverDetector:
         left = cv2.cvtColor(frame.left, cv2.COLOR_BGR2GRAY)
         right = cv2.cvtColor(frame.right, cv2.COLOR_BGR2GRAY)
         st = self.cfg.stereo
-        disp = mask_depth_edges(self._disparity(left, right, None), st.edge_window_px,
-                                st.edge_max_relative_range)
+        raw = self._disparity(left, right, None)
+        disp = mask_depth_edges(raw, st.edge_window_px, st.edge_max_relative_range)
         points = points_base(disp, camera, self._rays[::2, ::2], st.max_range_m)
         h, w = points.shape[:2]
         small = cv2.resize(frame.left, (w, h), interpolation=cv2.INTER_AREA)
+        blobs = dark_blobs(frame.left, raw, camera, self.cfg.far) if self.cfg.far_rocks \
+            else None
         return PairObservation(points=points,
-                               appearance=appearance(small, np.isfinite(points[..., 2])))
+                               appearance=appearance(small, np.isfinite(points[..., 2])),
+                               blobs=blobs)
 
     def _disparity(self, left: np.ndarray, right: np.ndarray,
                    left_half: np.ndarray | None) -> np.ndarray:
@@ -198,6 +208,26 @@ def detections_to_records(dets: list[Candidate]) -> np.ndarray:
     return rec
 
 
+#: Far rocks' track ids are offset by this in ROI records (the map's ROIs count from 1).
+FAR_ROCK_ID_BASE = 1_000_000
+
+
+def far_rock_records(rocks: list[FarRock]) -> np.ndarray:
+    """ROI records (odom) of triangulated far rocks: a round footprint of their width,
+    ``n_obs`` their views."""
+    rec = empty_records(len(rocks))
+    for i, r in enumerate(rocks):
+        rec[i]["id"], rec[i]["label"] = FAR_ROCK_ID_BASE + r.track_id, ROCK
+        rec[i]["x"], rec[i]["y"], rec[i]["z"] = r.xy[0], r.xy[1], r.z
+        rec[i]["area_m2"], rec[i]["height_m"] = r.area_m2, r.height_m
+        rec[i]["major_m"] = rec[i]["minor_m"] = r.width_m
+        rec[i]["angle_rad"], rec[i]["score"] = 0.0, 1.0
+        rec[i]["cov_xx"], rec[i]["cov_xy"], rec[i]["cov_yy"] = r.cov[0, 0], r.cov[0, 1], \
+            r.cov[1, 1]
+        rec[i]["n_obs"] = r.n_views
+    return rec
+
+
 def records_in_view(records_odom: np.ndarray, pose, camera: StereoCamera,
                     max_depth_m: float) -> np.ndarray:
     """The records (odom) whose centre is in the pair's left image within
@@ -257,6 +287,7 @@ class DriveMapper:
         self.cfg = cfg
         self.tracker = Tracker(cfg.tracker)
         self.map = ElevationMap(cfg.elevation_map)
+        self.far = FarRockTracker(cfg.far)
         self.ln = ln if ln is not None else LocalNetwork(cfg.ln)
         self._tracks = empty_records(0)
 
@@ -279,17 +310,33 @@ class DriveMapper:
         r_ob, t_ob, cov = pose
         self.map.integrate(obs.points, obs.appearance, r_ob, np.asarray(t_ob, float),
                            camera.t_base_cam, camera.fxb)
+        if obs.blobs is not None:
+            self.far.add(obs.blobs, t, r_ob, t_ob, camera, cov)
         if self.map.due():
             self.map.detect(t, cov)
-            self._tracks = self.map.to_records()
+            self._tracks = self._map_and_far_records()
         return self._tracks
 
     def finish(self, t: float, cov=None) -> np.ndarray:
-        """A last detection round over what was integrated since the last one."""
+        """A last detection round over what was integrated since the last one (and the
+        far-rock tracks still open, closed)."""
         if self.cfg.method == "elevation_map":
             self.map.detect(t, cov)
-            self._tracks = self.map.to_records()
+            self.far.close_all()
+            self._tracks = self._map_and_far_records()
         return self.current_tracks()
+
+    def _map_and_far_records(self) -> np.ndarray:
+        """The map's ROI records, and the far rocks that no map ROI stands near (within
+        ``far.merge_m`` or half its major axis: the map measures what it reaches better
+        than a far view does)."""
+        rec = self.map.to_records()
+        if not self.cfg.far_rocks:
+            return rec
+        near = [(r.xy, max(self.cfg.far.merge_m, 0.5 * r.major_m)) for r in self.map.rois]
+        far = [r for r in self.far.rocks()
+               if all(np.linalg.norm(r.xy - xy) > d for xy, d in near)]
+        return np.concatenate([rec, far_rock_records(far)]) if far else rec
 
     def current_tracks(self) -> np.ndarray:
         """The track records (odom) the detector stands behind now."""

@@ -1,0 +1,380 @@
+"""Rocks beyond the reach of the elevation map: dark blobs in the left image, tracked
+across pairs and triangulated from the rover's own motion.
+
+A fixed forward camera sees a rock that the route passes 10-15 m beside only from 17-26 m
+away, where a stereo point's range error (``Z^2 / (fx B) * sigma_d``: 1.3 m at 20 m for
+the 0.2 m baseline) smears it over the ground around it: the elevation map, which stops at
+``max_range_m``, never measures it. Its bearing, though, is known to a pixel, and while
+the rover drives past, the bearing turns: rays from camera positions metres apart
+intersect at the rock (motion stereo, a baseline of metres instead of 0.2 m). With its
+range known, the rock's angular size gives its width and height. This is the paper's
+per-image detection (Sec. 4.2: ROIs found in each image, tracked as they enter and leave
+the view) with the rover's odometry as the stereo baseline.
+
+- **Blobs** (:func:`dark_blobs`): pixels darker than ``dark_value`` relative to the
+  median brightness of the ground the pair sees (the same test as the map's dark rock
+  seeds: desert rocks are varnished, the soil is not), in connected components; each
+  blob's stereo disparity gives a rough range (metres off at 20 m), enough to keep the
+  blobs ``min_depth_m`` to ``max_depth_m`` deep and to start a track.
+- **Tracks** (:class:`FarRockTracker`): a blob joins the track whose rock projects
+  nearest to it in the pair's image (within ``gate_px`` plus half the blob), each track
+  keeping the odom ray of every view; the rock's position is the weighted least-squares
+  intersection of those rays (3D, weight 1 / range^2: a pixel subtends more at range).
+- **Measurement**: at the triangulated range, per view, width = angular width x range and
+  height = range x (tan elevation of the blob's top - tan elevation of its bottom), their
+  medians over the views; area = pi/4 width^2 (the footprint seen edge-on is unknown).
+- **A rock** when the views span ``min_parallax_deg`` of bearing, the rays meet within
+  ``max_residual_px`` (a static object: a blob that slides with the view is not one),
+  the rock was seen from at most ``max_nearest_m``, and its height and area pass the
+  paper's rover thresholds.
+
+Pure numpy/OpenCV: no ROS, no truth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from roi_detector.stereo import StereoCamera
+
+
+@dataclass(frozen=True)
+class FarRockConfig:
+    """Blob, track and rock parameters (metres, pixels of the full-resolution image).
+
+    Attributes:
+        dark_value: blob pixels are darker than this, relative to the median value (HSV)
+            of the ground the pair sees (the map's ``rock_dark_value``).
+        max_saturation: and less saturated than this, relative to the ground's median
+            saturation: a shadow keeps the soil's colour (only darker), a rock is
+            greyer (on the bags: soil 72, shadow 77-87, dark rock 54, grey rock 37).
+        min_depth_m: blobs nearer than this (stereo depth) are the elevation map's.
+        max_depth_m: blobs farther than this are not followed (a pixel is > 0.1 m).
+        min_blob_px: smallest blob (pixels).
+        gate_px: association gate beyond half the blob's size (pixels).
+        max_missed: a track not seen in this many consecutive pairs where it is in view
+            is closed.
+        min_views: least views of a rock.
+        min_parallax_deg: least spread of the bearings of its views.
+        bearing_sigma_px: 1-sigma error of a blob's centroid (pixels).
+        max_residual_px: RMS distance of the views' rays from the triangulated rock,
+            in pixels at each view's range.
+        min_height_m: the paper's rover rock height threshold.
+        min_area_m2: the paper's rover rock area threshold.
+        disparity_sigma_px: 1-sigma error of a blob's median disparity, which places it
+            along its ray (0: bearings alone).
+        odom_sigma_per_m: 1-sigma odometry error per metre between the views (relative
+            drift across the track), added to the position covariance.
+        max_nearest_m: a rock must have been seen from at most this far (at 30 m a
+            0.25 m height is 4 pixels).
+        merge_m: tracks whose rocks are closer than this are one rock.
+    """
+
+    dark_value: float = 0.55
+    max_saturation: float = 0.9
+    min_depth_m: float = 12.0
+    max_depth_m: float = 40.0
+    min_blob_px: int = 12
+    gate_px: float = 6.0
+    max_missed: int = 3
+    min_views: int = 6
+    min_parallax_deg: float = 4.0
+    bearing_sigma_px: float = 1.0
+    max_residual_px: float = 2.5
+    min_height_m: float = 0.25
+    min_area_m2: float = 0.6
+    disparity_sigma_px: float = 0.5
+    odom_sigma_per_m: float = 0.01
+    max_nearest_m: float = 30.0
+    merge_m: float = 1.5
+
+
+@dataclass
+class Blob:
+    """One dark blob of a left image.
+
+    Attributes:
+        uv: centroid (pixels).
+        box: ``(u0, v0, u1, v1)`` inclusive pixel bounds.
+        n_px: pixel count.
+        depth_m: median stereo depth of its pixels (NaN if none).
+    """
+
+    uv: np.ndarray
+    box: tuple[int, int, int, int]
+    n_px: int
+    depth_m: float
+
+
+def dark_blobs(bgr: np.ndarray, disp: np.ndarray, camera: StereoCamera,
+               cfg: FarRockConfig = FarRockConfig()) -> list[Blob]:
+    """Dark blobs of a left image between ``min_depth_m`` and ``max_depth_m`` deep, not
+    touching the image border.
+
+    Args:
+        bgr: the left image (full resolution).
+        disp: its disparity (full-resolution pixels) on any integer subsampling of the
+            image grid (the pipeline's half-resolution grid), NaN where invalid.
+        camera: the stereo model.
+    """
+    hsv = cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV)
+    sat, value = hsv[..., 1].astype(np.float32), hsv[..., 2].astype(np.float32)
+    step = max(1, round(bgr.shape[0] / disp.shape[0]))
+    valid = np.isfinite(disp)
+    if valid.sum() < 100:
+        return []
+    grid = (slice(None, valid.shape[0] * step, step), slice(None, valid.shape[1] * step, step))
+    ground_value = float(np.median(value[grid][valid]))
+    ground_sat = float(np.median(sat[grid][valid]))
+    dark = (value < cfg.dark_value * max(ground_value, 1.0)) & \
+        (sat < cfg.max_saturation * max(ground_sat, 1.0))
+    dark = dark.astype(np.uint8)
+    n, lab, stats, cents = cv2.connectedComponentsWithStats(dark, connectivity=8)
+    out = []
+    for k in range(1, n):
+        x0, y0, w, h, area = stats[k]
+        # Too small, or cut by the image border (its centroid and size are not the rock's).
+        if area < cfg.min_blob_px or x0 == 0 or y0 == 0 or x0 + w == bgr.shape[1] or \
+                y0 + h == bgr.shape[0]:
+            continue
+        sub = lab[y0:y0 + h:step, x0:x0 + w:step] if step > 1 else lab[y0:y0 + h, x0:x0 + w]
+        d = disp[y0 // step:y0 // step + sub.shape[0], x0 // step:x0 // step + sub.shape[1]]
+        d = d[(sub == k) & np.isfinite(d)]
+        if d.size < 3:
+            continue
+        depth = camera.fxb / float(np.median(d))
+        if not cfg.min_depth_m <= depth <= cfg.max_depth_m:
+            continue
+        out.append(Blob(np.asarray(cents[k], float), (int(x0), int(y0), int(x0 + w - 1),
+                                                       int(y0 + h - 1)), int(area), depth))
+    return out
+
+
+@dataclass
+class _View:
+    t: float
+    centre: np.ndarray  # camera centre, odom (3,)
+    ray: np.ndarray  # unit ray of the blob centroid, odom (3,)
+    width_rad: float  # angular width
+    tan_top: float  # tan of the elevation of the blob's top and bottom (odom, gravity)
+    tan_bottom: float
+    travelled: float  # odometry path length at the view
+    range_m: float  # stereo range of the blob along the ground (NaN: none)
+    range_sigma_m: float
+
+
+@dataclass
+class FarTrack:
+    """A dark blob followed across pairs (odom)."""
+
+    id: int
+    views: list[_View] = field(default_factory=list)
+    point: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    missed: int = 0
+    odom_cov: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
+
+    def triangulate(self, sigma_rad: float) -> None:
+        """Least-squares intersection of the views' bearings on the ground plane (across
+        each bearing: the bearing error at the range; along it: the stereo range, at its
+        error); the height: the median of the views' centroid rays at that range."""
+        a = np.zeros((2, 2))
+        b = np.zeros(2)
+        for v in self.views:
+            c, d = v.centre[:2], v.ray[:2] / max(float(np.linalg.norm(v.ray[:2])), 1e-9)
+            rng = max(float(np.linalg.norm(self.point[:2] - c)), 1.0)
+            along = np.outer(d, d)
+            info = (np.eye(2) - along) / (rng * sigma_rad) ** 2
+            m = c
+            if np.isfinite(v.range_m):
+                info = info + along / v.range_sigma_m ** 2
+                m = c + d * v.range_m
+            a += info
+            b += info @ m
+        if np.linalg.cond(a) < 1e8:
+            xy = np.linalg.solve(a, b)
+            z = [v.centre[2] + np.linalg.norm(xy - v.centre[:2]) * v.ray[2] /
+                 max(float(np.linalg.norm(v.ray[:2])), 1e-9) for v in self.views]
+            self.point = np.array([xy[0], xy[1], float(np.median(z))])
+
+
+@dataclass
+class FarRock:
+    """A track, measured (odom).
+
+    Attributes:
+        track_id: the track's id.
+        xy, z: the triangulated rock.
+        cov: (2, 2) x-y covariance: ray geometry at the bearing error, scaled by the
+            residual, plus the relative odometry drift over the views and the odometry
+            covariance at the last view.
+        width_m, height_m, area_m2: the rock's size (see the module).
+        n_views, parallax_deg, residual_px, nearest_m: what the rock tests
+            read.
+        passed: every rock test passed.
+    """
+
+    track_id: int
+    xy: np.ndarray
+    z: float
+    cov: np.ndarray
+    width_m: float
+    height_m: float
+    area_m2: float
+    n_views: int
+    parallax_deg: float
+    residual_px: float
+    nearest_m: float
+    passed: bool
+
+
+class FarRockTracker:
+    """Dark blobs of every pair -> tracks -> triangulated rocks (odom).
+
+    A track is measured once, when it closes (its rock left the view, or was missed in
+    ``max_missed`` pairs that had it in view): :meth:`rocks` are those of closed tracks.
+
+    Args:
+        cfg: parameters.
+    """
+
+    def __init__(self, cfg: FarRockConfig = FarRockConfig()) -> None:
+        self.cfg = cfg
+        self.tracks: list[FarTrack] = []
+        self.measured: list[FarRock] = []
+        self._next = 1
+        self._travelled = 0.0
+        self._last_xy: np.ndarray | None = None
+        self._fx = 1.0
+
+    def add(self, blobs: list[Blob], t: float, r_odom_base: np.ndarray,
+            t_odom_base: np.ndarray, camera: StereoCamera,
+            odom_cov: np.ndarray | None = None) -> None:
+        """Associate one pair's blobs with the open tracks (pose: base_link in odom, with
+        its x-y covariance)."""
+        r_ob, t_ob = np.asarray(r_odom_base, float), np.asarray(t_odom_base, float)
+        self._fx = camera.fx
+        if self._last_xy is not None:
+            self._travelled += float(np.linalg.norm(t_ob[:2] - self._last_xy))
+        self._last_xy = t_ob[:2].copy()
+        cov = np.zeros((2, 2)) if odom_cov is None else np.asarray(odom_cov, float)
+        r_oc = r_ob @ camera.r_base_cam
+        centre = r_ob @ camera.t_base_cam + t_ob
+        # Where each open track's rock falls in this image.
+        pred = np.full((len(self.tracks), 2), np.nan)
+        for i, tr in enumerate(self.tracks):
+            pc = r_oc.T @ (tr.point - centre)
+            if pc[2] > 1.0:
+                pred[i] = (camera.fx * pc[0] / pc[2] + camera.cx,
+                           camera.fy * pc[1] / pc[2] + camera.cy)
+        taken = np.zeros(len(self.tracks), bool)
+        sigma = self.cfg.bearing_sigma_px / camera.fx
+        new = []
+        for blob in sorted(blobs, key=lambda b: -b.n_px):
+            half = 0.5 * np.array([blob.box[2] - blob.box[0] + 1, blob.box[3] - blob.box[1] + 1])
+            d = np.abs(pred - blob.uv)
+            ok = ~taken & np.all(d <= half + self.cfg.gate_px, axis=1)
+            view = self._view(blob, t, r_oc, centre, camera)
+            if ok.any():
+                i = int(np.flatnonzero(ok)[np.argmin(np.hypot(*d[ok].T))])
+                taken[i] = True
+                tr = self.tracks[i]
+                tr.views.append(view)
+                tr.missed = 0
+                tr.odom_cov = cov
+                tr.triangulate(sigma)
+            else:
+                start = centre + view.ray * blob.depth_m / max(float(view.ray @ r_oc[:, 2]), 0.1)
+                new.append(FarTrack(self._next, [view], start, odom_cov=cov))
+                self._next += 1
+        keep = []
+        for i, tr in enumerate(self.tracks):
+            if not taken[i]:
+                in_view = bool(np.isfinite(pred[i]).all() and 0 <= pred[i, 0] < camera.width
+                               and 0 <= pred[i, 1] < camera.height)
+                tr.missed += 1 if in_view else 0
+                if tr.missed > self.cfg.max_missed or not in_view:
+                    self._close(tr)
+                    continue
+            keep.append(tr)
+        self.tracks = keep + new
+
+    def close_all(self) -> None:
+        """Close every open track (end of the drive)."""
+        for tr in self.tracks:
+            self._close(tr)
+        self.tracks = []
+
+    def _close(self, tr: FarTrack) -> None:
+        if len(tr.views) >= self.cfg.min_views:
+            self.measured.append(self._measure(tr))
+
+    def _view(self, blob: Blob, t: float, r_oc: np.ndarray, centre: np.ndarray,
+              camera: StereoCamera) -> _View:
+        def ray(u: float, v: float) -> np.ndarray:
+            d = r_oc @ np.array([(u - camera.cx) / camera.fx, (v - camera.cy) / camera.fy, 1.0])
+            return d / np.linalg.norm(d)
+
+        u0, v0, u1, v1 = blob.box
+        uc, vc = blob.uv
+        left, right = ray(u0 - 0.5, vc), ray(u1 + 0.5, vc)
+        top, bottom = ray(uc, v0 - 0.5), ray(uc, v1 + 0.5)
+
+        def tan_el(d: np.ndarray) -> float:
+            return float(d[2] / max(np.hypot(d[0], d[1]), 1e-9))
+
+        centroid = ray(uc, vc)
+        # Stereo range along the ray; its error from the disparity error of the blob's
+        # median disparity.
+        cos = float(centroid @ r_oc[:, 2])
+        rng = blob.depth_m / max(cos, 0.1) * float(np.linalg.norm(centroid[:2]))
+        sigma = rng * blob.depth_m / camera.fxb * self.cfg.disparity_sigma_px
+        return _View(t, centre, centroid, float(np.arccos(np.clip(left @ right, -1, 1))),
+                     tan_el(top), tan_el(bottom), self._travelled,
+                     rng if self.cfg.disparity_sigma_px > 0 else np.nan, sigma)
+
+    def rocks(self) -> list[FarRock]:
+        """The closed tracks that pass every rock test, one per rock: a rock whose blob
+        was followed by several tracks (lost and found again) is the best-viewed of them,
+        the others within ``merge_m`` dropped."""
+        kept: list[FarRock] = []
+        for r in sorted((r for r in self.measured if r.passed), key=lambda r: -r.n_views):
+            if all(np.linalg.norm(r.xy - k.xy) > self.cfg.merge_m for k in kept):
+                kept.append(r)
+        return kept
+
+    def _measure(self, tr: FarTrack) -> FarRock:
+        cfg = self.cfg
+        c = np.array([v.centre for v in tr.views])
+        rays = np.array([v.ray for v in tr.views])
+        rho = np.maximum(np.hypot(*(tr.point[:2] - c[:, :2]).T), 0.5)
+        rng = np.maximum(np.linalg.norm(tr.point - c, axis=1), 0.5)
+        # Distance of the rock from each bearing (ground plane), in pixels at that range.
+        d2 = rays[:, :2] / np.maximum(np.linalg.norm(rays[:, :2], axis=1), 1e-9)[:, None]
+        off = tr.point[:2] - c[:, :2]
+        perp = np.abs(off[:, 0] * d2[:, 1] - off[:, 1] * d2[:, 0])
+        residual = float(np.sqrt(np.mean((perp / rho) ** 2))) * self._fx
+        bearings = np.arctan2(rays[:, 1], rays[:, 0])
+        spread = float(np.rad2deg(np.ptp(np.unwrap(bearings))))
+        widths = np.array([v.width_rad for v in tr.views]) * rho
+        heights = np.array([v.tan_top - v.tan_bottom for v in tr.views]) * rho
+        height = float(np.median(heights))
+        width = float(np.median(widths))
+        area = float(np.pi / 4 * width * width)
+        # Covariance: the rays' geometry at the bearing error (scaled by the residual),
+        # the relative odometry drift over the views, the odometry at the last view.
+        sigma = cfg.bearing_sigma_px / self._fx
+        info = np.zeros((2, 2))
+        for ri, r2 in zip(rays, rho, strict=False):
+            d2 = ri[:2] / max(np.linalg.norm(ri[:2]), 1e-9)
+            info += (np.eye(2) - np.outer(d2, d2)) / (r2 * sigma) ** 2
+        cov = np.linalg.pinv(info) * max(1.0, (residual / cfg.bearing_sigma_px) ** 2)
+        span = tr.views[-1].travelled - tr.views[0].travelled
+        cov = cov + np.eye(2) * (cfg.odom_sigma_per_m * span) ** 2 + tr.odom_cov
+        passed = bool(spread >= cfg.min_parallax_deg and residual <= cfg.max_residual_px
+                      and height > cfg.min_height_m
+                      and area > cfg.min_area_m2 and rng.min() <= cfg.max_nearest_m)
+        return FarRock(tr.id, tr.point[:2].copy(), float(tr.point[2]), cov, width, height,
+                       area, len(tr.views), spread, residual, float(rng.min()), passed)

@@ -1,0 +1,153 @@
+"""Far rocks: dark blobs tracked across pairs and triangulated from the rover's motion, on
+a ray-cast scene (flat soil, upright dark cylinders) seen by the bags' camera."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from roi_detector.far_rocks import FarRockConfig, FarRockTracker, dark_blobs
+from roi_detector.rover_pipeline import FAR_ROCK_ID_BASE, far_rock_records
+from roi_detector.stereo import StereoCamera
+from roi_network.records import ROCK
+
+# The bags' navigation camera: 640 x 480, 70 deg, 1.54 m high, 20 deg down, 0.2 m baseline.
+TILT = np.radians(20.0)
+R_BC = np.column_stack([[0, -1, 0], np.cross([np.cos(TILT), 0, -np.sin(TILT)], [0, -1, 0]),
+                        [np.cos(TILT), 0, -np.sin(TILT)]])
+EXTRINSIC = [0.4, 0.1, 1.54, *Rotation.from_matrix(R_BC).as_quat()]
+FX = 457.0
+K = [FX, 0, 319.5, 0, FX, 239.5, 0, 0, 1]
+P_RIGHT = [FX, 0, 319.5, -FX * 0.2, 0, FX, 239.5, 0, 0, 0, 1, 0]
+SOIL = (89, 106, 124)  # BGR of the bags' soil
+ROCK_BGR = (40, 43, 47)  # varnished rock: darker and greyer
+SHADOW = (45, 54, 64)  # the soil in shadow: darker, as saturated
+
+
+def _camera() -> StereoCamera:
+    return StereoCamera.from_camera_info(K, P_RIGHT, 640, 480, EXTRINSIC)
+
+
+def _render(camera: StereoCamera, x_rover: float, rocks=(), shadows=(), spot=None):
+    """Left image and disparity of flat soil (z = 0) with upright cylinders ``rocks``
+    ``(x, y, radius, height)``, flat shadow discs ``shadows`` ``(x, y, radius)`` and a dark
+    ``spot`` ``(u, v, radius_px, depth_m)`` fixed in the image, for the rover at
+    ``(x_rover, 0)`` heading +x."""
+    rays = camera.rays_base()  # unit depth: the ray parameter is the depth
+    o = camera.t_base_cam + np.array([x_rover, 0.0, 0.0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth = np.where(rays[..., 2] < 0, -o[2] / rays[..., 2], np.inf)
+    img = np.empty((*rays.shape[:2], 3), np.uint8)
+    img[:] = SOIL
+    hit = o + rays * np.where(np.isfinite(depth), depth, 0)[..., None]
+    for x, y, r in shadows:
+        img[np.isfinite(depth) & (np.hypot(hit[..., 0] - x, hit[..., 1] - y) < r)] = SHADOW
+    for x, y, r, h in rocks:
+        dx, dy = o[0] - x, o[1] - y
+        a = rays[..., 0] ** 2 + rays[..., 1] ** 2
+        b = 2 * (dx * rays[..., 0] + dy * rays[..., 1])
+        c = dx * dx + dy * dy - r * r
+        disc = b * b - 4 * a * c
+        with np.errstate(invalid="ignore"):
+            s = (-b - np.sqrt(disc)) / (2 * a)
+        z = o[2] + s * rays[..., 2]
+        side = (disc > 0) & (s > 0) & (z >= 0) & (z <= h) & (s < depth)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            st = (h - o[2]) / rays[..., 2]
+        top = o + rays * st[..., None]
+        cap = (st > 0) & (np.hypot(top[..., 0] - x, top[..., 1] - y) < r) & (st < depth)
+        depth = np.where(side, s, depth)
+        depth = np.where(cap & ~side, st, depth)
+        img[side | cap] = ROCK_BGR
+    if spot is not None:
+        u, v, rad, d = spot
+        vv, uu = np.mgrid[0:img.shape[0], 0:img.shape[1]]
+        inside = np.hypot(uu - u, vv - v) < rad
+        img[inside] = ROCK_BGR
+        depth[inside] = d
+    with np.errstate(divide="ignore"):
+        disp = (camera.fxb / depth).astype(np.float32)
+    disp[~np.isfinite(depth)] = np.nan
+    return img, disp[::2, ::2]
+
+
+def _drive(camera, tracker, cfg, steps, **scene):
+    r = np.eye(3)
+    for k, x in enumerate(steps):
+        img, disp = _render(camera, x, **scene)
+        tracker.add(dark_blobs(img, disp, camera, cfg), float(k), r, np.array([x, 0, 0.0]),
+                    camera)
+    tracker.close_all()
+
+
+def test_a_rock_beside_the_route_is_triangulated_and_measured():
+    camera, cfg = _camera(), FarRockConfig()
+    tracker = FarRockTracker(cfg)
+    # 11 m beside the route, seen from 33 m down to 16 m (it leaves the 70 deg view),
+    # always beyond the elevation map's 20 m... and 12 m blob limit.
+    rock = (32.0, 11.0, 0.6, 0.6)  # 1.2 m wide (1.13 m^2), 0.6 m high
+    _drive(camera, tracker, cfg, np.arange(0.0, 20.0, 0.45), rocks=[rock])
+    rocks = tracker.rocks()
+    assert len(rocks) == 1
+    r = rocks[0]
+    assert np.hypot(r.xy[0] - 32.0, r.xy[1] - 11.0) < 0.4
+    assert r.width_m == pytest.approx(1.2, rel=0.2)
+    assert r.height_m == pytest.approx(0.6, rel=0.25)
+    assert r.parallax_deg > 8 and r.residual_px < 1.0
+    # The position covariance is honest about the error: within 3 sigma.
+    err = r.xy - [32.0, 11.0]
+    assert err @ np.linalg.solve(r.cov, err) < 9.0
+    rec = far_rock_records(rocks)
+    assert rec["id"][0] > FAR_ROCK_ID_BASE and rec["label"][0] == ROCK
+    assert rec["n_obs"][0] == r.n_views and rec["area_m2"][0] > 0.6
+
+
+def test_small_rock_is_measured_below_the_thresholds():
+    camera, cfg = _camera(), FarRockConfig()
+    tracker = FarRockTracker(cfg)
+    _drive(camera, tracker, cfg, np.arange(0.0, 20.0, 0.45), rocks=[(30.0, -10.0, 0.3, 0.3)])
+    assert tracker.rocks() == []
+    measured = [m for m in tracker.measured if np.hypot(m.xy[0] - 30, m.xy[1] + 10) < 1.0]
+    assert measured and all(m.area_m2 < 0.6 and not m.passed for m in measured)
+
+
+def test_shadows_are_not_blobs_and_a_spot_on_the_lens_is_no_rock():
+    camera, cfg = _camera(), FarRockConfig()
+    img, disp = _render(camera, 0.0, shadows=[(25.0, 3.0, 1.5)])
+    assert dark_blobs(img, disp, camera, cfg) == []
+    # The same patch as dark and grey as a rock is a blob: the test is the colour.
+    assert len(dark_blobs(*_render(camera, 0.0, rocks=[(25.0, 3.0, 1.5, 0.02)]), camera,
+                          cfg)) == 1
+    # A dark spot that moves with the camera: its rays never meet.
+    tracker = FarRockTracker(cfg)
+    _drive(camera, tracker, cfg, np.arange(0.0, 20.0, 0.45), spot=(500, 300, 8, 25.0))
+    assert tracker.rocks() == []
+    assert tracker.measured and not tracker.measured[0].passed
+
+
+def test_near_blobs_are_left_to_the_elevation_map():
+    camera, cfg = _camera(), FarRockConfig()
+    img, disp = _render(camera, 0.0, rocks=[(8.0, 1.0, 0.6, 0.6)])
+    assert dark_blobs(img, disp, camera, cfg) == []
+    far = FarRockConfig(min_depth_m=5.0)
+    blobs = dark_blobs(img, disp, camera, far)
+    assert len(blobs) == 1 and 6.0 < blobs[0].depth_m < 9.0
+
+
+def test_the_ln_gets_the_far_rocks_no_map_roi_stands_near():
+    from roi_detector.elevation_map import MapRoi
+    from roi_detector.far_rocks import FarRock
+    from roi_detector.rover_pipeline import DriveMapper, RoverConfig
+
+    def far(i, x, y):
+        return FarRock(i, np.array([x, y]), 0.3, np.eye(2) * 0.04, 1.2, 0.5, 1.13, 20, 10.0,
+                       0.5, 15.0, True)
+
+    mapper = DriveMapper(RoverConfig(far_rocks=True))
+    mapper.map.rois = [MapRoi(7, ROCK, np.array([10.0, 5.0]), 0.2, 1.5, 0.6, 1.6, 1.2, 0.0,
+                              rounds=3, examined=3, n_pairs=12)]
+    mapper.far.measured = [far(1, 10.8, 5.3), far(2, 30.0, -8.0)]
+    rec = mapper._map_and_far_records()
+    assert sorted(rec["id"]) == [7, FAR_ROCK_ID_BASE + 2]
+    off = DriveMapper(RoverConfig())  # far_rocks off (the default): the map's alone
+    off.far.measured = [far(2, 30.0, -8.0)]
+    assert len(off._map_and_far_records()) == 0
