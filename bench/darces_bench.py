@@ -202,9 +202,11 @@ def family_options(density_per_km2: float, **overrides: Any) -> SimOptions:
                       **overrides)
 
 
-def generality(names: list[str], n_lns: int, stress_lns: int, seed: int) -> dict[str, Any]:
-    """The paper protocol on every family GN, odds decision beside fixed counts."""
-    methods = ["darces", "darces_counts"]
+def generality(names: list[str], n_lns: int, stress_lns: int, seed: int,
+               methods: list[str] | None = None) -> dict[str, Any]:
+    """The paper protocol on every family GN, odds decision (Chernoff and Markov bounds)
+    beside fixed counts."""
+    methods = methods or ["darces", "darces_markov", "darces_counts"]
     rows = []
     for name in names:
         gn = family_gn(name, seed=1)
@@ -268,8 +270,9 @@ def _write_generality_md(report: dict[str, Any]) -> None:
         f"Command: `{report['command']}`. GNs: `darces_eval --synthetic NAME --gn-seed 1`. "
         "LNs: paper protocol (600 m..1 km, 1 % drift, 20 % missed; 2 walks per pair at "
         ">= 200 ROIs/km^2, else 16 and fewer nodes, see `family_options`); "
-        "stress: 30 % outliers + 10 % label flips. `darces`: the odds decision; "
-        "`counts`: the fixed support/margin counts (the matcher before issue 13). "
+        "stress: 30 % outliers + 10 % label flips. `darces`: the odds decision, chance "
+        "alignments bounded by Chernoff's inequality and Markov's; `markov`: Markov's "
+        "alone; `counts`: the fixed support/margin counts (the matcher before issue 13). "
         "no fix | oracle: abstentions among the LNs the oracle fits within 2 m. "
         f"{report['timing']}.",
         "",
@@ -291,7 +294,7 @@ def _write_generality_md(report: dict[str, Any]) -> None:
                     f"| {row['gn']} | {row['rois']} | {protocol} "
                     f"| {p['lns']} ({p['min_nodes']}-{p['max_nodes']}) "
                     f"| {_pct(p['oracle_within_2m_rate'])} "
-                    f"| {'darces' if method == 'darces' else 'counts'} "
+                    f"| {method.removeprefix('darces_') if method != 'darces' else method} "
                     f"| {_pct(m['correct_match_rate'])} | {_pct(m['false_match_rate'])} "
                     f"| {_pct(m['false_fix_10m_rate'])} | {_pct(m['no_fix_rate'])} "
                     f"| {_pct(m['no_fix_oracle_fit_rate'])} | {m['time_ms']['median']:.1f} "
@@ -447,7 +450,8 @@ def main() -> None:
                    help="stressed LNs per GN (generality; default: --max-lns)")
     p.add_argument("--seed", type=int, default=7, help="LN seed (generality, firstfix)")
     p.add_argument("--methods", default=None,
-                   help="paper/stress: methods of darces_eval (default: its own)")
+                   help="paper/stress: methods of darces_eval (default: its own); "
+                   "generality: methods (default darces,darces_markov,darces_counts)")
     p.add_argument("--tag", default="",
                    help="paper/stress: results go to darces_<mode>_<tag>.{json,md}")
     p.add_argument("--merge", action="store_true",
@@ -482,7 +486,8 @@ def main() -> None:
             merge_generality()
         elif args.mode == "generality":
             stress = lns if args.stress_lns is None else args.stress_lns
-            generality(names, lns, stress, args.seed)
+            generality(names, lns, stress, args.seed,
+                       args.methods.split(",") if args.methods else None)
         elif args.mode == "firstfix":
             firstfix(names, lns, args.seed)
         else:

@@ -3,6 +3,8 @@
 * ``darces``: this package's improved DARCES (:class:`~darces_matcher.matcher.Matcher`).
 * ``darces_counts``: the same matcher deciding by fixed support and margin counts, as
   before the odds decision (:meth:`MatchConfig.counts`).
+* ``darces_markov``: the odds decision with Markov's bound alone on the chance
+  alignments (``MatchConfig(chernoff_orders=())``, the odds decision's first pass).
 * ``darces_original``: the paper's baseline, the original DARCES: same machinery without
   the orientation and semantic constraints (:meth:`MatchConfig.original`).
 * ``kiss_matcher``: KISS-Matcher 1.0.2 (ROBIN max-clique pruning + graduated
@@ -23,7 +25,7 @@ from roi_network.network import RoiNetwork
 from roi_network.records import xy
 from roi_network.transform import Rigid2D
 
-METHODS = ("darces", "darces_counts", "darces_original", "kiss_matcher")
+METHODS = ("darces", "darces_counts", "darces_markov", "darces_original", "kiss_matcher")
 
 
 class LnMatcher(Protocol):
@@ -98,6 +100,8 @@ def make_method(name: str, gn: RoiNetwork) -> LnMatcher:
         return Matcher(gn, MatchConfig())
     if name == "darces_counts":
         return Matcher(gn, MatchConfig.counts())
+    if name == "darces_markov":
+        return Matcher(gn, MatchConfig(chernoff_orders=()))
     if name == "darces_original":
         return Matcher(gn, MatchConfig.original())
     if name == "kiss_matcher":

@@ -44,9 +44,30 @@ the winner is not the true alignment is::
     p_false = (n_tested + sum_a e^K_a) / (n_tested + e^K + sum_a e^K_a)
 
 and the matcher reports a fix when p_false <= ``false_match_rate``: the one threshold,
-the share of wrong fixes accepted. It subsumes the old support and margin tests
-(``min_inliers``, ``min_margin``): a strong runner-up raises p_false just as a weak winner
-does.
+the share of wrong fixes accepted.
+
+Markov's inequality is loose: it holds for any LR of mean 1, and a chance alignment's LR
+is far from any: nearly every node lands on nothing (LR_i = w) and a rare one on a GN
+node (a large LR_i). Chernoff's, at an order s in (0, 1), bounds the same tail by
+P(LR >= e^K) <= E[LR^s] e^(-s K), and E[LR^s] = prod_i E[LR_i^s] is computed from the GN
+(:meth:`ChanceModel.log_moment`): for a node of variance v landing uniformly over the
+area A the GN covers (A = sum_j 1 / lambda_j, so that E[LR_i] = 1 exactly), each GN node
+j adds its peak, isolated from the others (overlapping peaks only lower the s-th power
+of their sum, s < 1: the bound stays conservative)::
+
+    E[LR_i^s] = w^s + (2 pi v / A) sum_j J_s(b_ij),   b_ij = (1 - w) a_ij / (2 pi v)
+    J_s(b) = int_0^inf ((w + b e^-u)^s - w^s) du
+
+(a_ij = P(c_i | c_j) / (f(c_i) lambda_j), the ratio above), the three smallest moments
+left out with the spent nodes. With ``chernoff_orders`` S the expected count of chance
+alignments as good as the winner is the smallest of the bounds, times 1 + |S| (a union
+over them)::
+
+    n_tested min(1, (1 + |S|) min_s E[LR^s] e^((1 - s) K))   in place of n_tested
+
+It helps where many precise nodes each carry E[LR_i^s] well below 1 and the winner's
+odds are weak, which is where Markov's bound withheld fixes the oracle makes
+(docs/matcher.md); on short, drifted LNs Markov's stays the smaller and nothing changes.
 """
 
 from __future__ import annotations
@@ -143,6 +164,43 @@ class ChanceModel:
         self.label_confusion = label_confusion
         self.marginal = marginal
         self.frequency = class_frequencies(self.gn_labels)
+        #: The area the GN covers by its own density estimate, m^2 (E[LR_i] = 1 on it).
+        self.area = float(np.sum(1.0 / self.density))
+        self._moments: dict[tuple[int, int, float], float] = {}
+
+    def _ratio(self, labels: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """a_ij: the class ratio over GN node j's local density, for LN labels (N,) and
+        GN indices j (N, k)."""
+        ratio = 1.0 / self.density[j]
+        if self.use_labels:
+            freq = np.maximum(self.frequency[np.minimum(labels, len(self.frequency) - 1)],
+                              1e-3)
+            agree = self.gn_labels[j] == labels[:, None]
+            ratio = ratio * np.where(agree, 1.0 - self.label_confusion,
+                                     self.label_confusion) / freq[:, None]
+        return ratio
+
+    def log_moment(self, labels: np.ndarray, var: np.ndarray, order: float) -> float:
+        """log E[LR^s] (s = ``order`` in (0, 1)) of an LN under chance (module
+        docstring), the three smallest node moments left out (the spent nodes: whichever
+        three they are, the bound stays conservative). Per node, cached by class and
+        variance (eight bins per e-fold, the bin's largest variance: the moment grows
+        with v)."""
+        w = self.outlier_prior
+        logs = []
+        for label, v in zip(np.asarray(labels, dtype=np.int64), np.asarray(var, float),
+                            strict=True):
+            key = (int(label), math.ceil(8.0 * math.log(max(v, 1e-6))), order)
+            if key not in self._moments:
+                vb = math.exp(key[1] / 8.0)
+                a = self._ratio(np.array([label]), np.arange(len(self.gn_labels))[None])[0]
+                b = (1.0 - w) * a / (2.0 * math.pi * vb)
+                m = w**order + 2.0 * math.pi * vb / self.area * float(
+                    _peak_integral(b, w, order).sum())
+                self._moments[key] = math.log(min(m, 1.0))
+            logs.append(self._moments[key])
+        logs = np.sort(np.array(logs))
+        return float(logs[SPENT_NODES:].sum()) if len(logs) > SPENT_NODES else 0.0
 
     def odds(self, yaw: float, t: np.ndarray, pts: np.ndarray, labels: np.ndarray,
              var: np.ndarray) -> Odds:
@@ -163,13 +221,7 @@ class ChanceModel:
         near = dist <= reach[:, None]
         j = np.where(near, idx, 0)
         gauss = np.exp(-0.5 * dist**2 / var[:, None]) / (2.0 * math.pi * var[:, None])
-        ratio = gauss / self.density[j]
-        if self.use_labels:
-            freq = np.maximum(self.frequency[np.minimum(labels, len(self.frequency) - 1)],
-                              1e-3)
-            agree = self.gn_labels[j] == labels[:, None]
-            ratio = ratio * np.where(agree, 1.0 - self.label_confusion,
-                                     self.label_confusion) / freq[:, None]
+        ratio = gauss * self._ratio(labels, j)
         evidence = np.where(near, ratio, 0.0).sum(axis=1)
         if not self.marginal:
             w = self.outlier_prior
@@ -187,8 +239,20 @@ class ChanceModel:
         return Odds(log_odds, np.log(best + (1.0 - best) * evidence))
 
 
+def _peak_integral(b: np.ndarray, w: float, s: float) -> np.ndarray:
+    """J_s(b) = int_0^inf ((w + b e^-u)^s - w^s) du for each b (a GN node's peak over the
+    outlier floor), by the trapezoid rule on u up to where b e^-u is 1e-4 of w."""
+    b = np.asarray(b, float)
+    top = np.log(np.maximum(b, 1e-12) / w) + math.log(1e4)
+    t = np.linspace(0.0, 1.0, 97)
+    u = np.maximum(top, 1e-6)[:, None] * t[None, :]
+    f = (w + b[:, None] * np.exp(-u)) ** s - w**s
+    return np.trapezoid(f, u, axis=1)
+
+
 def false_match_probability(log_odds: float, n_tested: float,
-                            alternatives: list[float] | tuple[float, ...] = ()) -> float:
+                            alternatives: list[float] | tuple[float, ...] = (),
+                            log_moments: dict[float, float] | None = None) -> float:
     """Probability that the winning alignment is not the true one.
 
     Args:
@@ -196,11 +260,20 @@ def false_match_probability(log_odds: float, n_tested: float,
         n_tested: alignments the search examined (each a chance alignment of expected
             odds at most 1).
         alternatives: K of each distinct alternative the search refined.
+        log_moments: log E[LR^s] of a chance alignment of this LN, by order s in (0, 1)
+            (Chernoff's bounds beside Markov's, module docstring); None or empty:
+            Markov's alone.
 
     Returns:
-        (n_tested + sum e^K_a) / (n_tested + e^K + sum e^K_a), computed in log space.
+        (n + sum e^K_a) / (n + e^K + sum e^K_a), computed in log space, n the expected
+        count of chance alignments as good as the winner (times e^K): ``n_tested``, or
+        ``n_tested min(1, (1 + S) min_s E[LR^s] e^((1 - s) K))`` with S ``log_moments``.
     """
-    others = np.array([math.log(max(n_tested, 1.0)), *alternatives], dtype=float)
+    log_n = math.log(max(n_tested, 1.0))
+    if log_moments:
+        chernoff = min(m + (1.0 - s) * log_odds for s, m in log_moments.items())
+        log_n += min(0.0, math.log(1.0 + len(log_moments)) + chernoff)
+    others = np.array([log_n, *alternatives], dtype=float)
     log_others = float(np.logaddexp.reduce(others))
     # p = e^lo / (e^lo + e^K) = 1 / (1 + e^(K - lo))
     return float(1.0 / (1.0 + math.exp(min(log_odds - log_others, 700.0))))
@@ -225,7 +298,8 @@ class Verdict:
 
 
 def decide(log_odds: float, n_tested: float, alternatives: list[float],
-           false_match_rate: float) -> Verdict:
+           false_match_rate: float, log_moments: dict[float, float] | None = None
+           ) -> Verdict:
     """Accept the winner when its false-match probability is within the accepted rate.
 
     Args:
@@ -233,8 +307,10 @@ def decide(log_odds: float, n_tested: float, alternatives: list[float],
         n_tested: alignments examined by the search.
         alternatives: K of the distinct alternatives refined.
         false_match_rate: the accepted share of wrong fixes (the one threshold).
+        log_moments: see :func:`false_match_probability`.
     """
-    p_false = false_match_probability(log_odds, n_tested, alternatives)
+    p_false = false_match_probability(log_odds, n_tested, alternatives, log_moments)
     accept = p_false <= false_match_rate
-    ambiguous = (not accept) and false_match_probability(log_odds, n_tested) <= false_match_rate
+    ambiguous = (not accept) and false_match_probability(
+        log_odds, n_tested, (), log_moments) <= false_match_rate
     return Verdict(accept, log_odds, p_false, ambiguous)

@@ -173,6 +173,11 @@ class MatchConfig:
             before issue 13, kept as the baseline ``darces_counts``).
         false_match_rate: the accepted share of wrong fixes, the one threshold of the
             odds decision.
+        chernoff_orders: the odds decision bounds the count of chance alignments as good
+            as the winner by Chernoff's inequality at these orders s (E[LR^s] from the
+            GN's densities) beside Markov's (s = 1), the smallest of them
+            (:mod:`~darces_matcher.decision`); (): Markov's alone (the odds decision's
+            first pass, ``darces_markov``).
         min_side_floor_m: when no control triangle has sides of ``min_side_m``, the
             triplets are chosen again with this shortest side (a rock cluster's close
             nodes; their orientation is still checked against their tolerances by
@@ -224,6 +229,7 @@ class MatchConfig:
     em_iterations: int = 4
     decision: Literal["odds", "counts"] = "odds"
     false_match_rate: float = 1e-2
+    chernoff_orders: tuple[float, ...] = (0.5, 0.75)
     min_side_floor_m: float | None = 3.0
 
     @classmethod
@@ -515,7 +521,8 @@ class Matcher:
         fit = self._em_fit(pts, labels, var, prior, max(cfg.anneal_start_m, spread))
         n_tested = self.prior_search_size(pts, var, p)
         odds = self.chance.odds(fit.yaw, fit.t, pts, labels, var)
-        verdict = decide(odds.log_odds, n_tested, [], cfg.false_match_rate)
+        verdict = decide(odds.log_odds, n_tested, [], cfg.false_match_rate,
+                         self._log_moments(labels, var))
         fitted = Rigid2D(fit.yaw, fit.t[0], fit.t[1])
         d = np.array([fit.t[0] - prior.tx, fit.t[1] - prior.ty,
                       wrap_angle(fit.yaw - prior.yaw)])
@@ -620,7 +627,8 @@ class Matcher:
             searched = self._blind if result.reason == "ok_label_blind" else self
             n_tested, alternatives = searched._last_search
             odds = self.chance.odds(fit.yaw, fit.t, pts, labels, var)
-            verdict = decide(odds.log_odds, n_tested, alternatives, cfg.false_match_rate)
+            verdict = decide(odds.log_odds, n_tested, alternatives, cfg.false_match_rate,
+                             self._log_moments(labels, var))
             result.log_odds = verdict.log_odds
             result.false_match_probability = verdict.p_false
             withheld = not verdict.accept
@@ -876,6 +884,14 @@ class Matcher:
         per_query = self.index.count_candidates(sides, tol, codes)
         return np.bincount(owner, weights=per_query, minlength=len(triplets))
 
+    def _log_moments(self, labels: np.ndarray, var: np.ndarray) -> dict[float, float] | None:
+        """log E[LR^s] of the LN under chance for the Chernoff bounds of the decision, by
+        order s (``MatchConfig.chernoff_orders``; not with the marginal odds), else None."""
+        cfg = self.config
+        if not cfg.chernoff_orders or cfg.marginal_outliers:
+            return None
+        return {s: self.chance.log_moment(labels, var, s) for s in cfg.chernoff_orders}
+
     def _decide(
         self,
         candidates: list[_Refined],
@@ -915,7 +931,8 @@ class Matcher:
                             for c in candidates[1:] if not _same_fix(best, c)]
             self._last_search = (n_tested, alternatives)
             verdict = decide(self.chance.odds(best.yaw, best.t, pts, labels, var).log_odds,
-                             n_tested, alternatives, cfg.false_match_rate)
+                             n_tested, alternatives, cfg.false_match_rate,
+                             self._log_moments(labels, var))
             log_odds, p_false = verdict.log_odds, verdict.p_false
             unsupported = not verdict.accept and not verdict.ambiguous
             ambiguous = not verdict.accept and verdict.ambiguous

@@ -208,3 +208,48 @@ def test_marginal_odds_keep_lns_of_another_gn_from_a_fix(sparse_gn) -> None:
         result = matcher.match(sim.records)
         assert not result.is_fix
         assert np.isnan(result.false_match_probability) or result.false_match_probability > 0.5
+
+
+def test_peak_integral_has_the_closed_forms() -> None:
+    from darces_matcher.decision import _peak_integral
+
+    w, b = 0.3, np.array([0.1, 1.0, 52.0, 1e4])
+    sw, sb = math.sqrt(w), np.sqrt(w + b)
+    half = 2 * (sb - sw) - 2 * sw * np.log((sb + sw) / (2 * sw))
+    assert _peak_integral(b, w, 0.5) == pytest.approx(half, rel=0.005)
+    assert _peak_integral(b, w, 1.0) == pytest.approx(b, rel=0.005)  # E[LR_i] = 1
+
+
+def test_chernoff_moment_bounds_a_chance_nodes_lr_and_shrinks_the_chance_count() -> None:
+    rng = np.random.default_rng(3)
+    gn = rng.uniform(0, 1000, (200, 2))
+    labels = np.where(rng.random(200) < 0.8, ROCK, OUTCROP)
+    model = ChanceModel(cKDTree(gn), labels, use_labels=True, outlier_prior=0.3,
+                        label_confusion=0.1)
+    # Monte Carlo: one node of variance v dropped uniformly inside the GN (away from its
+    # edge), its LR^s averaged; the model's moment (4 spent nodes' worth of copies, so
+    # that one is kept) bounds it.
+    x = rng.uniform(150, 850, (20000, 2))
+    for v, s in ((1.0, 0.5), (25.0, 0.5), (4.0, 0.75)):
+        var = np.full(4, v)
+        lab = np.full(4, ROCK)
+        bound = math.exp(model.log_moment(lab, var, s))
+        lr = [math.exp(model.odds(0.0, p, np.zeros((1, 2)), np.array([ROCK]),
+                                  np.array([v])).node_log_lr[0]) for p in x[:4000]]
+        assert np.mean(np.power(lr, s)) <= bound * 1.05
+        assert bound < 1.0
+    # Precise nodes are worth more than drifted ones: their moment is smaller.
+    lab = np.full(12, ROCK)
+    assert model.log_moment(lab, np.full(12, 1.0), 0.5) < model.log_moment(
+        lab, np.full(12, 25.0), 0.5) < 0.0
+    # The count of chance alignments shrinks where the moments are small and the odds
+    # weak; where they are not, Markov's bound stands.
+    log_m = {0.5: model.log_moment(lab, np.full(12, 1.0), 0.5)}
+    n_eff = 1000.0 * min(1.0, 2.0 * math.exp(log_m[0.5] + 0.5 * 6.0))
+    assert n_eff < 500.0
+    assert false_match_probability(6.0, 1000.0, (), log_m) == pytest.approx(
+        n_eff / (n_eff + math.exp(6.0)))
+    assert false_match_probability(40.0, 1000.0, (), log_m) == pytest.approx(
+        false_match_probability(40.0, 1000.0))
+    assert false_match_probability(10.0, 1000.0, (), {0.5: 0.0}) == pytest.approx(
+        false_match_probability(10.0, 1000.0))
