@@ -342,12 +342,15 @@ def first_fix(gn, options: SimOptions, config: MatchConfig, n_lns: int, seed: in
 
 
 def firstfix(names: list[str], n_lns: int, seed: int) -> dict[str, Any]:
-    """First fix on the family GNs, odds decision beside fixed counts."""
+    """First fix on the family GNs, odds decision (Chernoff and Markov's bounds, Markov's
+    alone) beside fixed counts."""
     rows = []
     for name in names:
         gn = family_gn(name, seed=1)
         options = family_options(FAMILY[name].density_per_km2)
-        for method, config in (("darces", MatchConfig()), ("darces_counts", MatchConfig.counts())):
+        for method, config in (("darces", MatchConfig()),
+                               ("darces_markov", MatchConfig(chernoff_orders=())),
+                               ("darces_counts", MatchConfig.counts())):
             row = {"gn": name, "method": method, "rois": len(gn),
                    **first_fix(gn, options, config, n_lns, seed)}
             rows.append(row)
