@@ -8,12 +8,15 @@ Modes:
     scale   GN sizes 10^3..10^6 with no position prior: index build time and memory
             apart, per-LN time (median, p95) and outcome rates.
     generality  the paper protocol (clean and stressed) on every GN of the evaluation
-            family (``gn_generator.FAMILY``), the odds decision (``darces``) beside the
+            family (``gn_generator.FAMILY``), the odds decision (``darces``: Chernoff
+            and Markov bounds) beside Markov's bound alone (``darces_markov``) and the
             fixed counts (``darces_counts``), in one table.
     firstfix    the paper protocol's LNs fed as prefixes, node by node (as the rover
             drives): nodes and distance at the first fix, and whether it is right.
     null    stressed LNs of each family GN against another GN of the same statistics:
             every fix would be a chance alignment (calibration of the odds decision).
+    tracknull   the same LNs tracked (``Matcher.track``) from a prior placed at chance
+            (``--prior-sigmas``): the track decision's calibration.
     quick   a perfect LN of the truth ROIs a bag's route passes (1 % drift, random odom
             frame), matched against the bag's truth ROIs, ``--trials`` times.
 
@@ -27,6 +30,7 @@ Usage (from the repository root, after ``source env.sh``)::
     python bench/darces_bench.py generality --max-lns 400
     python bench/darces_bench.py firstfix --max-lns 300
     python bench/darces_bench.py quick --bag /work/bags/quick --trials 20
+    python bench/darces_bench.py tracknull --max-lns 100 --prior-sigmas 5,15
 """
 
 from __future__ import annotations
@@ -54,6 +58,7 @@ from darces_matcher.simulate import (
 )
 from roi_network.geojson import read_geojson, write_geojson
 from roi_network.records import xy
+from roi_network.transform import Rigid2D
 
 RESULTS = Path(__file__).resolve().parent / "results"
 GN_FILE = RESULTS / "darces_gn174.geojson"
@@ -403,6 +408,77 @@ def null(names: list[str], n_lns: int, seed: int) -> dict[str, Any]:
     return report
 
 
+def tracknull(names: list[str], n_lns: int, seed: int, sigmas: list[float]) -> dict[str, Any]:
+    """The chance hypothesis for tracking: stressed LNs of each family GN (seed 1) tracked
+    on another GN of the same statistics (seed 2) from a prior placed at chance (the LN's
+    centroid on a random GN ROI, a random heading) with x-y sigma S and 1 deg of heading.
+    Every fix is a false match; the track decision as configured (0 spent nodes, quarter
+    sigma cells) beside its first pass (3 spent nodes, 1 sigma cells)."""
+    configs = {"darces": MatchConfig(),
+               "track_first_pass": MatchConfig(track_spent_nodes=3, track_cell_fraction=1.0)}
+    rows = []
+    for name in names:
+        other = family_gn(name, seed=2)
+        gxy = xy(other.records)
+        matchers = {k: Matcher(other, c) for k, c in configs.items()}
+        options = family_options(FAMILY[name].density_per_km2, outliers=0.3, label_flips=0.1)
+        for sigma in sigmas:
+            rng = np.random.default_rng(seed)
+            tally = {k: {"fixes": 0, "p": [], "low_outside_prior": 0} for k in configs}
+            count = 0
+            for sim in iter_lns(family_gn(name, seed=1), options, seed=seed, max_lns=n_lns):
+                count += 1
+                pts = xy(sim.records)
+                yaw = rng.uniform(-np.pi, np.pi)
+                rot = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+                t = gxy[rng.integers(len(gxy))] - rot @ pts.mean(axis=0)
+                cov = np.diag([sigma**2, sigma**2, np.radians(1.0) ** 2])
+                for k, m in matchers.items():
+                    r = m.track(sim.records, Rigid2D(yaw, t[0], t[1]), cov, anchor_newest=True)
+                    p = r.false_match_probability
+                    p = 1.0 if not np.isfinite(p) else p
+                    tally[k]["fixes"] += r.is_fix
+                    if r.reason == "outside_prior":
+                        tally[k]["low_outside_prior"] += p < 0.01
+                    else:
+                        tally[k]["p"].append(p)
+            row = {"gn": name, "prior_sigma_m": sigma, "lns": count}
+            for k, v in tally.items():
+                row[k] = {"fixes": v["fixes"],
+                          "min_false_match_probability_inside_prior": float(np.min(v["p"])),
+                          "below_0.01_inside_prior": int(np.sum(np.array(v["p"]) < 0.01)),
+                          "below_0.01_outside_prior": v["low_outside_prior"]}
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    command = (f"python bench/darces_bench.py tracknull --max-lns {n_lns} --seed {seed} "
+               f"--gns {','.join(names)} --prior-sigmas {','.join(str(s) for s in sigmas)}")
+    report = {"mode": "tracknull", "rows": rows, "command": command,
+              "accepted_false_match_rate": MatchConfig().false_match_rate}
+    _write_json_atomic(RESULTS / "darces_tracknull.json", report)
+    lines = ["# darces_matcher benchmark: chance LNs tracked from a chance prior", "",
+             f"Command: `{command}`. Stressed LNs (30 % outliers, 10 % flips) of each family "
+             "GN (seed 1) tracked (`Matcher.track`) on another GN of the same statistics "
+             "(seed 2) from a prior on a random GN ROI at a random heading (x-y sigma S, "
+             "1 deg heading): every fix would be false. *darces*: the track decision as "
+             "configured (no node spent, quarter-sigma cells); *first pass*: 3 nodes spent, "
+             "1-sigma cells. p_false < 0.01 outside the prior: fits the EM took outside the "
+             "prior's ellipsoid, refused (`outside_prior`).", "",
+             "| GN | S m | LNs | darces: fixes | darces: min p_false inside | darces: < 0.01 "
+             "inside / outside | first pass: fixes | first pass: min p_false inside "
+             "| first pass: < 0.01 inside / outside |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        a, b = r["darces"], r["track_first_pass"]
+        lines.append(
+            f"| {r['gn']} | {r['prior_sigma_m']:g} | {r['lns']} | {a['fixes']} "
+            f"| {a['min_false_match_probability_inside_prior']:.3g} "
+            f"| {a['below_0.01_inside_prior']} / {a['below_0.01_outside_prior']} "
+            f"| {b['fixes']} | {b['min_false_match_probability_inside_prior']:.3g} "
+            f"| {b['below_0.01_inside_prior']} / {b['below_0.01_outside_prior']} |")
+    (RESULTS / "darces_tracknull.md").write_text("\n".join(lines) + "\n")
+    return report
+
+
 def _route(tum: Path) -> np.ndarray:
     """(K, 2) positions of a TUM trajectory file (comment lines skipped), metres."""
     data = np.loadtxt(tum, comments="#", ndmin=2)
@@ -446,7 +522,7 @@ def main() -> None:
     """Command-line entry point."""
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("mode", choices=["paper", "stress", "scale", "generality", "firstfix",
-                                    "quick", "null"])
+                                    "quick", "null", "tracknull"])
     p.add_argument("--gns", default=",".join(FAMILY),
                    help="family GNs (generality, firstfix), comma-separated")
     p.add_argument("--stress-lns", type=int, default=None,
@@ -466,6 +542,8 @@ def main() -> None:
     p.add_argument("--baseline-lns", type=int, default=1000,
                    help="LNs for the baselines (the first of the same stream)")
     p.add_argument("--max-lns", type=int, default=None, help="cap the LNs (paper/stress)")
+    p.add_argument("--prior-sigmas", default="5,15",
+                   help="tracknull: x-y sigmas of the chance priors, metres")
     p.add_argument("--sizes", default="1000,10000,100000,1000000")
     p.add_argument("--scale-lns", type=int, default=100)
     args = p.parse_args()
@@ -479,7 +557,7 @@ def main() -> None:
               args.tag)
     elif args.mode == "scale":
         scale([int(s) for s in args.sizes.split(",")], args.scale_lns)
-    elif args.mode in ("generality", "firstfix", "null"):
+    elif args.mode in ("generality", "firstfix", "null", "tracknull"):
         names = [n.strip() for n in args.gns.split(",") if n.strip()]
         unknown = [n for n in names if n not in FAMILY]
         if unknown:
@@ -493,6 +571,9 @@ def main() -> None:
                        args.methods.split(",") if args.methods else None)
         elif args.mode == "firstfix":
             firstfix(names, lns, args.seed)
+        elif args.mode == "tracknull":
+            tracknull(names, lns, args.seed,
+                      [float(v) for v in args.prior_sigmas.split(",")])
         else:
             null(names, lns, args.seed)
     else:

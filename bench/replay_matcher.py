@@ -43,6 +43,8 @@ VARIANTS: dict[str, tuple[dict, bool]] = {
     "base": ({}, True),
     "notrack": ({}, False),
     "marginal": ({"marginal_outliers": True}, True),
+    "markov": ({"chernoff_orders": ()}, True),
+    "track_first_pass": ({"track_spent_nodes": 3, "track_cell_fraction": 1.0}, True),
     "triplets48": ({"n_triplets": 48}, True),
     "marginal_triplets48": ({"marginal_outliers": True, "n_triplets": 48}, True),
     "absolute": ({"ln_sigma_relative": False}, True),
@@ -121,6 +123,9 @@ def replay(lns: list, odometry: list, gn, truth_xy: np.ndarray, dist: np.ndarray
                     line += (f"  fit off oracle {off:6.2f} m, "
                              f"{np.degrees(result.map_T_odom.yaw - oracle.yaw):+.2f} deg, "
                              f"off truth at the rover {now:6.2f} m")
+                if np.isfinite(result.log_odds):
+                    line += (f"  log-odds {result.log_odds:5.1f}, "
+                             f"p_false {result.false_match_probability:.2g}")
                 print(line, file=events_out)
         filt.predict(here, cov)
         if filt.localized:

@@ -203,7 +203,7 @@ class ChanceModel:
         return float(logs[SPENT_NODES:].sum()) if len(logs) > SPENT_NODES else 0.0
 
     def odds(self, yaw: float, t: np.ndarray, pts: np.ndarray, labels: np.ndarray,
-             var: np.ndarray) -> Odds:
+             var: np.ndarray, spent: int = SPENT_NODES) -> Odds:
         """Log-odds of the alignment (yaw rad, t m) of an LN against a chance one.
 
         Args:
@@ -212,6 +212,8 @@ class ChanceModel:
             pts: (N, 2) LN positions, ``odom``, metres.
             labels: (N,) LN class labels.
             var: (N,) per-axis position variance of each node (LN drift + GN), m^2.
+            spent: the largest node terms left out (the nodes the alignment was fitted
+                to: a control triangle's three in the global search).
         """
         mapped = transform_points(yaw, np.asarray(t, dtype=float), pts)
         reach = _REACH * np.sqrt(var)
@@ -226,11 +228,12 @@ class ChanceModel:
         if not self.marginal:
             w = self.outlier_prior
             node = np.log(w + (1.0 - w) * evidence)
-            spent = (np.sort(node)[-SPENT_NODES:].sum() if len(node) > SPENT_NODES
-                     else node.sum())
-            return Odds(float(node.sum() - spent), node)
+            left_out = (np.sort(node)[len(node) - spent:].sum() if len(node) > spent
+                        else node.sum())
+            return Odds(float(node.sum() - left_out), node)
         # LR_i grows with E_i whatever w: the spent nodes are the largest E_i.
-        rest = np.sort(evidence)[:-SPENT_NODES] if len(evidence) > SPENT_NODES else evidence[:0]
+        rest = np.sort(evidence)[:len(evidence) - spent] if len(evidence) > spent \
+            else evidence[:0]
         w = _W_GRID[:, None]
         per_w = np.log(w + (1.0 - w) * rest[None, :]).sum(axis=1)
         log_odds = float(np.logaddexp.reduce(per_w) - math.log(len(_W_GRID)))

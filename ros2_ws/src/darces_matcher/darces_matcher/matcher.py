@@ -173,6 +173,18 @@ class MatchConfig:
             before issue 13, kept as the baseline ``darces_counts``).
         false_match_rate: the accepted share of wrong fixes, the one threshold of the
             odds decision.
+        track_spent_nodes: in :meth:`track`, the largest node terms left out of the
+            odds. 0: the EM moves the alignment continuously inside the prior, it is not
+            fitted to three nodes as a control triangle's is, and the count of
+            alignments examined (``track_cell_fraction``) already charges that freedom;
+            3 (the global search's) charged it twice: on atacama_1km seed 3's late LNs
+            it took 12 nats and withheld three right refinements (docs/e2e.md).
+        track_cell_fraction: in :meth:`track`, the side of a distinct alignment's cell
+            in node sigmas (:meth:`prior_search_size`): 0.25 counts 64x the alignments
+            of 1 sigma cells, so that the EM's optimisation inside a cell gains little.
+            With 0 spent nodes, the track-mode null test (chance LNs of another GN,
+            priors of 5 and 15 m on a random GN ROI) gave no fix and no p_false below
+            0.01 inside the prior (``bench/darces_bench.py tracknull``).
         chernoff_orders: the odds decision bounds the count of chance alignments as good
             as the winner by Chernoff's inequality at these orders s (E[LR^s] from the
             GN's densities) beside Markov's (s = 1), the smallest of them
@@ -230,6 +242,8 @@ class MatchConfig:
     decision: Literal["odds", "counts"] = "odds"
     false_match_rate: float = 1e-2
     chernoff_orders: tuple[float, ...] = (0.5, 0.75)
+    track_spent_nodes: int = 0
+    track_cell_fraction: float = 0.25
     min_side_floor_m: float | None = 3.0
 
     @classmethod
@@ -519,8 +533,10 @@ class Matcher:
         # The prior's 1-sigma spread over the LN: where the EM must start looking.
         spread = float(np.sqrt(predicted_variance(pts, prior.yaw, p).max()))
         fit = self._em_fit(pts, labels, var, prior, max(cfg.anneal_start_m, spread))
-        n_tested = self.prior_search_size(pts, var, p)
-        odds = self.chance.odds(fit.yaw, fit.t, pts, labels, var)
+        # The count of alignments charges the EM's freedom: no node is spent (a triangle
+        # fixes the global search's alignments, not this one's).
+        n_tested = self.prior_search_size(pts, var, p, cfg.track_cell_fraction)
+        odds = self.chance.odds(fit.yaw, fit.t, pts, labels, var, cfg.track_spent_nodes)
         verdict = decide(odds.log_odds, n_tested, [], cfg.false_match_rate,
                          self._log_moments(labels, var))
         fitted = Rigid2D(fit.yaw, fit.t[0], fit.t[1])
@@ -571,8 +587,8 @@ class Matcher:
         return result
 
     @staticmethod
-    def prior_search_size(pts: np.ndarray, var: np.ndarray, prior_covariance: np.ndarray
-                          ) -> float:
+    def prior_search_size(pts: np.ndarray, var: np.ndarray, prior_covariance: np.ndarray,
+                          cell_fraction: float = 1.0) -> float:
         """Distinct alignments of an LN inside a prior's 3-sigma ellipsoid.
 
         The ellipsoid ``d^T P^-1 d <= PRIOR_CHI2`` in (x, y, yaw) has volume
@@ -586,8 +602,9 @@ class Matcher:
             pts: (N, 2) LN positions, ``odom``, metres.
             var: (N,) per-axis position variance of each node, m^2.
             prior_covariance: (3, 3) covariance of the prior's (x, y, yaw).
+            cell_fraction: the cell's side in units of s (finer cells: more alignments).
         """
-        s = float(np.sqrt(np.median(var)))
+        s = cell_fraction * float(np.sqrt(np.median(var)))
         r = max(float(np.sqrt(np.mean(np.sum((pts - pts.mean(axis=0)) ** 2, axis=1)))), s)
         det = max(float(np.linalg.det(prior_covariance)), 0.0)
         volume = 4.0 / 3.0 * np.pi * PRIOR_CHI2**1.5 * np.sqrt(det)

@@ -82,19 +82,22 @@ def test_a_looser_prior_searches_more_alignments(gn, matcher, lns) -> None:
 
 
 def test_track_keeps_the_odds_threshold(gn, lns) -> None:
-    """A prefix of a few nodes: the odds a fix needs grow with the prior's volume, so a
+    """A prefix of three nodes: the odds a fix needs grow with the prior's volume, so a
     tight prior fixes a short LN that a loose one leaves without a fix."""
     matcher = Matcher(gn, MatchConfig())
-    fixed = {}
-    for sigma_m in (0.5, 20.0):
-        count = 0
+    fixed, p_false = {}, {}
+    for sigma_m in (0.5, 60.0):
+        count, ps = 0, []
         for sim in lns:
-            short = ln_prefix(sim, 6)
+            short = ln_prefix(sim, 3)
             prior, cov = _prior(short.map_T_odom, xy(short.records).mean(axis=0),
                                 np.zeros(3), sigma_m, np.radians(0.2))
-            count += matcher.track(short.records, prior, cov).is_fix
-        fixed[sigma_m] = count
-    assert fixed[0.5] > fixed[20.0]
+            result = matcher.track(short.records, prior, cov)
+            count += result.is_fix
+            ps.append(result.false_match_probability)
+        fixed[sigma_m], p_false[sigma_m] = count, np.array(ps)
+    assert fixed[0.5] >= fixed[60.0] + len(lns) // 2
+    assert np.all(p_false[0.5] <= p_false[60.0])
 
 
 def test_track_bad_input(gn, matcher, lns) -> None:

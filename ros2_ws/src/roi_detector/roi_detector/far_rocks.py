@@ -100,7 +100,7 @@ class Blob:
         uv: centroid (pixels).
         box: ``(u0, v0, u1, v1)`` inclusive pixel bounds.
         n_px: pixel count.
-        depth_m: median stereo depth of its pixels (NaN if none).
+        depth_m: median stereo depth of its pixels (blobs with fewer than 3 are dropped).
     """
 
     uv: np.ndarray

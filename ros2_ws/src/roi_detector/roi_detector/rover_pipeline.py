@@ -5,7 +5,9 @@ Two methods (``RoverConfig.method``):
 - ``"elevation_map"`` (default): ``RoverDetector.observe`` turns a stereo pair into its
   3D points and colour; ``DriveMapper.add_pair`` fuses them into the drive's elevation
   map in odom with the pair's odometry pose, where rocks and outcrops are found and kept
-  (:mod:`roi_detector.elevation_map`).
+  (:mod:`roi_detector.elevation_map`). With ``far_rocks`` (off by default) the pair's dark
+  blobs are also tracked and triangulated from the rover's motion, for the rocks beyond
+  the map's reach (:mod:`roi_detector.far_rocks`).
 - ``"per_pair"`` (the paper's): ``observe`` detects and classifies ROIs in the pair
   (base_link); ``add_pair`` places them in odom and tracks them across pairs.
 
