@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -34,34 +35,23 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 def run_bag(bag: str, log=print) -> dict:
     """Far rocks, map rocks and their union on one bag (see the module)."""
+    from roi_detector.cli import build_ln
     from roi_detector.evaluation import match_nodes, true_nodes
-    from roi_detector.inputs import BadInput, load_rover_params, read_stereo_frames
-    from roi_detector.rover_pipeline import (
-        DriveMapper,
-        RoverConfig,
-        RoverDetector,
-        far_rock_records,
-    )
+    from roi_detector.rover_pipeline import DriveMapper, RoverConfig, far_rock_records
     from roi_detector.truth import Truth
     from roi_network.records import ROCK
 
     truth = Truth.load(bag)
-    odom = truth.odom_track()
     cfg = RoverConfig(far_rocks=True)
-    params = load_rover_params(Path(bag) / "rover.yaml")
-    bad = BadInput(lambda m: log(f"{bag}: {m}"))
-    detector = RoverDetector(params["base_to_left_camera"], None, cfg, bad)
     mapper = DriveMapper(cfg)
-    t0, n, t_last = time.perf_counter(), 0, 0.0
-    for frame in read_stereo_frames(bag, bad):
-        t = frame.stamp_ns * 1e-9
-        pose = odom.at(t)
-        if pose is None:
-            continue
-        mapper.add_pair(detector.observe(frame), t, pose, detector.camera)
-        n, t_last = n + 1, t
-    union = mapper.finish(t_last)
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        odom = Path(tmp) / "truth_odom.tum"
+        truth.write_odom_tum(odom)
+        _, stats = build_ln(bag, str(odom), "none", cfg, log=lambda m: log(f"{bag}: {m}"),
+                            mapper=mapper)
     seconds = time.perf_counter() - t0
+    n, union = stats["pairs"], mapper.current_tracks()
     counted = truth.counted() & (truth.rois["label"] == ROCK)
 
     def score(rec: np.ndarray) -> dict:

@@ -66,10 +66,13 @@ def odometry_xy_covariance(track, drift_frac: float) -> np.ndarray:
 
 
 def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | None = None,
-             every: int = 1, drift_frac: float = 0.01, log=print, trace=None) -> tuple:
+             every: int = 1, drift_frac: float = 0.01, log=print, trace=None,
+             mapper: DriveMapper | None = None) -> tuple:
     """Run detection, tracking and the LN over a bag with an odometry file.
 
     ``trace``: set as the elevation map's :attr:`ElevationMap.trace` (diagnostics).
+    ``mapper``: the DriveMapper to fill (built with ``cfg``; default a fresh one), for
+    callers that read its map or far-rock tracks afterwards (benchmarks).
 
     Returns (LocalNetwork, stats dict).
     """
@@ -79,7 +82,7 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
     track.cov = odometry_xy_covariance(track, drift_frac)
     bad = BadInput(lambda m: log(f"roi_detector: {m}"))
     detector = RoverDetector(params["base_to_left_camera"], load_classifier(model), cfg, bad)
-    mapper = DriveMapper(cfg)
+    mapper = mapper if mapper is not None else DriveMapper(cfg)
     mapper.map.trace = trace
     n_pairs = n_dets = 0
     t_detect = 0.0

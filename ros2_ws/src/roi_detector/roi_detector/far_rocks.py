@@ -19,7 +19,9 @@ the view) with the rover's odometry as the stereo baseline.
 - **Tracks** (:class:`FarRockTracker`): a blob joins the track whose rock projects
   nearest to it in the pair's image (within ``gate_px`` plus half the blob), each track
   keeping the odom ray of every view; the rock's position is the weighted least-squares
-  intersection of those rays (3D, weight 1 / range^2: a pixel subtends more at range).
+  intersection of those rays' bearings on the ground plane (across each bearing, the
+  bearing error at its range; along it, the blob's stereo range at its error), its height
+  the median of the rays at that range.
 - **Measurement**: at the triangulated range, per view, width = angular width x range and
   height = range x (tan elevation of the blob's top - tan elevation of its bottom), their
   medians over the views; area = pi/4 width^2 (the footprint seen edge-on is unknown).
@@ -140,7 +142,7 @@ def dark_blobs(bgr: np.ndarray, disp: np.ndarray, camera: StereoCamera,
         if area < cfg.min_blob_px or x0 == 0 or y0 == 0 or x0 + w == bgr.shape[1] or \
                 y0 + h == bgr.shape[0]:
             continue
-        sub = lab[y0:y0 + h:step, x0:x0 + w:step] if step > 1 else lab[y0:y0 + h, x0:x0 + w]
+        sub = lab[y0:y0 + h:step, x0:x0 + w:step]
         d = disp[y0 // step:y0 // step + sub.shape[0], x0 // step:x0 // step + sub.shape[1]]
         d = d[(sub == k) & np.isfinite(d)]
         if d.size < 3:
