@@ -16,6 +16,7 @@ depth) is counted, logged once per kind and skipped; counts are on ``/rois/statu
 from __future__ import annotations
 
 import sys
+import time
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -32,6 +33,7 @@ from roi_detector.rover_pipeline import (
     RoverConfig,
     RoverDetector,
     records_in_view,
+    session_id_base,
 )
 from roi_detector.tracking import TrackerConfig
 from roi_network.pointcloud import to_pointcloud2
@@ -104,6 +106,7 @@ class RoiDetectorNode(Node):
         self.waiting: list = []  # (stamp s, header stamp, PairObservation) awaiting odometry
         self.left_k = self.right_p = None
         self.n_pairs = 0
+        self.id_base = session_id_base(time.time())
         prov = {} if classifier is None else classifier.meta.get("provenance", {})
         self.get_logger().info(f"classifier: {prov.get('command', 'none')}")
 
@@ -191,7 +194,8 @@ class RoiDetectorNode(Node):
                 tracks = self.mapper.add_pair(obs, t, pose, self.detector.camera)
                 seen = obs.records if obs.records is not None else records_in_view(
                     tracks, pose, self.detector.camera, self.mapper.cfg.elevation_map.max_range_m)
-                self.det_pub.publish(to_pointcloud2(seen, "base_link", stamp=header_stamp))
+                self.det_pub.publish(to_pointcloud2(self._session_ids(seen), "base_link",
+                                                    stamp=header_stamp))
                 changed = t
             elif latest is not None and latest > t + self.odometry_wait_s:
                 self.bad("odometry gap", f"no odometry pose at {t:.3f} s")
@@ -202,7 +206,13 @@ class RoiDetectorNode(Node):
         self.waiting = keep
         if changed is not None:
             stamp = round(changed * 1e9)
-            self.track_pub.publish(to_pointcloud2(tracks, "odom", stamp=stamp))
+            self.track_pub.publish(to_pointcloud2(self._session_ids(tracks), "odom", stamp=stamp))
+
+    def _session_ids(self, records: np.ndarray) -> np.ndarray:
+        """The records with this start's id offset added (``session_id_base``)."""
+        out = records.copy()
+        out["id"] += np.uint32(self.id_base)
+        return out
 
     def publish_status(self, stamp) -> None:
         """Pair, track and bad-input counts on /rois/status."""

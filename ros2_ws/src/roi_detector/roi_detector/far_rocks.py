@@ -133,8 +133,7 @@ def dark_blobs(bgr: np.ndarray, disp: np.ndarray, camera: StereoCamera,
     ground_sat = float(np.median(sat[grid][valid]))
     dark = (value < cfg.dark_value * max(ground_value, 1.0)) & \
         (sat < cfg.max_saturation * max(ground_sat, 1.0))
-    dark = dark.astype(np.uint8)
-    n, lab, stats, cents = cv2.connectedComponentsWithStats(dark, connectivity=8)
+    n, lab, stats, cents = cv2.connectedComponentsWithStats(dark.astype(np.uint8), connectivity=8)
     out = []
     for k in range(1, n):
         x0, y0, w, h, area = stats[k]
@@ -142,8 +141,15 @@ def dark_blobs(bgr: np.ndarray, disp: np.ndarray, camera: StereoCamera,
         if area < cfg.min_blob_px or x0 == 0 or y0 == 0 or x0 + w == bgr.shape[1] or \
                 y0 + h == bgr.shape[0]:
             continue
-        sub = lab[y0:y0 + h:step, x0:x0 + w:step]
-        d = disp[y0 // step:y0 // step + sub.shape[0], x0 // step:x0 // step + sub.shape[1]]
+        # The disparity grid's rows and columns inside the blob's box (grid row i is
+        # image row i * step), and the labels at those same image pixels.
+        r0, c0 = -(-y0 // step), -(-x0 // step)
+        r1 = min((y0 + h - 1) // step, disp.shape[0] - 1)
+        c1 = min((x0 + w - 1) // step, disp.shape[1] - 1)
+        if r1 < r0 or c1 < c0:
+            continue
+        sub = lab[r0 * step:r1 * step + 1:step, c0 * step:c1 * step + 1:step]
+        d = disp[r0:r1 + 1, c0:c1 + 1]
         d = d[(sub == k) & np.isfinite(d)]
         if d.size < 3:
             continue

@@ -211,7 +211,16 @@ def detections_to_records(dets: list[Candidate]) -> np.ndarray:
 
 
 #: Far rocks' track ids are offset by this in ROI records (the map's ROIs count from 1).
-FAR_ROCK_ID_BASE = 1_000_000
+FAR_ROCK_ID_BASE = 500_000
+#: The ids of one run of the detector are below this (the map's and the far rocks').
+SESSION_ID_SPAN = 1_000_000
+
+
+def session_id_base(unix_s: float) -> int:
+    """The id offset of a detector node started at ``unix_s``: another one at each start
+    (repeating every 4,000 s, so that ids stay uint32), so that a restarted detector, whose
+    map counts its ROIs from 1 again, never reuses the ids of the ROIs ln_builder holds."""
+    return (int(unix_s) % 4000 + 1) * SESSION_ID_SPAN
 
 
 def far_rock_records(rocks: list[FarRock]) -> np.ndarray:

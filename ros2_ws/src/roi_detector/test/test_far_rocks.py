@@ -151,3 +151,19 @@ def test_the_ln_gets_the_far_rocks_no_map_roi_stands_near():
     off = DriveMapper(RoverConfig())  # far_rocks off (the default): the map's alone
     off.far.measured = [far(2, 30.0, -8.0)]
     assert len(off._map_and_far_records()) == 0
+
+
+def test_dark_blob_reads_the_disparity_of_its_own_rows():
+    """A thin blob starting on an odd image row (off the half-resolution disparity grid)
+    takes its depth from the grid rows inside it, not from the row above."""
+    camera = _camera()
+    img = np.empty((480, 640, 3), np.uint8)
+    img[:] = SOIL
+    img[201:204, 300:340] = ROCK_BGR  # image rows 201-203: grid row 101 (image row 202)
+    disp = np.full((240, 320), camera.fxb / 8.0, np.float32)  # the soil: 8 m
+    disp[100] = camera.fxb / 60.0  # image row 200, above the blob: out of range
+    disp[101] = camera.fxb / 20.0  # image row 202, inside the blob
+    disp[102] = camera.fxb / 60.0  # image row 204, below it
+    blobs = dark_blobs(img, disp, camera)
+    assert len(blobs) == 1
+    assert blobs[0].depth_m == pytest.approx(20.0, rel=1e-3)

@@ -7,7 +7,12 @@ from scipy.spatial.transform import Rotation
 from roi_detector.inputs import BadInput, PoseTrack, decode_image, read_tum, write_tum
 from roi_detector.local_network import LnConfig, LocalNetwork, load_or_fresh
 from roi_detector.rover_candidates import RoverThresholds, measure_region
-from roi_detector.rover_pipeline import observations_in_odom
+from roi_detector.rover_pipeline import (
+    FAR_ROCK_ID_BASE,
+    SESSION_ID_SPAN,
+    observations_in_odom,
+    session_id_base,
+)
 from roi_detector.stereo import StereoCamera, local_ground_height
 from roi_detector.tracking import Observation, Tracker, TrackerConfig, tracks_to_records
 from roi_network.geojson import write_geojson
@@ -159,6 +164,24 @@ def test_ln_takes_confirmed_tracks_and_merges_revisits(tmp_path):
     # The restarted LN keeps its ids: a known track updates its node.
     moved = _tracks([3, 6], [0.0, 10.5])
     assert again.update(moved) and len(again) == 2
+
+
+def test_a_restarted_detector_does_not_reuse_the_ids_the_ln_holds():
+    # Two starts of the detector: each counts its map ROIs from 1, the offsets differ.
+    first, second = session_id_base(1_795_650_000.7), session_id_base(1_795_650_004.2)
+    assert first != second
+    for base in (first, second, session_id_base(3999.0)):
+        top = base + FAR_ROCK_ID_BASE + (SESSION_ID_SPAN - FAR_ROCK_ID_BASE - 1)
+        assert base % SESSION_ID_SPAN == 0 and top < 2**32
+    ln = LocalNetwork(LnConfig(min_obs=3))
+    before = _tracks([3, 3], [0.0, 10.0])
+    before["id"] += np.uint32(first)
+    ln.update(before)
+    # After the restart, ROI 1 of the new map is another rock 3 m from the old ROI 1.
+    after = _tracks([3], [3.0])
+    after["id"] += np.uint32(second)
+    ln.update(after)
+    assert len(ln) == 3 and sorted(ln.records["x"]) == [0.0, 3.0, 10.0]
 
 
 def test_corrupt_saved_ln_is_kept_aside(tmp_path):

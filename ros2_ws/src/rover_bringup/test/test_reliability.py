@@ -16,6 +16,7 @@ import numpy as np
 import psutil
 import pytest
 import yaml
+from scipy.spatial.transform import Rotation
 
 pytestmark = pytest.mark.ros
 
@@ -302,3 +303,102 @@ def test_cut_short_bag_is_salvaged(tmp_path: Path, bagfactory: ModuleType, globl
     # A second salvage into the same place is refused, nothing overwritten.
     result = globloc(['salvage', str(bag_dir), '--out', str(out)])
     assert result.returncode == 1 and 'exists already' in result.stderr
+
+
+@pytest.fixture(scope='module')
+def sim_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A simulator bag (tiny preset, denser rocks so that its short route builds an LN) with
+    the truth catalogue as its GN (the test is about restarts, not the orbital detector)."""
+    import shutil
+
+    from atacama_sim.config import make_config
+    from atacama_sim.generate import generate
+
+    out = tmp_path_factory.mktemp('bags') / 'sim'
+    generate(make_config('tiny', 1, {
+        'rocks': {'major_per_km2': 6000.0, 'cluster_sigma_m': 5.0},
+        'route': {'length_m': 16.0, 'roi_range_m': 6.0, 'rois_target': (4, 10)}}),
+        out, progress=False)
+    shutil.copy(out / 'truth' / 'rois.geojson', out / 'gn.geojson')
+    return out
+
+
+def _bag_time(player_log: Path) -> float:
+    times = [float(line.split('bag time ')[1].split('/')[0])
+             for line in _read(player_log).splitlines() if 'bag time ' in line]
+    return times[-1] if times else 0.0
+
+
+def test_each_node_of_the_real_graph_killed_once(
+    tmp_path: Path, sim_bag: Path, fast_discovery_env: dict[str, str],
+    globloc_cmd: list[str], globloc, sigkill_shm_cleanup: None,
+):
+    """The product graph (package graph and params) on a simulator bag, each node SIGKILLed
+    once mid-run: each is restarted; rover_vo goes on in the same odom frame; ln_builder
+    comes back with the LN it had; the run ends well and nothing is localized falsely."""
+    proc = subprocess.Popen(
+        [*globloc_cmd, 'run', str(sim_bag), '--out', str(tmp_path / 'out'), '--run-id', 'r1',
+         '--rate', '2', '--settle', '1'],
+        env=fast_discovery_env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        start_new_session=True)
+    run_dir = tmp_path / 'out' / 'sim' / 'r1'
+    logs = run_dir / 'logs'
+    # The route loops back near its start at 40 s, then drives away: rover_vo is killed
+    # 4 m from its odom origin, where a new odom frame would show.
+    schedule = [('roi_detector', 24.0), ('ln_builder', 36.0), ('gn_server', 44.0),
+                ('darces_matcher', 52.0), ('rover_vo', 66.0)]
+    ln_nodes_at_kill = 0
+    try:
+        for name, bag_s in schedule:
+            _wait_for(lambda b=bag_s: _bag_time(logs / 'globloc_player.log') >= b
+                      or proc.poll() is not None, 120, f'bag time {bag_s} s')
+            assert proc.poll() is None, proc.communicate()
+            if name == 'rover_vo':
+                assert (run_dir / 'rover_vo_state.json').exists()
+            if name == 'ln_builder' and (run_dir / 'ln.geojson').exists():
+                ln_nodes_at_kill = len(json.loads((run_dir / 'ln.geojson').read_text())
+                                       ['features'])
+            _node_process(psutil.Process(proc.pid), name).send_signal(signal.SIGKILL)
+            _wait_for(lambda n=name: f'[globloc] {n} exited (status -9)' in _read(
+                logs / f'{n}.log') or proc.poll() is not None, 30, f'{name} restarted')
+        _, err = proc.communicate(timeout=180)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGTERM)
+            proc.wait(timeout=30)
+    assert proc.returncode == 0, err
+    report = yaml.safe_load((run_dir / 'run.yaml').read_text())
+    assert report['status'] == 'ok'
+    for node in report['nodes']:
+        assert node['status'] == 'ran' and node['restarts'] == 1, node
+        assert node['restarted_after_exit_codes'] == [-9]
+    for name, _ in schedule:
+        assert 'Traceback' not in _read(logs / f'{name}.log'), name
+
+    # rover_vo resumed its odom frame: no jump back to the origin in the odometry.
+    assert 'resuming the odom frame saved in' in _read(logs / 'rover_vo.log')
+    vo = np.loadtxt(run_dir / 'vo.tum', comments='#', ndmin=2)
+    steps = np.linalg.norm(np.diff(vo[:, 1:3], axis=0), axis=1)
+    assert steps.max() < 2.0, steps.max()
+    truth = np.loadtxt(sim_bag / 'truth' / 'trajectory.tum')
+    p = np.array([np.interp(vo[:, 0], truth[:, 0], truth[:, k]) for k in (1, 2)]).T
+    q0 = [np.interp(vo[0, 0], truth[:, 0], truth[:, k]) for k in (4, 5, 6, 7)]
+    yaw0 = Rotation.from_quat(q0).as_euler('ZYX')[0]
+    c, s = np.cos(yaw0), np.sin(yaw0)
+    in_odom = (p - p[0]) @ np.array([[c, -s], [s, c]])  # truth in the first pose's frame
+    after = vo[:, 0] > truth[0, 0] + 66.0
+    assert after.sum() >= 3
+    err = np.linalg.norm(vo[:, 1:3] - in_odom, axis=1)
+    assert err[after].max() < 2.5, err
+
+    # ln_builder came back with its LN; the LN only grew.
+    final = json.loads((run_dir / 'ln.geojson').read_text())['features']
+    if ln_nodes_at_kill:
+        assert f'{ln_nodes_at_kill} nodes' in _read(logs / 'ln_builder.log')
+    assert len(final) >= ln_nodes_at_kill
+
+    # The run, judged: no false fix through the gaps.
+    result = globloc(['eval', str(run_dir), '--json', '--no-plots'])
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout)
+    assert not summary['localized'] or summary['false_fixes'] == 0, summary

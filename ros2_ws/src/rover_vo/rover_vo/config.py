@@ -94,6 +94,9 @@ class CovarianceOptions:
     propagation_translation_sigma: float = 0.5  #: per metre, when vision is unavailable
     propagation_floor_m: float = 0.05  #: per frame without vision, even with no step
     unseen_rotation_sigma_deg: float = 10.0  #: per frame with neither vision nor gyro
+    #: After a restart (:meth:`VoEstimator.resume`), 1-sigma motion over the gap nobody
+    #: watched, as a fraction of the fastest speed and turn rate seen before it, times the gap.
+    resume_motion_fraction: float = 0.5
 
 
 @dataclass

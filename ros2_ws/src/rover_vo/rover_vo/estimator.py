@@ -26,8 +26,11 @@ from rover_vo.keyframes import Keyframe, make_keyframe
 from rover_vo.motion import estimate_motion, refine_motion
 from rover_vo.propagator import ImuInterval, Propagator
 from rover_vo.rig import RigError, StereoRig, rig_from_camera_info
-from rover_vo.state import OdomState, step_noise, systematic_prior
+from rover_vo.state import N_ERR, OdomState, step_noise, systematic_prior
 from rover_vo.zero_velocity import image_motion_px, is_stationary
+
+#: Layout of :meth:`VoEstimator.snapshot` (a restarted node refuses other layouts).
+SNAPSHOT_VERSION = 1
 
 #: Kinds of bad input counted in /vo/status (``bad_input.<kind>``).
 BAD_INPUT_KINDS = (
@@ -124,6 +127,66 @@ class VoEstimator:
         self.stats = FrameStats()
         self.counts = Counters()
         self._imu_gap_open = False
+        self.max_speed = 0.0  # fastest horizontal speed output so far (m/s)
+        self.max_turn_rate = 0.0  # fastest turn (yaw rate) output so far (rad/s)
+        self._resume: dict[str, Any] | None = None
+
+    # -- restart ----------------------------------------------------------------------------
+    def snapshot(self) -> dict[str, Any] | None:
+        """What a restarted estimator needs to continue this odom frame (JSON-ready): the
+        latest state and covariance, velocity, fastest speed and gyro bias; None before
+        the first pose."""
+        if self.state is None:
+            return None
+        s = self.state
+        snap: dict[str, Any] = {
+            "version": SNAPSHOT_VERSION, "t": s.t, "R": s.R.tolist(), "p": s.p.tolist(),
+            "P": s.P.tolist(), "distance_m": s.distance_m,
+            "linear": [float(v) for v in self.velocity[0]],
+            "angular": [float(v) for v in self.velocity[1]],
+            "max_speed": self.max_speed, "max_turn_rate": self.max_turn_rate,
+            "last_step": [Rotation.from_matrix(self.last_step[0]).as_rotvec().tolist(),
+                          [float(v) for v in self.last_step[1]]],
+        }
+        if self.propagator is not None:
+            snap["gyro_bias"] = self.propagator.bias.tolist()
+            snap["gyro_bias_cov"] = self.propagator.bias_cov.tolist()
+        return snap
+
+    def resume(self, snap: dict[str, Any]) -> None:
+        """Continue the odom frame of a :meth:`snapshot` (the node was restarted): the
+        first pair starts from the saved pose, moved straight on at the saved velocity
+        over the gap, its covariance grown by the motion nobody saw
+        (``covariance.resume_motion_fraction`` of the fastest speed and turn rate seen,
+        times the gap), instead of a new odom frame at the identity (which would tear the
+        LN and the map -> odom estimate built on the old one apart).
+
+        Raises:
+            ValueError: a snapshot of another version or with a missing or bad field.
+        """
+        try:
+            if snap.get("version") != SNAPSHOT_VERSION:
+                raise ValueError(f"version {snap.get('version')!r}, expected "
+                                 f"{SNAPSHOT_VERSION}")
+            parsed = {
+                "t": float(snap["t"]), "R": np.asarray(snap["R"], float).reshape(3, 3),
+                "p": np.asarray(snap["p"], float).reshape(3),
+                "P": np.asarray(snap["P"], float).reshape(N_ERR, N_ERR),
+                "distance_m": float(snap["distance_m"]),
+                "linear": np.asarray(snap["linear"], float).reshape(3),
+                "angular": np.asarray(snap["angular"], float).reshape(3),
+                "max_speed": float(snap["max_speed"]),
+                "max_turn_rate": float(snap["max_turn_rate"]),
+                "last_step": np.asarray(snap["last_step"], float).reshape(2, 3),
+            }
+            if "gyro_bias" in snap:
+                parsed["gyro_bias"] = np.asarray(snap["gyro_bias"], float).reshape(3)
+                parsed["gyro_bias_cov"] = np.asarray(snap["gyro_bias_cov"], float).reshape(3, 3)
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"field {exc}") from None
+        if not all(np.all(np.isfinite(v)) for v in parsed.values()):
+            raise ValueError("non-finite values")
+        self._resume = parsed
 
     # -- input ----------------------------------------------------------------------------
     def bad(self, kind: str, detail: str) -> None:
@@ -225,6 +288,9 @@ class VoEstimator:
             self.propagator.add(t, g, a)
             self.counts.imu += 1
         self._imu_prebuffer = []
+        if self._resume is not None and "gyro_bias" in self._resume:
+            self.propagator.bias = self._resume["gyro_bias"].copy()
+            self.propagator.bias_cov = self._resume["gyro_bias_cov"].copy()
         return True
 
     def _decode(self, pair: _Pair) -> tuple[np.ndarray, np.ndarray] | None:
@@ -306,6 +372,14 @@ class VoEstimator:
 
     def _initialize(self, t: float, image: np.ndarray, left: np.ndarray,
                     right: np.ndarray) -> VoOutput:
+        if self._resume is not None:
+            resumed = self._resumed_state(t)
+            if resumed is not None:
+                self.state = resumed
+                self._new_keyframe(image, left, right)
+                self.last_image = left
+                self.source = "resumed"
+                return VoOutput(self.state.copy(), np.zeros(3), np.zeros(3), "resumed")
         R0 = np.eye(3)
         if self.cfg.imu.use_imu and self.propagator is not None:
             iv = self.propagator.interval(t - 1.0, t)
@@ -318,6 +392,39 @@ class VoEstimator:
         self.last_image = left
         self.source = "initial"
         return VoOutput(self.state.copy(), np.zeros(3), np.zeros(3), "initial")
+
+    def _resumed_state(self, t: float) -> OdomState | None:
+        """The saved state carried over the gap to ``t`` (see :meth:`resume`); None (and
+        a fresh odom frame) when the snapshot is newer than the pair."""
+        snap, self._resume = self._resume, None
+        gap = t - snap["t"]
+        if gap < 0:
+            self._log(logging.WARNING, f"saved state at {snap['t']:.3f} s is newer than the "
+                      f"first pair ({t:.3f} s): not resumed, a new odom frame starts")
+            return None
+        # The rover went on at its last velocity, or stopped, or turned: the prediction holds
+        # the heading and goes straight on, and the covariance takes half the fastest
+        # speed and turn seen so far, times the gap (1 sigma: a rover at full speed or
+        # turning at full rate the whole gap is 2 sigma off).
+        v = snap["linear"]
+        dp = np.array([v[0], v[1], 0.0]) * gap
+        cov = self.cfg.covariance
+        sigma_p = cov.resume_motion_fraction * snap["max_speed"] * gap
+        sigma_yaw = cov.resume_motion_fraction * snap["max_turn_rate"] * gap
+        Q = np.zeros((6, 6))
+        Q[:2, :2] = np.eye(2) * sigma_p**2
+        Q[2, 2] = (0.1 * sigma_p) ** 2
+        Q[5, 5] = min(sigma_yaw, np.pi) ** 2
+        base = OdomState(snap["t"], snap["R"], snap["p"], snap["P"], snap["distance_m"])
+        new = base.compose(t, np.eye(3), dp, Q)
+        self.max_speed, self.max_turn_rate = snap["max_speed"], snap["max_turn_rate"]
+        self.last_step = (Rotation.from_rotvec(snap["last_step"][0]).as_matrix(),
+                          snap["last_step"][1].copy())
+        self._log(logging.WARNING, f"resumed the odom frame of the saved state at "
+                  f"{snap['t']:.3f} s after a {gap:.1f} s gap: moved "
+                  f"{np.linalg.norm(dp):.2f} m at the saved velocity, 1-sigma "
+                  f"{sigma_p:.2f} m and {np.degrees(sigma_yaw):.1f} deg added")
+        return new
 
     def _new_keyframe(self, image: np.ndarray, left: np.ndarray, right: np.ndarray) -> None:
         del image  # the same array as left (kept for when pyramids are passed)
@@ -334,6 +441,9 @@ class VoEstimator:
         if moving:
             self.last_step = (dR, dp)
         self.velocity = (dp / dt, Rotation.from_matrix(dR).as_rotvec() / dt)
+        if moving:
+            self.max_speed = max(self.max_speed, float(np.linalg.norm(self.velocity[0][:2])))
+            self.max_turn_rate = max(self.max_turn_rate, abs(float(self.velocity[1][2])))
         self.state = new
         self.source = source
         return VoOutput(new.copy(), *self.velocity, source)

@@ -26,6 +26,7 @@ from roi_network.spin import run_node
 from rover_vo import messages as m
 from rover_vo.config import VoConfig, config_from_flat, flat_parameters
 from rover_vo.estimator import VoEstimator, VoOutput
+from rover_vo.restart import resume_from_file, save_state
 
 RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -95,6 +96,13 @@ class VoNode(Node):
             levels.get(level, logger.info)(text)
 
         self.estimator = VoEstimator(config, rover, log)
+        self.state_path = self.declare_parameter(
+            "state_path", "", ParameterDescriptor(
+                description="file the estimator's state is saved to after every pose and "
+                            "resumed from on restart (JSON); '' keeps it in memory only")).value
+        if self.state_path and resume_from_file(self.estimator, self.state_path, logger.error):
+            logger.warning(f"resuming the odom frame saved in {self.state_path}")
+        self._save_failed = False
         self.odom_pub = self.create_publisher(Odometry, "/vo/odometry", RELIABLE)
         self.status_pub = self.create_publisher(DiagnosticArray, "/vo/status", RELIABLE)
         for topic in (m.TOPIC_LEFT, m.TOPIC_RIGHT):
@@ -117,6 +125,18 @@ class VoNode(Node):
         for out in outputs:
             self.odom_pub.publish(odometry_message(out, self.odom_frame, self.base_frame))
             self.publish_status(out)
+        if outputs and self.state_path:
+            self.save_state()
+
+    def save_state(self) -> None:
+        """Write the estimator's snapshot to ``state_path`` (what a restart resumes)."""
+        try:
+            save_state(self.state_path, self.estimator.snapshot())
+        except OSError as exc:
+            if not self._save_failed:
+                self.get_logger().error(f"cannot write {self.state_path}: {exc.strerror}: a "
+                                        "restart will start a new odom frame")
+            self._save_failed = True
 
     def publish_status(self, out: VoOutput) -> None:
         """/vo/status: features, stereo matches, inliers, state and bad-input counts."""
@@ -125,7 +145,7 @@ class VoNode(Node):
         status.name = "rover_vo"
         status.hardware_id = "stereo_imu"
         status.level = (DiagnosticStatus.OK if out.source in ("vision", "zero_velocity",
-                                                              "initial")
+                                                              "initial", "resumed")
                         else DiagnosticStatus.WARN)
         status.message = f"{out.source}: {values['inliers']} inliers"
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
