@@ -82,8 +82,8 @@ def test_node_publishes_alignment_and_global_pose(matcher_process):
     gn, domain, proc = matcher_process
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=domain)
+    node = rclpy.create_node("matcher_test_driver", context=ctx)
     try:
-        node = rclpy.create_node("matcher_test_driver", context=ctx)
         executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
         executor.add_node(node)
         got: dict[str, list] = {"alignment": [], "pose": []}
@@ -137,6 +137,9 @@ def test_node_publishes_alignment_and_global_pose(matcher_process):
             assert cov[0, 0] > 0.1 and np.allclose(cov, cov.T)
         assert proc.poll() is None, "matcher node died"
     finally:
+        # Destroyed before the context: a latched LN left alive would reach the next
+        # test's matcher (same domain).
+        node.destroy_node()
         rclpy.shutdown(context=ctx)
 
 
@@ -159,3 +162,58 @@ def test_compose_pose_propagates_alignment_uncertainty():
     # 1e-4 rad^2 yaw variance at 100 m lever arm: 1 m^2 across the lever (map x here).
     assert cov[0, 0] == pytest.approx(1.0) and cov[1, 1] == pytest.approx(0.0, abs=1e-12)
     assert cov[5, 5] == pytest.approx(1e-4)
+
+
+def test_gn_of_another_area_stays_unlocalized_and_says_so(matcher_process):
+    """The rover drives where the GN is not (another area's constellation): the LN grows,
+    no pose and no alignment are published, and /matcher/status says 'not localized'."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+    gn, domain, proc = matcher_process
+    elsewhere = generate_gn(seed=12)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    node = rclpy.create_node("matcher_test_driver", context=ctx)
+    try:
+        executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        got: dict[str, list] = {"alignment": [], "pose": [], "status": []}
+        node.create_subscription(TransformStamped, "/global_alignment",
+                                 got["alignment"].append, LATCHED)
+        node.create_subscription(PoseWithCovarianceStamped, "/global_pose",
+                                 got["pose"].append, 10)
+        status_sub = node.create_subscription(DiagnosticArray, "/matcher/status",
+                                              got["status"].append, 10)
+        ln_pub = node.create_publisher(type(to_pointcloud2(gn.records[:0], "odom")),
+                                       "/local_network", LATCHED)
+        odom_pub = node.create_publisher(Odometry, "/vo/odometry", 10)
+
+        def spin_until(cond, timeout):
+            end = time.monotonic() + timeout
+            while not cond() and time.monotonic() < end and proc.poll() is None:
+                executor.spin_once(timeout_sec=0.05)
+            return cond()
+
+        assert spin_until(lambda: odom_pub.get_subscription_count() > 0
+                          and ln_pub.get_subscription_count() > 0
+                          and status_sub.get_publisher_count() > 0, 15), proc.stdout
+        spin_until(lambda: False, 1.0)  # /matcher/status is volatile: be matched first
+        ln = _local_network(elsewhere, n=24)
+        for k, n in enumerate((8, 16, 24)):
+            ln_pub.publish(to_pointcloud2(ln[:n], "odom", stamp=(2 + k) * 1_000_000_000))
+            odom_pub.publish(_odometry(10.0 * k, 0.0, 0.0, 2 + k))
+            assert spin_until(lambda n=n: any(
+                kv.key == "ln_size" and kv.value == str(n)
+                for m in got["status"] for kv in m.status[0].values), 20), n
+        spin_until(lambda: False, 1.0)
+        assert got["pose"] == [] and got["alignment"] == []
+        last = got["status"][-1].status[0]
+        values = {kv.key: kv.value for kv in last.values}
+        assert last.level == DiagnosticStatus.WARN
+        assert last.message.startswith("not localized") and values["state"] == "searching"
+        assert proc.poll() is None, "matcher node died"
+    finally:
+        # Destroyed before the context: a latched LN left alive would reach the next
+        # test's matcher (same domain).
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)

@@ -32,6 +32,7 @@ import numpy as np
 import yaml
 
 from rover_bringup.errors import GloblocError
+from rover_bringup.gn_check import check_truth_frame
 from rover_bringup.run_outputs import (
     ALIGNMENT,
     EVENTS,
@@ -160,7 +161,8 @@ def load_run(run_dir: Path, bag_dir: Path | None = None) -> RunData:
 
     Raises:
         GloblocError: No such run directory, no /global_pose file and no outputs bag to
-            make it from, no truth trajectory, or an unreadable file (named).
+            make it from, no truth trajectory, a GN in another map frame than the truth,
+            or an unreadable file (named).
     """
     if not run_dir.is_dir():
         raise GloblocError(f'run directory not found: {run_dir}')
@@ -172,6 +174,7 @@ def load_run(run_dir: Path, bag_dir: Path | None = None) -> RunData:
     truth_path = bag_dir / 'truth' / 'trajectory.tum'
     if not truth_path.is_file():
         raise GloblocError(f'no ground truth for this run: {truth_path} not found')
+    check_truth_frame(bag_dir)
     truth = read_tum(truth_path)
     if len(truth) < 2:
         raise GloblocError(f'{truth_path}: fewer than 2 poses')

@@ -26,6 +26,7 @@ import yaml
 
 from rover_bringup.bag import Bag, BagLocation, locate_bag
 from rover_bringup.errors import GloblocError
+from rover_bringup.gn_check import check_gn
 from rover_bringup.graph import (
     Availability,
     Resolved,
@@ -251,7 +252,9 @@ def run(options: RunOptions) -> int:
         GloblocError: Bad bag, graph or params file, or a missing executable (before anything
             is started).
     """
-    prepare_gn_if_missing(locate_bag(options.bag).root)
+    bag_root = locate_bag(options.bag).root
+    prepare_gn_if_missing(bag_root)
+    check_gn(bag_root, _warn)
     plan = _prepare(options)
     run_dir = _new_run_dir(options.out, plan.location, options.run_id)
     variables = {

@@ -112,3 +112,80 @@ def test_bad_graph_file(tmp_path: Path, bagfactory: ModuleType, globloc):
     bagfactory.write_bag(tmp_path / 'bag', bagfactory.BagSpec(duration_s=0.1))
     args = _graph(tmp_path, '{name: x}')
     _one_error_line(globloc(['run', str(tmp_path / 'bag'), *args]), 'nodes[0]')
+
+
+ORIGIN = (403446.0, 7334375.0)
+FAKE_ENTRY = f'{{name: fake_vo, command: [$PYTHON, {HERE / "fake_pipeline_node.py"}]}}'
+
+
+def _orbital(path: Path, crs: str) -> None:
+    """A 400 m x 400 m orbital image whose corner is 200 m west and north of ORIGIN."""
+    import numpy as np
+    import rasterio
+    from rasterio.transform import from_origin
+
+    with rasterio.open(path, 'w', driver='GTiff', width=200, height=200, count=1,
+                       dtype='uint8', crs=crs,
+                       transform=from_origin(ORIGIN[0] - 200, ORIGIN[1] + 200, 2.0, 2.0)) as d:
+        d.write(np.zeros((1, 200, 200), np.uint8))
+
+
+def _gn(path: Path, crs: str, offset_m: float = 0.0) -> None:
+    """A 20-ROI GN (map origin ORIGIN) on a line ``offset_m`` east of the image centre."""
+    import numpy as np
+
+    from roi_network.geojson import write_geojson
+    from roi_network.network import MapFrame, RoiNetwork
+    from roi_network.records import empty_records
+
+    gn = empty_records(20)
+    gn['x'], gn['y'], gn['id'], gn['label'] = offset_m + np.linspace(-50, 50, 20), 0.0, \
+        range(20), 1
+    write_geojson(RoiNetwork(gn, 'map', MapFrame(crs, ORIGIN)), path)
+
+
+def test_run_refuses_a_gn_in_another_crs(tmp_path: Path, bagfactory: ModuleType, globloc):
+    bagfactory.write_bag(tmp_path / 'bag', bagfactory.BagSpec(duration_s=0.1))
+    _orbital(tmp_path / 'bag' / 'orbital.tif', 'EPSG:32719')
+    _gn(tmp_path / 'bag' / 'gn.geojson', 'EPSG:32619')  # UTM 19 north: another map frame
+    args = _graph(tmp_path, FAKE_ENTRY)
+    _one_error_line(globloc(['run', str(tmp_path / 'bag'), *args]),
+                    f'GN {tmp_path / "bag" / "gn.geojson"} is in EPSG:32619',
+                    'orbital image', 'in EPSG:32719', 'orbital_gn prepare')
+    assert not (tmp_path / 'out').exists()  # nothing started, nothing written
+
+
+def test_run_refuses_an_unreadable_gn(tmp_path: Path, bagfactory: ModuleType, globloc):
+    bagfactory.write_bag(tmp_path / 'bag', bagfactory.BagSpec(duration_s=0.1))
+    (tmp_path / 'bag' / 'gn.geojson').write_text('{"type": "FeatureCollection", "feat')
+    args = _graph(tmp_path, FAKE_ENTRY)
+    _one_error_line(globloc(['run', str(tmp_path / 'bag'), *args]),
+                    f'GN {tmp_path / "bag" / "gn.geojson"} cannot be used')
+    assert not (tmp_path / 'out').exists()
+
+
+def test_gn_of_another_area_is_a_warning(tmp_path: Path):
+    from rover_bringup.gn_check import check_gn
+
+    _orbital(tmp_path / 'orbital.tif', 'EPSG:32719')
+    warnings: list[str] = []
+    _gn(tmp_path / 'gn.geojson', 'EPSG:32719')
+    check_gn(tmp_path, warnings.append)
+    assert warnings == []  # the GN lies on the image
+    _gn(tmp_path / 'gn.geojson', 'EPSG:32719', offset_m=5000.0)  # 5 km east of it
+    check_gn(tmp_path, warnings.append)
+    assert len(warnings) == 1 and '20 of 20 ROIs lie outside' in warnings[0]
+    assert 'another area' in warnings[0]
+
+
+def test_eval_refuses_a_gn_in_another_map_frame_than_the_truth(tmp_path: Path):
+    from rover_bringup.errors import GloblocError
+    from rover_bringup.gn_check import check_truth_frame
+
+    (tmp_path / 'truth').mkdir()
+    _gn(tmp_path / 'truth' / 'rois.geojson', 'EPSG:32719')
+    _gn(tmp_path / 'gn.geojson', 'EPSG:32719')
+    check_truth_frame(tmp_path)  # the same frame: nothing to say
+    _gn(tmp_path / 'gn.geojson', 'EPSG:32619')
+    with pytest.raises(GloblocError, match='different map frames'):
+        check_truth_frame(tmp_path)
