@@ -78,29 +78,48 @@ def matcher_process(tmp_path):
         proc.wait(timeout=10)
 
 
+class _Driver:
+    """The test's side of the matcher node: publishers of its inputs, subscribers of its
+    outputs (``got``), on its own context in the node's domain."""
+
+    def __init__(self, gn, domain: int, proc: subprocess.Popen) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        self.proc = proc
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx, domain_id=domain)
+        self.node = rclpy.create_node("matcher_test_driver", context=self.ctx)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.ctx)
+        self.executor.add_node(self.node)
+        self.got: dict[str, list] = {"alignment": [], "pose": [], "status": []}
+        self.node.create_subscription(TransformStamped, "/global_alignment",
+                                      self.got["alignment"].append, LATCHED)
+        self.node.create_subscription(PoseWithCovarianceStamped, "/global_pose",
+                                      self.got["pose"].append, 10)
+        self.status_sub = self.node.create_subscription(DiagnosticArray, "/matcher/status",
+                                                        self.got["status"].append, 10)
+        self.ln_pub = self.node.create_publisher(type(to_pointcloud2(gn.records[:0], "odom")),
+                                                 "/local_network", LATCHED)
+        self.odom_pub = self.node.create_publisher(Odometry, "/vo/odometry", 10)
+
+    def spin_until(self, cond, timeout: float) -> bool:
+        end = time.monotonic() + timeout
+        while not cond() and time.monotonic() < end and self.proc.poll() is None:
+            self.executor.spin_once(timeout_sec=0.05)
+        return cond()
+
+    def close(self) -> None:
+        # The node goes before the context: a latched LN left alive would reach the next
+        # test's matcher (same domain).
+        self.node.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+
+
 def test_node_publishes_alignment_and_global_pose(matcher_process):
     gn, domain, proc = matcher_process
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
-    node = rclpy.create_node("matcher_test_driver", context=ctx)
+    drv = _Driver(gn, domain, proc)
+    got, ln_pub, odom_pub, spin_until = drv.got, drv.ln_pub, drv.odom_pub, drv.spin_until
     try:
-        executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
-        executor.add_node(node)
-        got: dict[str, list] = {"alignment": [], "pose": []}
-        node.create_subscription(TransformStamped, "/global_alignment",
-                                 got["alignment"].append, LATCHED)
-        node.create_subscription(PoseWithCovarianceStamped, "/global_pose",
-                                 got["pose"].append, 10)
-        ln_pub = node.create_publisher(type(to_pointcloud2(gn.records[:0], "odom")),
-                                       "/local_network", LATCHED)
-        odom_pub = node.create_publisher(Odometry, "/vo/odometry", 10)
-
-        def spin_until(cond, timeout):
-            end = time.monotonic() + timeout
-            while not cond() and time.monotonic() < end and proc.poll() is None:
-                executor.spin_once(timeout_sec=0.05)
-            return cond()
-
         # Before any LN: odometry gives no global pose.
         assert spin_until(lambda: odom_pub.get_subscription_count() > 0, 15), proc.stdout
         odom_pub.publish(_odometry(0.0, 0.0, 0.0, 1))
@@ -137,10 +156,7 @@ def test_node_publishes_alignment_and_global_pose(matcher_process):
             assert cov[0, 0] > 0.1 and np.allclose(cov, cov.T)
         assert proc.poll() is None, "matcher node died"
     finally:
-        # Destroyed before the context: a latched LN left alive would reach the next
-        # test's matcher (same domain).
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
+        drv.close()
 
 
 def test_bad_gn_file_is_a_one_line_error(tmp_path):
@@ -167,36 +183,16 @@ def test_compose_pose_propagates_alignment_uncertainty():
 def test_gn_of_another_area_stays_unlocalized_and_says_so(matcher_process):
     """The rover drives where the GN is not (another area's constellation): the LN grows,
     no pose and no alignment are published, and /matcher/status says 'not localized'."""
-    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+    from diagnostic_msgs.msg import DiagnosticStatus
 
     gn, domain, proc = matcher_process
     elsewhere = generate_gn(seed=12)
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
-    node = rclpy.create_node("matcher_test_driver", context=ctx)
+    drv = _Driver(gn, domain, proc)
+    got, ln_pub, odom_pub, spin_until = drv.got, drv.ln_pub, drv.odom_pub, drv.spin_until
     try:
-        executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
-        executor.add_node(node)
-        got: dict[str, list] = {"alignment": [], "pose": [], "status": []}
-        node.create_subscription(TransformStamped, "/global_alignment",
-                                 got["alignment"].append, LATCHED)
-        node.create_subscription(PoseWithCovarianceStamped, "/global_pose",
-                                 got["pose"].append, 10)
-        status_sub = node.create_subscription(DiagnosticArray, "/matcher/status",
-                                              got["status"].append, 10)
-        ln_pub = node.create_publisher(type(to_pointcloud2(gn.records[:0], "odom")),
-                                       "/local_network", LATCHED)
-        odom_pub = node.create_publisher(Odometry, "/vo/odometry", 10)
-
-        def spin_until(cond, timeout):
-            end = time.monotonic() + timeout
-            while not cond() and time.monotonic() < end and proc.poll() is None:
-                executor.spin_once(timeout_sec=0.05)
-            return cond()
-
         assert spin_until(lambda: odom_pub.get_subscription_count() > 0
                           and ln_pub.get_subscription_count() > 0
-                          and status_sub.get_publisher_count() > 0, 15), proc.stdout
+                          and drv.status_sub.get_publisher_count() > 0, 15), proc.stdout
         spin_until(lambda: False, 1.0)  # /matcher/status is volatile: be matched first
         ln = _local_network(elsewhere, n=24)
         for k, n in enumerate((8, 16, 24)):
@@ -213,7 +209,4 @@ def test_gn_of_another_area_stays_unlocalized_and_says_so(matcher_process):
         assert last.message.startswith("not localized") and values["state"] == "searching"
         assert proc.poll() is None, "matcher node died"
     finally:
-        # Destroyed before the context: a latched LN left alive would reach the next
-        # test's matcher (same domain).
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
+        drv.close()

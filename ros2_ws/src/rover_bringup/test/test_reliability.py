@@ -95,6 +95,13 @@ def _start_run(globloc_cmd, tmp_path: Path, bag_dir: Path, env, *extra: str):
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
+def _stop_if_running(proc: subprocess.Popen) -> None:
+    """SIGTERM a run still going (a failed test), and wait for it."""
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=30)
+
+
 def _node_process(root: psutil.Process, name: str) -> psutil.Process:
     for child in root.children(recursive=True):
         try:
@@ -123,9 +130,7 @@ def test_killed_matcher_is_restarted_and_refixes(
         victim.send_signal(signal.SIGKILL)  # dies without cleaning up, as a crash does
         _, err = proc.communicate(timeout=120)
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGTERM)
-            proc.wait(timeout=30)
+        _stop_if_running(proc)
     assert proc.returncode == 0, err
     assert 'globloc: warning: darces_matcher exited (status -9) while running: restarting it ' \
            '(1 of at most 3' in err
@@ -363,9 +368,7 @@ def test_each_node_of_the_real_graph_killed_once(
                 logs / f'{n}.log') or proc.poll() is not None, 30, f'{name} restarted')
         _, err = proc.communicate(timeout=180)
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGTERM)
-            proc.wait(timeout=30)
+        _stop_if_running(proc)
     assert proc.returncode == 0, err
     report = yaml.safe_load((run_dir / 'run.yaml').read_text())
     assert report['status'] == 'ok'
