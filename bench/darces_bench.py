@@ -408,12 +408,16 @@ def null(names: list[str], n_lns: int, seed: int) -> dict[str, Any]:
     return report
 
 
-def tracknull(names: list[str], n_lns: int, seed: int, sigmas: list[float]) -> dict[str, Any]:
+def tracknull(names: list[str], n_lns: int, seed: int, sigmas: list[float],
+              wide_share: float = 0.0, wide_scale: float = 1.0) -> dict[str, Any]:
     """The chance hypothesis for tracking: stressed LNs of each family GN (seed 1) tracked
     on another GN of the same statistics (seed 2) from a prior placed at chance (the LN's
     centroid on a random GN ROI, a random heading) with x-y sigma S and 1 deg of heading.
     Every fix is a false match; the track decision as configured (0 spent nodes, quarter
-    sigma cells) beside its first pass (3 spent nodes, 1 sigma cells)."""
+    sigma cells) beside its first pass (3 spent nodes, 1 sigma cells). With ``wide_share``
+    > 0 the LNs are of mixed precision: that share of their nodes (at random) has its
+    covariance scaled by ``wide_scale`` (far-rock-like nodes beside precise ones); results
+    go to ``darces_tracknull_mixed``."""
     configs = {"darces": MatchConfig(),
                "track_first_pass": MatchConfig(track_spent_nodes=3, track_cell_fraction=1.0)}
     rows = []
@@ -428,13 +432,19 @@ def tracknull(names: list[str], n_lns: int, seed: int, sigmas: list[float]) -> d
             count = 0
             for sim in iter_lns(family_gn(name, seed=1), options, seed=seed, max_lns=n_lns):
                 count += 1
-                pts = xy(sim.records)
+                records = sim.records
+                if wide_share > 0:
+                    records = records.copy()
+                    wide = rng.random(len(records)) < wide_share
+                    for f in ("cov_xx", "cov_xy", "cov_yy"):
+                        records[f][wide] *= wide_scale
+                pts = xy(records)
                 yaw = rng.uniform(-np.pi, np.pi)
                 rot = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
                 t = gxy[rng.integers(len(gxy))] - rot @ pts.mean(axis=0)
                 cov = np.diag([sigma**2, sigma**2, np.radians(1.0) ** 2])
                 for k, m in matchers.items():
-                    r = m.track(sim.records, Rigid2D(yaw, t[0], t[1]), cov, anchor_newest=True)
+                    r = m.track(records, Rigid2D(yaw, t[0], t[1]), cov, anchor_newest=True)
                     p = r.false_match_probability
                     p = 1.0 if not np.isfinite(p) else p
                     tally[k]["fixes"] += r.is_fix
@@ -452,9 +462,14 @@ def tracknull(names: list[str], n_lns: int, seed: int, sigmas: list[float]) -> d
             print(json.dumps(row), flush=True)
     command = (f"python bench/darces_bench.py tracknull --max-lns {n_lns} --seed {seed} "
                f"--gns {','.join(names)} --prior-sigmas {','.join(str(s) for s in sigmas)}")
+    name = "darces_tracknull"
+    if wide_share > 0:
+        command += f" --wide-share {wide_share:g} --wide-scale {wide_scale:g}"
+        name = "darces_tracknull_mixed"
     report = {"mode": "tracknull", "rows": rows, "command": command,
+              "wide_share": wide_share, "wide_scale": wide_scale,
               "accepted_false_match_rate": MatchConfig().false_match_rate}
-    _write_json_atomic(RESULTS / "darces_tracknull.json", report)
+    _write_json_atomic(RESULTS / f"{name}.json", report)
     lines = ["# darces_matcher benchmark: chance LNs tracked from a chance prior", "",
              f"Command: `{command}`. Stressed LNs (30 % outliers, 10 % flips) of each family "
              "GN (seed 1) tracked (`Matcher.track`) on another GN of the same statistics "
@@ -462,7 +477,9 @@ def tracknull(names: list[str], n_lns: int, seed: int, sigmas: list[float]) -> d
              "1 deg heading): every fix would be false. *darces*: the track decision as "
              "configured (no node spent, quarter-sigma cells); *first pass*: 3 nodes spent, "
              "1-sigma cells. p_false < 0.01 outside the prior: fits the EM took outside the "
-             "prior's ellipsoid, refused (`outside_prior`).", "",
+             "prior's ellipsoid, refused (`outside_prior`)."
+             + (f" Mixed precision: {wide_share:.0%} of each LN's nodes, at random, with "
+                f"their covariance scaled {wide_scale:g}x." if wide_share > 0 else ""), "",
              "| GN | S m | LNs | darces: fixes | darces: min p_false inside | darces: < 0.01 "
              "inside / outside | first pass: fixes | first pass: min p_false inside "
              "| first pass: < 0.01 inside / outside |",
@@ -475,7 +492,7 @@ def tracknull(names: list[str], n_lns: int, seed: int, sigmas: list[float]) -> d
             f"| {a['below_0.01_inside_prior']} / {a['below_0.01_outside_prior']} "
             f"| {b['fixes']} | {b['min_false_match_probability_inside_prior']:.3g} "
             f"| {b['below_0.01_inside_prior']} / {b['below_0.01_outside_prior']} |")
-    (RESULTS / "darces_tracknull.md").write_text("\n".join(lines) + "\n")
+    (RESULTS / f"{name}.md").write_text("\n".join(lines) + "\n")
     return report
 
 
@@ -544,6 +561,10 @@ def main() -> None:
     p.add_argument("--max-lns", type=int, default=None, help="cap the LNs (paper/stress)")
     p.add_argument("--prior-sigmas", default="5,15",
                    help="tracknull: x-y sigmas of the chance priors, metres")
+    p.add_argument("--wide-share", type=float, default=0.0,
+                   help="tracknull: share of each LN's nodes given a wider covariance")
+    p.add_argument("--wide-scale", type=float, default=16.0,
+                   help="tracknull: covariance factor of those nodes")
     p.add_argument("--sizes", default="1000,10000,100000,1000000")
     p.add_argument("--scale-lns", type=int, default=100)
     args = p.parse_args()
@@ -573,7 +594,8 @@ def main() -> None:
             firstfix(names, lns, args.seed)
         elif args.mode == "tracknull":
             tracknull(names, lns, args.seed,
-                      [float(v) for v in args.prior_sigmas.split(",")])
+                      [float(v) for v in args.prior_sigmas.split(",")],
+                      args.wide_share, args.wide_scale)
         else:
             null(names, lns, args.seed)
     else:
