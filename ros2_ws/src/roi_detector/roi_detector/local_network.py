@@ -14,12 +14,12 @@ and a fresh LN started.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from roi_network.files import keep_aside
 from roi_network.geojson import GeoJsonFormatError, read_geojson, write_geojson
 from roi_network.network import MapFrame, RoiNetwork
 from roi_network.records import empty_records
@@ -146,8 +146,7 @@ def load_or_fresh(path: str | Path, cfg: LnConfig, report) -> LocalNetwork:
     try:
         return LocalNetwork.load(path, cfg)
     except (GeoJsonFormatError, ValueError, TypeError, KeyError) as exc:
-        aside = path.with_name(f"{path.name}.corrupt-{int(time.time())}")
-        path.replace(aside)
+        aside = keep_aside(path)
         report(f"saved LN {path} is unreadable ({exc}); kept aside as {aside}, "
                "starting a fresh LN")
         return LocalNetwork(cfg)

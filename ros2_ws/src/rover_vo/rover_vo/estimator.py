@@ -134,8 +134,8 @@ class VoEstimator:
     # -- restart ----------------------------------------------------------------------------
     def snapshot(self) -> dict[str, Any] | None:
         """What a restarted estimator needs to continue this odom frame (JSON-ready): the
-        latest state and covariance, velocity, fastest speed and gyro bias; None before
-        the first pose."""
+        latest state and covariance, body velocity, last step, fastest speed and turn rate,
+        gyro bias; None before the first pose."""
         if self.state is None:
             return None
         s = self.state
@@ -143,7 +143,6 @@ class VoEstimator:
             "version": SNAPSHOT_VERSION, "t": s.t, "R": s.R.tolist(), "p": s.p.tolist(),
             "P": s.P.tolist(), "distance_m": s.distance_m,
             "linear": [float(v) for v in self.velocity[0]],
-            "angular": [float(v) for v in self.velocity[1]],
             "max_speed": self.max_speed, "max_turn_rate": self.max_turn_rate,
             "last_step": [Rotation.from_matrix(self.last_step[0]).as_rotvec().tolist(),
                           [float(v) for v in self.last_step[1]]],
@@ -174,7 +173,6 @@ class VoEstimator:
                 "P": np.asarray(snap["P"], float).reshape(N_ERR, N_ERR),
                 "distance_m": float(snap["distance_m"]),
                 "linear": np.asarray(snap["linear"], float).reshape(3),
-                "angular": np.asarray(snap["angular"], float).reshape(3),
                 "max_speed": float(snap["max_speed"]),
                 "max_turn_rate": float(snap["max_turn_rate"]),
                 "last_step": np.asarray(snap["last_step"], float).reshape(2, 3),

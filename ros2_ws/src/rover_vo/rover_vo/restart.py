@@ -11,11 +11,11 @@ the reason reported, and a new odom frame starts.
 from __future__ import annotations
 
 import json
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from roi_network.files import keep_aside
 from rover_vo.estimator import VoEstimator
 from rover_vo.tum import write_atomic
 
@@ -40,9 +40,8 @@ def resume_from_file(estimator: VoEstimator, path: str | Path,
         estimator.resume(json.loads(path.read_text()))
         return True
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, ValueError, AttributeError) as exc:
-        aside = path.with_name(f"{path.name}.corrupt-{int(time.time())}")
         try:
-            path.replace(aside)
+            aside = keep_aside(path)
         except OSError:
             aside = path
         report(f"saved odometry state {path} is unusable ({exc}); kept as {aside}, a new "
