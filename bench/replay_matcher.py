@@ -19,6 +19,10 @@ Evaluation only, after the run: the truth gives each pose's horizontal error, an
 "oracle" alignment (the rigid fit of the whole odometry onto the truth). ``--gn`` replaces
 the GN (e.g. ``BAG_DIR/truth/rois.geojson``, the truth catalogue: what a perfect orbital
 detector would give); ``--cov-scale`` scales the LN nodes' covariance.
+Each LN goes with the odometry covariance its nodes were observed with
+(``darces_matcher.ln_drift.NodeOdometry``, fed as the node feeds it); the variant
+``records_only`` leaves it out (the records' covariance alone, the node before
+2026-11-26).
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from darces_matcher.ln_drift import NodeOdometry
 from darces_matcher.localization import FilterConfig, MapOdomFilter, global_pose, yaw_quaternion
 from darces_matcher.matcher import MatchConfig, Matcher
 from roi_network.geojson import read_geojson
@@ -50,6 +55,10 @@ VARIANTS: dict[str, tuple[dict, bool]] = {
     "absolute": ({"ln_sigma_relative": False}, True),
     "anchor_least": ({"localized_anchor_newest": False}, True),
 }
+#: variants that do not read the odometry covariance each node was observed with
+#: (darces_matcher.ln_drift): the records' covariance alone, as before 2026-11-26
+RECORDS_ONLY = ("records_only",)
+VARIANTS["records_only"] = ({}, True)
 #: chi-square, 2 degrees of freedom, 99.73 % (3 sigma)
 _CHI2_2D_3SIGMA = 11.83
 
@@ -92,6 +101,7 @@ def replay(lns: list, odometry: list, gn, truth_xy: np.ndarray, dist: np.ndarray
     overrides, track = VARIANTS[variant]
     matcher = Matcher(gn, MatchConfig(**overrides))
     filt = MapOdomFilter(FilterConfig())
+    nodes = NodeOdometry()
     gn_xy = xy(gn.records)
     li, last_size, first = 0, 0, None
     errors, chi2, ms, events = [], [], [], {}
@@ -99,16 +109,19 @@ def replay(lns: list, odometry: list, gn, truth_xy: np.ndarray, dist: np.ndarray
         here = np.array([x, y])
         while li < len(lns) and lns[li][0] <= t:
             rec = lns[li][1]
+            nodes.add_ln(lns[li][0], rec["id"], xy(rec))
             li += 1
             if len(rec) <= last_size:
                 continue
+            odom_cov = None if variant in RECORDS_ONLY else nodes.covariances(rec["id"])
             last_size = len(rec)
             t0 = time.perf_counter()
             estimate = filt.alignment if track else None
             if estimate is None:
-                result = matcher.match_or_track(rec)
+                result = matcher.match_or_track(rec, odom_cov=odom_cov)
             else:
-                result = matcher.match_or_track(rec, estimate.map_T_odom, estimate.covariance)
+                result = matcher.match_or_track(rec, estimate.map_T_odom, estimate.covariance,
+                                                odom_cov=odom_cov)
             ms.append(1e3 * (time.perf_counter() - t0))
             event = filt.update(result, xy(rec), gn_xy)
             key = f"{event}:{result.reason}"
@@ -127,6 +140,7 @@ def replay(lns: list, odometry: list, gn, truth_xy: np.ndarray, dist: np.ndarray
                     line += (f"  log-odds {result.log_odds:5.1f}, "
                              f"p_false {result.false_match_probability:.2g}")
                 print(line, file=events_out)
+        nodes.add_odometry(t, cov)
         filt.predict(here, cov)
         if filt.localized:
             pos, _, c = global_pose(filt.alignment, np.array([x, y, 0.0]), yaw_quaternion(yaw),

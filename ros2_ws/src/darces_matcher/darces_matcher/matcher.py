@@ -28,6 +28,7 @@ from darces_matcher.hypotheses import (
     query_triangles,
     triangle_hypotheses,
 )
+from darces_matcher.ln_drift import turn_variance
 from darces_matcher.triplets import control_triplets
 from darces_matcher.vote import (
     associate,
@@ -395,18 +396,22 @@ class Matcher:
         return max(30000, int(0.3 * len(self.index.pts)))
 
     def node_sigma(self, records: np.ndarray, ln_sigma: np.ndarray | None,
-                   anchor_newest: bool = False) -> np.ndarray:
+                   anchor_newest: bool = False,
+                   odom_cov: np.ndarray | None = None) -> np.ndarray:
         """1-sigma position error per axis of each LN node, metres.
 
         From ``ln_sigma`` when given, else from the records' covariance (cov_xx, cov_yy),
         relative to the least uncertain node when ``ln_sigma_relative`` (to the most
-        uncertain one, the newest, with ``anchor_newest``); floored at
-        ``ln_sigma_floor_m``.
+        uncertain one, the newest, with ``anchor_newest``); with ``odom_cov``, the (K, 3,
+        3) odometry (x, y, yaw) covariance each node was observed with, less what the
+        anchor's heading error explains (:func:`~darces_matcher.ln_drift.turn_variance`).
+        Floored at ``ln_sigma_floor_m``.
         """
         if ln_sigma is None:
             var = _records_var(records)
             if self.config.ln_sigma_relative and len(var):
                 floor2 = self.config.ln_sigma_floor_m**2
+                anchor = int(np.argmax(var) if anchor_newest else np.argmin(var))
                 if anchor_newest:
                     # Drift relative to the newest node, which keeps its own detection
                     # error (up to floor^2).
@@ -414,6 +419,10 @@ class Matcher:
                 else:
                     # Never below min(var.min(), floor^2) >= 0: no clip needed.
                     var = var - max(var.min() - floor2, 0.0)
+                if odom_cov is not None:
+                    # The anchor's heading error: the alignment's rotation absorbs it.
+                    var = np.maximum(var - turn_variance(xy(records), odom_cov, anchor),
+                                     min(var.min(), floor2))
             sigma = np.sqrt(var)
         else:
             sigma = np.asarray(ln_sigma, dtype=float).reshape(len(records))
@@ -421,7 +430,7 @@ class Matcher:
 
     def _finite_nodes(
         self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None,
-        anchor_newest: bool = False,
+        anchor_newest: bool = False, odom_cov: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The LN nodes with finite positions: (indices into the input, 1-sigma error per
         axis, (K, 2) positions, class labels)."""
@@ -429,10 +438,12 @@ class Matcher:
         kept = np.flatnonzero(np.isfinite(xy(records)).all(axis=1))
         if ln_sigma is not None:
             ln_sigma = np.asarray(ln_sigma, dtype=float).reshape(len(records))[kept]
+        if odom_cov is not None:
+            odom_cov = np.asarray(odom_cov, dtype=float).reshape(len(records), 3, 3)[kept]
         # The nodes the matcher uses only: an ignored node must not set the least
         # uncertain node of ``ln_sigma_relative``.
         records = records[kept]
-        sigma = self.node_sigma(records, ln_sigma, anchor_newest)
+        sigma = self.node_sigma(records, ln_sigma, anchor_newest, odom_cov)
         self._judged = None
         if anchor_newest and len(records):
             # The newest node: the most uncertain in the odometry's error.
@@ -448,7 +459,7 @@ class Matcher:
 
     def match(
         self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None = None,
-        anchor_newest: bool = False,
+        anchor_newest: bool = False, odom_cov: np.ndarray | None = None,
     ) -> MatchResult:
         """Fit an LN onto the GN.
 
@@ -459,6 +470,10 @@ class Matcher:
                 default: from the records' covariance.
             anchor_newest: the records' covariance is taken relative to the newest node
                 (see ``MatchConfig.localized_anchor_newest``).
+            odom_cov: optional (N, 3, 3) odometry (x, y, yaw) covariance each node was
+                observed with (:class:`~darces_matcher.ln_drift.NodeOdometry`): the
+                records' covariance is then taken relative to the anchor node with its
+                heading error absorbed as well (:meth:`node_sigma`).
 
         Returns:
             The :class:`MatchResult`; never raises on a degenerate LN.
@@ -478,7 +493,7 @@ class Matcher:
         5. the probabilistic refit of a fix (:func:`~darces_matcher.em_refit.em_refit`)
            and the decision again on its alignment (:meth:`_em_refit`).
         """
-        result = self._match_semantic(ln, ln_sigma, anchor_newest)
+        result = self._match_semantic(ln, ln_sigma, anchor_newest, odom_cov)
         if result.is_fix and self.config.probabilistic_refit:
             result = self._em_refit(result)
         return result
@@ -490,6 +505,7 @@ class Matcher:
         prior_covariance: np.ndarray,
         ln_sigma: np.ndarray | None = None,
         anchor_newest: bool = False,
+        odom_cov: np.ndarray | None = None,
     ) -> MatchResult:
         """Fit an LN near a known alignment: localization while driving, after a fix.
 
@@ -510,7 +526,7 @@ class Matcher:
             prior: the current estimate of ``map_T_odom``.
             prior_covariance: (3, 3) covariance of its (x, y, yaw), m^2 and rad^2
                 (:class:`~darces_matcher.localization.MapOdomFilter`'s).
-            ln_sigma, anchor_newest: as in :meth:`match`.
+            ln_sigma, anchor_newest, odom_cov: as in :meth:`match`.
 
         Returns:
             A :class:`MatchResult` with reason ``"ok_tracked"`` on a fix.
@@ -526,7 +542,7 @@ class Matcher:
                 np.linalg.eigvalsh(0.5 * (p + p.T)) > 0.0):
             raise ValueError("Matcher.track: prior_covariance must be a finite, positive "
                              f"definite (3, 3) matrix, got {p.tolist()}")
-        kept, sigma, pts, labels = self._finite_nodes(ln, ln_sigma, anchor_newest)
+        kept, sigma, pts, labels = self._finite_nodes(ln, ln_sigma, anchor_newest, odom_cov)
         if len(kept) < 3:
             return MatchResult("no_fix", "too_few_nodes", timings_ms=_since(t_start, {}))
         var = sigma**2 + cfg.gn_sigma_m**2
@@ -570,6 +586,7 @@ class Matcher:
         prior: Rigid2D | None = None,
         prior_covariance: np.ndarray | None = None,
         ln_sigma: np.ndarray | None = None,
+        odom_cov: np.ndarray | None = None,
     ) -> MatchResult:
         """The global search (:meth:`match`); when it gives no fix and a prior alignment is
         given (the rover is localized), :meth:`track` near it. The darces_matcher node's
@@ -577,11 +594,11 @@ class Matcher:
         (``MatchConfig.localized_anchor_newest``). ``timings_ms["total"]`` covers both;
         ``"search"`` is the global search's share when tracking ran."""
         newest = prior is not None and self.config.localized_anchor_newest
-        result = self.match(ln, ln_sigma, newest)
+        result = self.match(ln, ln_sigma, newest, odom_cov)
         if result.is_fix or prior is None:
             return result
         searched_ms = result.timings_ms.get("total", 0.0)
-        result = self.track(ln, prior, prior_covariance, ln_sigma, newest)
+        result = self.track(ln, prior, prior_covariance, ln_sigma, newest, odom_cov)
         result.timings_ms["search"] = searched_ms
         result.timings_ms["total"] = result.timings_ms.get("total", 0.0) + searched_ms
         return result
@@ -667,11 +684,11 @@ class Matcher:
 
     def _match_semantic(
         self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None,
-        anchor_newest: bool = False,
+        anchor_newest: bool = False, odom_cov: np.ndarray | None = None,
     ) -> MatchResult:
         """The labelled search, the label-blind polish of its fix, or the label-blind
         fallback when it gives none (soft semantics)."""
-        result = self._match(ln, ln_sigma, anchor_newest)
+        result = self._match(ln, ln_sigma, anchor_newest, odom_cov)
         cfg = self.config
         if (result.is_fix and cfg.use_labels and cfg.label_fallback
                 and cfg.polish_label_blind and not cfg.probabilistic_refit):
@@ -686,7 +703,7 @@ class Matcher:
         # again on geometry only, and keep that fix if its inliers mostly agree on class
         # (a class-swapped LN finds its geometric match but fails this check).
         blind = self._blind_matcher()
-        second = blind._match(ln, ln_sigma, anchor_newest)
+        second = blind._match(ln, ln_sigma, anchor_newest, odom_cov)
         for stage, ms in second.timings_ms.items():
             key = "total" if stage == "total" else f"blind_{stage}"
             result.timings_ms[key] = result.timings_ms.get(key, 0.0) + ms
@@ -764,12 +781,13 @@ class Matcher:
         return self._blind
 
     def _match(self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None,
-               anchor_newest: bool = False) -> MatchResult:
+               anchor_newest: bool = False,
+               odom_cov: np.ndarray | None = None) -> MatchResult:
         """One search (labelled or not, as configured); see :meth:`match`."""
         cfg = self.config
         t_start = time.perf_counter()
         timings: dict[str, float] = {}
-        kept, sigma, pts, labels = self._finite_nodes(ln, ln_sigma, anchor_newest)
+        kept, sigma, pts, labels = self._finite_nodes(ln, ln_sigma, anchor_newest, odom_cov)
         if len(kept) < 3:
             return MatchResult("no_fix", "too_few_nodes", timings_ms=_since(t_start, timings))
 

@@ -21,6 +21,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
 
+from darces_matcher.ln_drift import NodeOdometry
 from darces_matcher.localization import (
     ALIGNMENT_EVENTS,
     FilterConfig,
@@ -98,6 +99,8 @@ class MatcherNode(Node):
         self.last_matched_size = 0
         self.last_match_time: float | None = None
         self.last_result: MatchResult | None = None
+        # The odometry covariance each LN node was observed with (its heading error).
+        self.node_odometry = NodeOdometry()
         self.last_event = "none"
 
         self.alignment_pub = self.create_publisher(TransformStamped, "/global_alignment",
@@ -131,6 +134,8 @@ class MatcherNode(Node):
             self.get_logger().error(f"/local_network: {exc}: message ignored")
             return
         now = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        self.node_odometry.add_ln(now, records["id"], xy(records))
+        odom_cov = self.node_odometry.covariances(records["id"])
         grew = len(records) - self.last_matched_size >= self.min_new_nodes
         stale = (self.last_match_time is not None
                  and now - self.last_match_time >= self.max_rematch_period_s)
@@ -138,10 +143,10 @@ class MatcherNode(Node):
             return
         alignment = self.filter.alignment if self.track else None
         if alignment is None:
-            result = self.matcher.match_or_track(records)
+            result = self.matcher.match_or_track(records, odom_cov=odom_cov)
         else:
             result = self.matcher.match_or_track(records, alignment.map_T_odom,
-                                                 alignment.covariance)
+                                                 alignment.covariance, odom_cov=odom_cov)
         self.last_matched_size, self.last_match_time = len(records), now
         self.last_result = result
         try:
@@ -184,6 +189,8 @@ class MatcherNode(Node):
                 "/vo/odometry: non-finite position or invalid orientation: message ignored")
             return
         self.filter.predict(position[:2], np.array(msg.pose.covariance))
+        self.node_odometry.add_odometry(
+            msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec, msg.pose.covariance)
         alignment = self.filter.alignment
         if alignment is None:
             return
