@@ -69,6 +69,10 @@ class MatchConfig:
             ``ln_sigma_floor_m``^2, kept as that node's own detection error) tells the
             nodes apart. No effect on an LN whose first node is precise, nor on an
             explicit ``ln_sigma``.
+        first_fix_judged_at_newest: judge the global search's fit precise
+            (``max_position_sigma_m``) at the LN's newest node, where the rover is, as
+            tracking does, instead of at every node (an experiment, off: replayed in
+            docs/e2e.md).
         localized_anchor_newest: once the rover is localized (:meth:`match_or_track`
             given a prior), take the covariance relative to the LN's most uncertain node
             instead: the newest, the odometry's error growing as the rover drives. Each
@@ -204,6 +208,7 @@ class MatchConfig:
     ln_sigma_floor_m: float = 0.2
     ln_sigma_relative: bool = True
     localized_anchor_newest: bool = True
+    first_fix_judged_at_newest: bool = False
     min_tol_m: float = 1.0
     min_gate_m: float = 2.5
     max_tol_m: float = 30.0
@@ -445,7 +450,7 @@ class Matcher:
         records = records[kept]
         sigma = self.node_sigma(records, ln_sigma, anchor_newest, odom_cov)
         self._judged = None
-        if anchor_newest and len(records):
+        if (anchor_newest or self.config.first_fix_judged_at_newest) and len(records):
             # The newest node: the most uncertain in the odometry's error.
             raw = _records_var(records) if ln_sigma is None else np.nan_to_num(ln_sigma)
             self._judged = np.array([int(np.argmax(raw))])

@@ -203,3 +203,26 @@ def test_once_localized_the_fit_places_the_rover_not_the_ln_start(gn: RoiNetwork
     assert sigma[-1] == pytest.approx(0.2, abs=1e-6)
     assert sigma[0] == pytest.approx(np.sqrt(rec["cov_xx"][-1] - rec["cov_xx"][0] + 0.04),
                                      rel=1e-5)
+
+
+def test_first_fix_judged_at_newest_judges_precision_where_the_rover_is(gn: RoiNetwork) -> None:
+    """``first_fix_judged_at_newest`` (an experiment, off by default): the global search's
+    fit is judged precise by its predicted error at the LN's newest node, not the
+    largest over the LN; the search itself is the same."""
+    from darces_matcher.simulate import SimOptions, iter_lns
+    from darces_matcher.vote import predicted_variance
+
+    every = Matcher(gn)
+    assert not every.config.first_fix_judged_at_newest
+    newest = Matcher(gn, MatchConfig(first_fix_judged_at_newest=True))
+    lower = 0
+    for sim in iter_lns(gn, SimOptions(noise_fraction=0.0), seed=7, max_lns=4):
+        rec, odom, _ = _bent_ln(gn, sim, 1.0)
+        a, b = every.match(rec), newest.match(rec)
+        assert a.is_fix and b.is_fix, (a.reason, b.reason)
+        assert b.map_T_odom.yaw == pytest.approx(a.map_T_odom.yaw)
+        at_rover = np.sqrt(predicted_variance(odom[-1:], b.map_T_odom.yaw, b.covariance).max())
+        assert b.position_sigma_m == pytest.approx(at_rover, rel=1e-6)
+        assert b.position_sigma_m <= a.position_sigma_m + 1e-9
+        lower += b.position_sigma_m < a.position_sigma_m - 1e-6
+    assert lower >= 1
