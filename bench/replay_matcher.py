@@ -54,7 +54,7 @@ VARIANTS: dict[str, tuple[dict, bool]] = {
     "marginal_triplets48": ({"marginal_outliers": True, "n_triplets": 48}, True),
     "absolute": ({"ln_sigma_relative": False}, True),
     "anchor_least": ({"localized_anchor_newest": False}, True),
-    "first_at_newest": ({"first_fix_judged_at_newest": True}, True),
+    "first_at_all": ({"first_fix_judged_at_newest": False}, True),
 }
 #: variants that do not read the odometry covariance each node was observed with
 #: (darces_matcher.ln_drift): the records' covariance alone, as before 2026-11-26

@@ -25,7 +25,8 @@ from roi_network.network import RoiNetwork
 from roi_network.records import xy
 from roi_network.transform import Rigid2D
 
-METHODS = ("darces", "darces_counts", "darces_markov", "darces_original", "kiss_matcher")
+METHODS = ("darces", "darces_counts", "darces_markov", "darces_first_all", "darces_original",
+           "kiss_matcher")
 
 
 class LnMatcher(Protocol):
@@ -102,6 +103,8 @@ def make_method(name: str, gn: RoiNetwork) -> LnMatcher:
         return Matcher(gn, MatchConfig.counts())
     if name == "darces_markov":
         return Matcher(gn, MatchConfig(chernoff_orders=()))
+    if name == "darces_first_all":
+        return Matcher(gn, MatchConfig(first_fix_judged_at_newest=False))
     if name == "darces_original":
         return Matcher(gn, MatchConfig.original())
     if name == "kiss_matcher":

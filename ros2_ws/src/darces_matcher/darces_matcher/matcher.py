@@ -70,9 +70,12 @@ class MatchConfig:
             nodes apart. No effect on an LN whose first node is precise, nor on an
             explicit ``ln_sigma``.
         first_fix_judged_at_newest: judge the global search's fit precise
-            (``max_position_sigma_m``) at the LN's newest node, where the rover is, as
-            tracking does, instead of at every node (an experiment, off: replayed in
-            docs/e2e.md).
+            (``max_position_sigma_m``) at the LN's newest node, where the rover is and
+            where the fix places it, as tracking does, instead of at every node: a long
+            LN's fit may be uncertain at its far end and still place the rover well
+            (atacama_1km seed 2 with far rocks: 1.1 m off at the rover, refused as
+            ``imprecise`` at the far end; docs/e2e.md). False: every node (before
+            2026-11-26; the baselines ``counts()`` and ``original()``).
         localized_anchor_newest: once the rover is localized (:meth:`match_or_track`
             given a prior), take the covariance relative to the LN's most uncertain node
             instead: the newest, the odometry's error growing as the rover drives. Each
@@ -208,7 +211,7 @@ class MatchConfig:
     ln_sigma_floor_m: float = 0.2
     ln_sigma_relative: bool = True
     localized_anchor_newest: bool = True
-    first_fix_judged_at_newest: bool = False
+    first_fix_judged_at_newest: bool = True
     min_tol_m: float = 1.0
     min_gate_m: float = 2.5
     max_tol_m: float = 30.0
@@ -260,7 +263,7 @@ class MatchConfig:
         (the generality baseline)."""
         return replace(cls(decision="counts", min_side_floor_m=None,
                            label_fallback_max_nodes=0, index_mean_density_side=False,
-                           index_neighbours=14),
+                           index_neighbours=14, first_fix_judged_at_newest=False),
                        **overrides)
 
     @classmethod
@@ -270,7 +273,8 @@ class MatchConfig:
         (no probabilistic refit)."""
         return replace(cls(use_orientation=False, use_labels=False,
                            probabilistic_refit=False, decision="counts",
-                           min_side_floor_m=None), **overrides)
+                           min_side_floor_m=None, first_fix_judged_at_newest=False),
+                       **overrides)
 
 
 @dataclass

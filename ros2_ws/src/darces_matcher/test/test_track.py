@@ -206,15 +206,17 @@ def test_once_localized_the_fit_places_the_rover_not_the_ln_start(gn: RoiNetwork
 
 
 def test_first_fix_judged_at_newest_judges_precision_where_the_rover_is(gn: RoiNetwork) -> None:
-    """``first_fix_judged_at_newest`` (an experiment, off by default): the global search's
-    fit is judged precise by its predicted error at the LN's newest node, not the
-    largest over the LN; the search itself is the same."""
+    """``first_fix_judged_at_newest`` (on by default): the global search's fit is judged
+    precise by its predicted error at the LN's newest node, not the largest over the LN
+    (as before, and as the baselines do); the search itself is the same."""
     from darces_matcher.simulate import SimOptions, iter_lns
     from darces_matcher.vote import predicted_variance
 
-    every = Matcher(gn)
-    assert not every.config.first_fix_judged_at_newest
-    newest = Matcher(gn, MatchConfig(first_fix_judged_at_newest=True))
+    every = Matcher(gn, MatchConfig(first_fix_judged_at_newest=False))
+    newest = Matcher(gn)
+    assert newest.config.first_fix_judged_at_newest
+    assert not MatchConfig.counts().first_fix_judged_at_newest
+    assert not MatchConfig.original().first_fix_judged_at_newest
     lower = 0
     for sim in iter_lns(gn, SimOptions(noise_fraction=0.0), seed=7, max_lns=4):
         rec, odom, _ = _bent_ln(gn, sim, 1.0)
