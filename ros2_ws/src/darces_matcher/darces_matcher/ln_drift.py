@@ -37,13 +37,13 @@ import bisect
 import numpy as np
 
 #: (x, y, yaw) rows/columns of a ROS 6x6 pose covariance (x, y, z, roll, pitch, yaw).
-_XY_YAW = [0, 1, 5]
+PLANAR = [0, 1, 5]
 
 
 def planar_covariance(cov6: np.ndarray) -> np.ndarray:
     """The (3, 3) (x, y, yaw) block of a ROS pose covariance (36 values, row-major)."""
     c = np.asarray(cov6, dtype=float).reshape(6, 6)
-    return c[np.ix_(_XY_YAW, _XY_YAW)]
+    return c[np.ix_(PLANAR, PLANAR)]
 
 
 def turn_variance(pts: np.ndarray, odom_cov: np.ndarray, anchor: int) -> np.ndarray:

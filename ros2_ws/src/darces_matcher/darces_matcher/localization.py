@@ -42,6 +42,7 @@ from typing import Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from darces_matcher.ln_drift import PLANAR, planar_covariance
 from darces_matcher.matcher import MatchResult
 from roi_network.transform import Rigid2D, wrap_angle
 
@@ -49,8 +50,6 @@ Event = Literal["first_fix", "refined", "held", "switched", "kept", "none"]
 
 #: Events after which the published alignment changed.
 ALIGNMENT_EVENTS = ("first_fix", "refined", "switched")
-#: Indices of x, y and yaw in a ROS (x, y, z, roll, pitch, yaw) covariance.
-_PLANAR = [0, 1, 5]
 
 
 @dataclass(frozen=True)
@@ -297,8 +296,7 @@ class MapOdomFilter:
         xy = np.asarray(odom_xy, dtype=float)[:2]
         q = None
         if self.config.drift_from_odometry and odom_covariance is not None:
-            cov = np.asarray(odom_covariance, dtype=float).reshape(6, 6)[np.ix_(_PLANAR,
-                                                                                 _PLANAR)]
+            cov = planar_covariance(odom_covariance)
             if self._last_cov is not None:
                 # The growth since the previous pose, without its negative part (a VO whose
                 # covariance shrinks did not undo drift).
@@ -497,6 +495,6 @@ def global_pose(
         since the start, is already in the alignment's), z, roll, pitch from the odometry.
     """
     cov = np.array(odom_covariance, dtype=float).reshape(6, 6)
-    cov[_PLANAR, :] = 0.0
-    cov[:, _PLANAR] = 0.0
+    cov[PLANAR, :] = 0.0
+    cov[:, PLANAR] = 0.0
     return compose_pose(alignment, position, quaternion, cov)

@@ -135,12 +135,12 @@ class MatcherNode(Node):
             return
         now = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         self.node_odometry.add_ln(now, records["id"], xy(records))
-        odom_cov = self.node_odometry.covariances(records["id"])
         grew = len(records) - self.last_matched_size >= self.min_new_nodes
         stale = (self.last_match_time is not None
                  and now - self.last_match_time >= self.max_rematch_period_s)
         if not (grew or stale):
             return
+        odom_cov = self.node_odometry.covariances(records["id"])
         alignment = self.filter.alignment if self.track else None
         if alignment is None:
             result = self.matcher.match_or_track(records, odom_cov=odom_cov)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from darces_matcher.ln_drift import NodeOdometry, planar_covariance, turn_variance
+from darces_matcher.ln_drift import PLANAR, NodeOdometry, planar_covariance, turn_variance
 from darces_matcher.matcher import MatchConfig, Matcher
 from roi_network.network import MapFrame, RoiNetwork
 from roi_network.records import ROCK, empty_records
@@ -15,8 +15,7 @@ from roi_network.records import ROCK, empty_records
 def _cov6(P3: np.ndarray) -> np.ndarray:
     """A ROS 36-value pose covariance holding the (x, y, yaw) block ``P3``."""
     c = np.eye(6) * 1e-6
-    idx = [0, 1, 5]
-    c[np.ix_(idx, idx)] = P3
+    c[np.ix_(PLANAR, PLANAR)] = P3
     return c.ravel()
 
 
