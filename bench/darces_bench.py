@@ -9,8 +9,10 @@ Modes:
             apart, per-LN time (median, p95) and outcome rates.
     generality  the paper protocol (clean and stressed) on every GN of the evaluation
             family (``gn_generator.FAMILY``), the odds decision (``darces``: Chernoff
-            and Markov bounds) beside Markov's bound alone (``darces_markov``) and the
-            fixed counts (``darces_counts``), in one table.
+            and Markov bounds, decided again on the EM's alignment when the hard refit
+            falls short) beside the same decision on the hard refit alone
+            (``darces_hard``, before 2026-11-26) and the fixed counts
+            (``darces_counts``), in one table.
     firstfix    the paper protocol's LNs fed as prefixes, node by node (as the rover
             drives): nodes and distance at the first fix, and whether it is right.
     null    stressed LNs of each family GN against another GN of the same statistics:
@@ -211,7 +213,7 @@ def generality(names: list[str], n_lns: int, stress_lns: int, seed: int,
                methods: list[str] | None = None) -> dict[str, Any]:
     """The paper protocol on every family GN, odds decision (Chernoff and Markov bounds)
     beside fixed counts."""
-    methods = methods or ["darces", "darces_markov", "darces_counts"]
+    methods = methods or ["darces", "darces_hard", "darces_counts"]
     rows = []
     for name in names:
         gn = family_gn(name, seed=1)
@@ -262,6 +264,10 @@ def merge_generality() -> dict[str, Any]:
     return report
 
 
+def _one_decimal(x: float | None) -> str:
+    return "-" if x is None else f"{x:.1f}"
+
+
 def _write_json_atomic(path: Path, report: dict[str, Any]) -> None:
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(report, indent=2) + "\n")
@@ -276,8 +282,10 @@ def _write_generality_md(report: dict[str, Any]) -> None:
         "LNs: paper protocol (600 m..1 km, 1 % drift, 20 % missed; 2 walks per pair at "
         ">= 200 ROIs/km^2, else 16 and fewer nodes, see `family_options`); "
         "stress: 30 % outliers + 10 % label flips. `darces`: the odds decision, chance "
-        "alignments bounded by Chernoff's inequality and Markov's; `markov`: Markov's "
-        "alone; `counts`: the fixed support/margin counts (the matcher before issue 13). "
+        "alignments bounded by Chernoff's inequality and Markov's, decided again on the "
+        "EM's maximum-likelihood alignment when the hard refit falls short; `hard`: the "
+        "decision on the hard refit alone (before 2026-11-26); `counts`: the fixed "
+        "support/margin counts (the matcher before issue 13). "
         "no fix | oracle: abstentions among the LNs the oracle fits within 2 m. "
         f"{report['timing']}.",
         "",
@@ -373,8 +381,9 @@ def firstfix(names: list[str], n_lns: int, seed: int) -> dict[str, Any]:
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(
-            f"| {r['gn']} | {r['method']} | {r['lns']} | {r['fixed']} | {r['nodes_median']} "
-            f"| {r['nodes_p90']} | {r['distance_m_median'] or 0:.0f} "
+            f"| {r['gn']} | {r['method']} | {r['lns']} | {r['fixed']} "
+            f"| {_one_decimal(r['nodes_median'])} | {_one_decimal(r['nodes_p90'])} "
+            f"| {r['distance_m_median'] or 0:.0f} "
             f"| {r['distance_m_p90'] or 0:.0f} | {r['correct_match']} | {r['false_match']} "
             f"| {r['gross']} | {r['never']} |")
     (RESULTS / "darces_firstfix.md").write_text("\n".join(lines) + "\n")
@@ -547,7 +556,7 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=7, help="LN seed (generality, firstfix)")
     p.add_argument("--methods", default=None,
                    help="paper/stress: methods of darces_eval (default: its own); "
-                   "generality: methods (default darces,darces_markov,darces_counts)")
+                   "generality: methods (default darces,darces_hard,darces_counts)")
     p.add_argument("--tag", default="",
                    help="paper/stress: results go to darces_<mode>_<tag>.{json,md}")
     p.add_argument("--merge", action="store_true",

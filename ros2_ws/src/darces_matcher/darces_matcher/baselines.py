@@ -5,6 +5,8 @@
   before the odds decision (:meth:`MatchConfig.counts`).
 * ``darces_markov``: the odds decision with Markov's bound alone on the chance
   alignments (``MatchConfig(chernoff_orders=())``, the odds decision's first pass).
+* ``darces_hard``: the odds decided on the hard refit alone, as before 2026-11-26
+  (``MatchConfig(decide_on_ml=False)``).
 * ``darces_original``: the paper's baseline, the original DARCES: same machinery without
   the orientation and semantic constraints (:meth:`MatchConfig.original`).
 * ``kiss_matcher``: KISS-Matcher 1.0.2 (ROBIN max-clique pruning + graduated
@@ -25,8 +27,8 @@ from roi_network.network import RoiNetwork
 from roi_network.records import xy
 from roi_network.transform import Rigid2D
 
-METHODS = ("darces", "darces_counts", "darces_markov", "darces_first_all", "darces_original",
-           "kiss_matcher")
+METHODS = ("darces", "darces_counts", "darces_markov", "darces_first_all", "darces_hard",
+           "darces_original", "kiss_matcher")
 
 
 class LnMatcher(Protocol):
@@ -105,6 +107,8 @@ def make_method(name: str, gn: RoiNetwork) -> LnMatcher:
         return Matcher(gn, MatchConfig(chernoff_orders=()))
     if name == "darces_first_all":
         return Matcher(gn, MatchConfig(first_fix_judged_at_newest=False))
+    if name == "darces_hard":
+        return Matcher(gn, MatchConfig(decide_on_ml=False))
     if name == "darces_original":
         return Matcher(gn, MatchConfig.original())
     if name == "kiss_matcher":

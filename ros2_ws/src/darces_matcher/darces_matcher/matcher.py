@@ -159,6 +159,12 @@ class MatchConfig:
             ``probabilistic_refit``, whose class prior (``label_confusion``) lets the
             misclassified nodes join the fix softly (with the EM, the polish changed no
             benchmark outcome and cost 0.7 ms per LN under label flips).
+        decide_on_ml: when a search ends without a fix because its best alignment's odds
+            fall short on its hard refit (``insufficient_support``), decide once more on
+            the EM's maximum-likelihood alignment from it (``probabilistic_refit``, odds
+            decision): the alignment a fix would get, whose odds the hard pairs
+            understate where far nodes stand among clustered GN ROIs. Same search size,
+            alternatives and threshold (docs/matcher.md, 2026-11-26).
         probabilistic_refit: refit every fix by EM over soft associations with an
             outlier class (:mod:`~darces_matcher.em_refit`): false detections and
             ambiguous far nodes pull the fit by how likely they are, not fully. The
@@ -243,6 +249,7 @@ class MatchConfig:
     min_label_agreement: float = 0.75
     polish_label_blind: bool = True
     probabilistic_refit: bool = True
+    decide_on_ml: bool = True
     outlier_prior: float = 0.3
     marginal_outliers: bool = False
     label_confusion: float = 0.1
@@ -497,6 +504,8 @@ class Matcher:
            LN (:func:`~darces_matcher.vote.vote`), refit of the distinct best
            (:func:`~darces_matcher.vote.refine`) and the decision on the odds of a
            chance alignment (:func:`~darces_matcher.decision.decide`), until a fix;
+           failing that, the decision once more on the EM's alignment of the winner
+           (:meth:`_decide_on_ml`);
         4. soft semantics: the label-blind search when the labelled one gives no fix
            (:meth:`_match_semantic`);
         5. the probabilistic refit of a fix (:func:`~darces_matcher.em_refit.em_refit`)
@@ -892,7 +901,44 @@ class Matcher:
             if result.is_fix:
                 break
         result.n_hypotheses = len(pool.yaw)
+        if (result.reason == "insufficient_support" and result.map_T_odom is not None
+                and cfg.decide_on_ml and cfg.probabilistic_refit and cfg.decision == "odds"):
+            t0 = time.perf_counter()
+            result = self._decide_on_ml(result, kept, pts, labels, weights)
+            _add(timings, "ml_decision", t0)
         result.timings_ms = _since(t_start, timings)
+        return result
+
+    def _decide_on_ml(self, result: MatchResult, kept: np.ndarray, pts: np.ndarray,
+                      labels: np.ndarray, weights: np.ndarray) -> MatchResult:
+        """The decision again, on the EM's maximum-likelihood alignment from the search's
+        best (``MatchConfig.decide_on_ml``): a fix if its odds pass with the search's size
+        and alternatives, and its spread the precision test."""
+        cfg = self.config
+        var = 1.0 / weights
+        fit = self._em_fit(pts, labels, var, result.map_T_odom, cfg.anneal_start_m)
+        n_tested, alternatives = self._last_search
+        verdict = decide(self.chance.odds(fit.yaw, fit.t, pts, labels, var).log_odds,
+                         n_tested, alternatives, cfg.false_match_rate,
+                         self._log_moments(labels, var))
+        covariance = _em_covariance(pts, var, fit)
+        spread = self._spread(pts, fit.yaw, covariance)
+        if not verdict.accept or result.votes < cfg.min_votes \
+                or spread > cfg.max_position_sigma_m:
+            if verdict.p_false < result.false_match_probability:
+                # Still no fix; the diagnostics are the best odds the decision saw.
+                result.map_T_odom = Rigid2D(fit.yaw, fit.t[0], fit.t[1])
+                result.covariance, result.position_sigma_m = covariance, spread
+                result.log_odds, result.false_match_probability = (verdict.log_odds,
+                                                                   verdict.p_false)
+            return result
+        result.status, result.reason = "fix", "ok"
+        result.map_T_odom = Rigid2D(fit.yaw, fit.t[0], fit.t[1])
+        result.covariance, result.position_sigma_m = covariance, spread
+        result.inliers = np.column_stack([kept[fit.ln], fit.gn]).astype(np.int64)
+        result.support = len(fit.ln)
+        result.margin = result.support - result.runner_up
+        result.log_odds, result.false_match_probability = verdict.log_odds, verdict.p_false
         return result
 
     def _confirmed(

@@ -253,3 +253,30 @@ def test_chernoff_moment_bounds_a_chance_nodes_lr_and_shrinks_the_chance_count()
         false_match_probability(40.0, 1000.0))
     assert false_match_probability(10.0, 1000.0, (), {0.5: 0.0}) == pytest.approx(
         false_match_probability(10.0, 1000.0))
+
+
+def test_decision_on_the_ml_alignment_rescues_right_fixes_only() -> None:
+    # A clustered GN under stress (30 % false nodes, 10 % flipped classes), the family
+    # protocol: where the hard refit's odds fall short, the EM's maximum-likelihood
+    # alignment from it is decided on again (MatchConfig.decide_on_ml). It must only add
+    # right fixes, within the accepted false-match rate, and leave every other LN as is.
+    from darces_matcher.eval_cli import oracle_error
+
+    gn = family_gn("thomas_few", seed=1)
+    pts, labels = xy(gn.records), gn.records["label"]
+    options = SimOptions(min_nodes=9, max_nodes=13, outliers=0.3, label_flips=0.1)
+    ml, hard = Matcher(gn), Matcher(gn, MatchConfig(decide_on_ml=False))
+    rescued = 0
+    for sim in iter_lns(gn, options, seed=7, max_lns=25):
+        a, b = ml.match(sim.records), hard.match(sim.records)
+        if b.is_fix:
+            assert a.is_fix and a.map_T_odom == b.map_T_odom
+            continue
+        if not a.is_fix:
+            assert a.reason == b.reason
+            continue
+        rescued += 1
+        assert b.reason == "insufficient_support"
+        assert a.false_match_probability <= MatchConfig().false_match_rate
+        assert transform_error(a.map_T_odom, sim, pts) <= oracle_error(sim, pts, labels) + 2.0
+    assert rescued >= 1
