@@ -179,9 +179,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--min-obs", type=int, default=3,
                    help="observations (per_pair) or detection rounds in a row "
                    "(elevation_map) that make an LN node")
-    p.add_argument("--far-rocks", action="store_true",
+    p.add_argument("--far-rocks", action=argparse.BooleanOptionalAction,
+                   default=RoverConfig().far_rocks,
                    help="elevation_map: also triangulate rocks beyond the map's stereo range "
-                   "(roi_detector.far_rocks)")
+                   "(roi_detector.far_rocks; default: on)")
     p.add_argument("--drift", type=float, default=0.01,
                    help="odometry 1-sigma error per metre travelled (TUM has no covariance)")
     p.set_defaults(func=_cmd_ln)

@@ -85,8 +85,8 @@ class RoiDetectorNode(Node):
         far_rocks = self.declare_parameter(
             "far_rocks", RoverConfig().far_rocks,
             d(description="elevation_map method: also triangulate dark blobs beyond the "
-              "map's stereo range from the rover's motion (roi_detector.far_rocks; off: "
-              "its precision is low where sub-threshold rocks abound)"),
+              "map's stereo range from the rover's motion (roi_detector.far_rocks; on by "
+              "default: more nodes, earlier and closer fixes, at a lower rock precision)"),
         ).value
         if len(extrinsic) != 7 or not any(extrinsic):
             raise ValueError("parameter 'base_to_left_camera' is not set (pass the bag's "

@@ -148,7 +148,7 @@ def test_the_ln_gets_the_far_rocks_no_map_roi_stands_near():
     mapper.far.measured = [far(1, 10.8, 5.3), far(2, 30.0, -8.0)]
     rec = mapper._map_and_far_records()
     assert sorted(rec["id"]) == [7, FAR_ROCK_ID_BASE + 2]
-    off = DriveMapper(RoverConfig())  # far_rocks off (the default): the map's alone
+    off = DriveMapper(RoverConfig(far_rocks=False))  # far rocks off: the map's alone
     off.far.measured = [far(2, 30.0, -8.0)]
     assert len(off._map_and_far_records()) == 0
 
@@ -167,3 +167,20 @@ def test_dark_blob_reads_the_disparity_of_its_own_rows():
     blobs = dark_blobs(img, disp, camera)
     assert len(blobs) == 1
     assert blobs[0].depth_m == pytest.approx(20.0, rel=1e-3)
+
+
+
+def test_far_rocks_are_on_by_default_and_the_cli_turns_them_off(monkeypatch):
+    """One default (RoverConfig) for the library, the offline CLI and the node;
+    ``roi_detector ln --no-far-rocks`` builds the map's LN alone."""
+    from roi_detector import cli
+    from roi_detector.rover_pipeline import RoverConfig
+
+    assert RoverConfig().far_rocks is True
+    seen = []
+    monkeypatch.setattr(cli, "build_ln", lambda bag, odom, model, cfg, *a, **k:
+                        seen.append(cfg.far_rocks) or (_ for _ in ()).throw(ValueError("stop")))
+    for flags, expected in (([], True), (["--no-far-rocks"], False), (["--far-rocks"], True)):
+        assert cli.main(["ln", "BAG", "--odometry", "o.tum", "--out", "ln.geojson",
+                         *flags]) == 1
+        assert seen[-1] is expected
