@@ -14,12 +14,13 @@ orientation, no class labels).
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
 
-from darces_matcher.decision import ChanceModel, decide
+from darces_matcher.decision import SPENT_NODES, ChanceModel, Verdict, decide
 from darces_matcher.em_refit import EmFit, EmModel, em_refit, gn_density
 from darces_matcher.gn_index import GnIndex
 from darces_matcher.hypotheses import (
@@ -570,9 +571,7 @@ class Matcher:
         # The count of alignments charges the EM's freedom: no node is spent (a triangle
         # fixes the global search's alignments, not this one's).
         n_tested = self.prior_search_size(pts, var, p, cfg.track_cell_fraction)
-        odds = self.chance.odds(fit.yaw, fit.t, pts, labels, var, cfg.track_spent_nodes)
-        verdict = decide(odds.log_odds, n_tested, [], cfg.false_match_rate,
-                         self._log_moments(labels, var))
+        verdict = self._verdict(fit, pts, labels, var, n_tested, [], cfg.track_spent_nodes)
         fitted = Rigid2D(fit.yaw, fit.t[0], fit.t[1])
         d = np.array([fit.t[0] - prior.tx, fit.t[1] - prior.ty,
                       wrap_angle(fit.yaw - prior.yaw)])
@@ -657,6 +656,16 @@ class Matcher:
         return em_refit(model, start.yaw, np.array([start.tx, start.ty]),
                         anneal_start_m=anneal_start_m, iterations=cfg.em_iterations)
 
+    def _verdict(self, fit: EmFit, pts: np.ndarray, labels: np.ndarray, var: np.ndarray,
+                 n_tested: float, alternatives: Sequence[float],
+                 spent: int = SPENT_NODES) -> Verdict:
+        """The odds decision (:func:`~darces_matcher.decision.decide`) on an EM alignment,
+        given the count of alignments examined and the distinct alternatives' log-odds;
+        ``spent``: the largest node terms left out of its odds."""
+        odds = self.chance.odds(fit.yaw, fit.t, pts, labels, var, spent)
+        return decide(odds.log_odds, n_tested, alternatives, self.config.false_match_rate,
+                      self._log_moments(labels, var))
+
     def _em_refit(self, result: MatchResult) -> MatchResult:
         """Maximum-likelihood refit of a fix (EM, :mod:`~darces_matcher.em_refit`).
 
@@ -677,10 +686,7 @@ class Matcher:
         if cfg.decision == "odds":
             # The decision again, on the maximum-likelihood alignment.
             searched = self._blind if result.reason == "ok_label_blind" else self
-            n_tested, alternatives = searched._last_search
-            odds = self.chance.odds(fit.yaw, fit.t, pts, labels, var)
-            verdict = decide(odds.log_odds, n_tested, alternatives, cfg.false_match_rate,
-                             self._log_moments(labels, var))
+            verdict = self._verdict(fit, pts, labels, var, *searched._last_search)
             result.log_odds = verdict.log_odds
             result.false_match_probability = verdict.p_false
             withheld = not verdict.accept
@@ -917,10 +923,7 @@ class Matcher:
         cfg = self.config
         var = 1.0 / weights
         fit = self._em_fit(pts, labels, var, result.map_T_odom, cfg.anneal_start_m)
-        n_tested, alternatives = self._last_search
-        verdict = decide(self.chance.odds(fit.yaw, fit.t, pts, labels, var).log_odds,
-                         n_tested, alternatives, cfg.false_match_rate,
-                         self._log_moments(labels, var))
+        verdict = self._verdict(fit, pts, labels, var, *self._last_search)
         covariance = _em_covariance(pts, var, fit)
         spread = self._spread(pts, fit.yaw, covariance)
         if not verdict.accept or result.votes < cfg.min_votes \

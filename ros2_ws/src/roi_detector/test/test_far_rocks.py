@@ -178,8 +178,12 @@ def test_far_rocks_are_on_by_default_and_the_cli_turns_them_off(monkeypatch):
 
     assert RoverConfig().far_rocks is True
     seen = []
-    monkeypatch.setattr(cli, "build_ln", lambda bag, odom, model, cfg, *a, **k:
-                        seen.append(cfg.far_rocks) or (_ for _ in ()).throw(ValueError("stop")))
+
+    def build_ln(bag, odometry, model, cfg, *args, **kwargs):
+        seen.append(cfg.far_rocks)
+        raise ValueError("stop here")  # the CLI reports it and exits 1
+
+    monkeypatch.setattr(cli, "build_ln", build_ln)
     for flags, expected in (([], True), (["--no-far-rocks"], False), (["--far-rocks"], True)):
         assert cli.main(["ln", "BAG", "--odometry", "o.tum", "--out", "ln.geojson",
                          *flags]) == 1
