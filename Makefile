@@ -91,10 +91,20 @@ orbital-model: training-bags orbital-training-worlds
 	$(RUN_ENV) orbital_gn train $(TRAIN_BAGS) $(ORBITAL_TRAIN_WORLDS) --recipe improved \
 	  --out $(ORBITAL_MODEL_NO_SUN)
 
-# Re-train the rover classifiers (Rock Rover, Outcrop Rover).
+# Re-train the committed rover model: the far rocks' Rock Rover (the default
+# elevation_map method's classifier), on the far-rock candidates of the quick bags of
+# ROVER_TRAIN_SEEDS (a quick bag gives 5-15; about 3 min to generate, 3 min to run each).
+# `roi_detector train ... --method per_pair` trains the paper's per-pair Rock Rover and
+# Outcrop Rover instead (not committed).
 ROVER_MODEL := $(WS)/src/roi_detector/roi_detector/models/rover.npz
-rover-model: training-bags
-	$(RUN_ENV) roi_detector train $(TRAIN_BAGS) --out $(ROVER_MODEL)
+ROVER_TRAIN_SEEDS ?= 101 102 103 104 105 106 107 108 109 110 111 112
+ROVER_TRAIN_BAGS := $(foreach s,$(ROVER_TRAIN_SEEDS),$(TRAIN_DIR)/train_quick_s$(s))
+rover-model: setup
+	@for s in $(ROVER_TRAIN_SEEDS); do \
+	  if [ ! -d "$(TRAIN_DIR)/train_quick_s$$s/rosbag" ]; then \
+	    $(RUN_ENV) atacama_sim generate --preset quick --seed $$s --no-progress \
+	      --out $(TRAIN_DIR)/train_quick_s$$s || exit 1; fi; done
+	$(RUN_ENV) roi_detector train $(ROVER_TRAIN_BAGS) --out $(ROVER_MODEL)
 
 models: orbital-model rover-model
 

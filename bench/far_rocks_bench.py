@@ -2,19 +2,21 @@
 blobs add to the elevation map's rocks, and what their false nodes are.
 
 Per bag, the rover pipeline runs with ``RoverConfig.far_rocks`` on, every pair, the
-truth trajectory as odometry (detection geometry alone), and reports:
+truth trajectory as odometry (detection geometry alone), and the rover model (default:
+the committed one; ``--model none``: the rules alone), and reports:
 
 - far rocks alone (every triangulated rock, near a map ROI or not): nodes, nodes matching
-  a truth rock (DESIGN.md's rule), counted truth rocks they find;
-- the map's rocks alone and the map's with the far rocks it lacks (what the LN gets):
-  rock nodes, true nodes, counted rocks found;
+  a truth rock (DESIGN.md's rule), counted truth rocks they find; for the candidates the
+  rules pass (Sec. 4.2) and for those the far rocks' Rock Rover keeps (Sec. 4.3);
+- the map's rocks alone and the map's with the far rocks it lacks (what the LN gets),
+  rules alone and classified: rock nodes, true nodes, counted rocks found;
 - each false far rock's nearest sub-threshold clutter rock of the simulated world (its
   size), when the bag's world can be rebuilt from its ``world.yaml`` preset and seed.
 
 Evaluation code: reads truth/ and the simulator's world. Usage (repository root, after
 ``source env.sh``)::
 
-    python bench/far_rocks_bench.py bags/quick bags/atacama_1km_s1 [--name NAME]
+    python bench/far_rocks_bench.py bags/quick bags/atacama_1km_s1 [--name NAME] [--model M]
 
 Writes bench/results/far_rocks_NAME.{json,md}.
 """
@@ -33,9 +35,9 @@ import numpy as np
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def run_bag(bag: str, log=print) -> dict:
+def run_bag(bag: str, model: str | None = None, log=print) -> dict:
     """Far rocks, map rocks and their union on one bag (see the module)."""
-    from roi_detector.cli import build_ln
+    from roi_detector.cli import build_ln, load_classifier
     from roi_detector.evaluation import match_nodes, true_nodes
     from roi_detector.rover_pipeline import DriveMapper, RoverConfig, far_rock_records
     from roi_detector.truth import Truth
@@ -43,13 +45,14 @@ def run_bag(bag: str, log=print) -> dict:
 
     truth = Truth.load(bag)
     cfg = RoverConfig(far_rocks=True)
-    mapper = DriveMapper(cfg)
+    classifier = load_classifier(model, cfg)
+    mapper = DriveMapper(cfg, classifier=classifier)
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         odom = Path(tmp) / "truth_odom.tum"
         truth.write_odom_tum(odom)
-        _, stats = build_ln(bag, str(odom), "none", cfg, log=lambda m: log(f"{bag}: {m}"),
-                            mapper=mapper)
+        _, stats = build_ln(bag, str(odom), model, cfg, log=lambda m: log(f"{bag}: {m}"),
+                            mapper=mapper, describe=True)
     seconds = time.perf_counter() - t0
     n, union = stats["pairs"], mapper.current_tracks()
     counted = truth.counted() & (truth.rois["label"] == ROCK)
@@ -64,9 +67,12 @@ def run_bag(bag: str, log=print) -> dict:
 
     far = mapper.far.rocks()
     far_rec = far_rock_records(far)
+    rules = mapper.far.rocks(classified=False)
     report = {"bag": bag, "pairs": n, "seconds": round(seconds, 1),
-              "far_alone": score(far_rec), "map": score(mapper.map.to_records()),
-              "map_and_far": score(union)}
+              "model": None if classifier is None else classifier.meta.get("path"),
+              "far_alone": score(far_rec), "far_rules": score(far_rock_records(rules)),
+              "map": score(mapper.map.to_records()), "map_and_far": score(union),
+              "map_and_far_rules": score(mapper._map_and_far_records(rules))}
     report["false_far"] = _false_far(bag, far, far_rec, truth)
     return report
 
@@ -115,25 +121,36 @@ def _clutter(bag: str) -> np.ndarray | None:
                             c[big, INST["sy"]], c[big, INST["sz"]]])
 
 
+def _totals(reports: list[dict], key: str) -> dict:
+    return {k: sum(r[key][k] for r in reports)
+            for k in ("nodes", "true_nodes", "counted_found", "counted")}
+
+
 def markdown(reports: list[dict], command: str) -> str:
     """The results table."""
+    model = reports[0].get("model") if reports else None
     lines = ["# Far rocks (triangulated dark blobs) beside the elevation map", "",
-             f"Command: `{command}`. Truth odometry, every pair. *far alone*: every "
-             "triangulated far rock; *map*: the elevation map's rocks (the default "
-             "pipeline); *map + far*: with the far rocks no map ROI stands near (what "
-             "the LN gets with `far_rocks` on). Nodes matching a truth rock by "
-             "DESIGN.md's rule / rock nodes; counted: truth rocks above the rover "
-             "thresholds within 15 m of the route.", "",
-             "| bag | far alone: true / nodes | far alone: counted found | map: true / nodes "
-             "| map: counted found | map + far: true / nodes | map + far: counted found |",
-             "|---|---|---|---|---|---|---|"]
+             f"Command: `{command}`. Truth odometry, every pair; rover model: "
+             f"{model or 'none (the rules alone)'}. *far*: every triangulated far rock, "
+             "the candidates the rules pass (*rules*) and those the far rocks' Rock Rover "
+             "keeps (*classified*); *map*: the elevation map's rocks alone; *map + far*: "
+             "with the far rocks no map ROI stands near (what the LN gets with "
+             "`far_rocks` on). Cells: nodes matching a truth rock by DESIGN.md's rule / "
+             "rock nodes, then counted truth rocks found (above the rover thresholds, "
+             "within 15 m of the route) / counted.", "",
+             "| bag | far, rules | far, classified | map | map + far, rules "
+             "| map + far, classified |", "|---|---|---|---|---|---|"]
+
+    def cell(d: dict) -> str:
+        return f"{d['true_nodes']} / {d['nodes']}; {d['counted_found']} / {d['counted']}"
+
+    keys = ("far_rules", "far_alone", "map", "map_and_far_rules", "map_and_far")
     for r in reports:
-        fa, m, u = r["far_alone"], r["map"], r["map_and_far"]
-        lines.append(f"| {Path(r['bag']).name} | {fa['true_nodes']} / {fa['nodes']} | "
-                     f"{fa['counted_found']} / {fa['counted']} | {m['true_nodes']} / "
-                     f"{m['nodes']} | {m['counted_found']} / {m['counted']} | "
-                     f"{u['true_nodes']} / {u['nodes']} | {u['counted_found']} / "
-                     f"{u['counted']} |")
+        lines.append(f"| {Path(r['bag']).name} | " + " | ".join(cell(r[k]) for k in keys)
+                     + " |")
+    if len(reports) > 1:
+        lines.append("| **all** | " + " | ".join(cell(_totals(reports, k)) for k in keys)
+                     + " |")
     lines += ["", "False far rocks and the nearest sub-threshold clutter rock of the world "
               "(size x, size y, height, m):", ""]
     for r in reports:
@@ -150,10 +167,12 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("bags", nargs="+")
     ap.add_argument("--name", default="bags")
+    ap.add_argument("--model", default=None,
+                    help="rover model (.npz; default: the committed one; 'none': rules alone)")
     args = ap.parse_args(argv)
-    reports = [run_bag(b) for b in args.bags]
+    reports = [run_bag(b, args.model) for b in args.bags]
     command = "python bench/far_rocks_bench.py " + " ".join(args.bags) + \
-        f" --name {args.name}"
+        f" --name {args.name}" + (f" --model {args.model}" if args.model else "")
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / f"far_rocks_{args.name}.json").write_text(
         json.dumps({"command": command, "bags": reports}, indent=1) + "\n")

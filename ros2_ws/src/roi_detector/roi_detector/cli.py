@@ -1,6 +1,6 @@
 """``roi_detector``: the rover ROI pipeline offline (same library code as the nodes).
 
-    roi_detector train BAG_DIR... --out models/rover.npz
+    roi_detector train BAG_DIR... --out models/rover.npz [--method per_pair]
     roi_detector ln BAG_DIR --odometry DIR/vo.tum --out DIR/ln.geojson
     roi_detector eval DIR/ln.geojson BAG_DIR [--json OUT] [--plot OUT.png]
     roi_detector truth-odometry BAG_DIR --out DIR/truth_odom.tum   (evaluation helper)
@@ -45,16 +45,32 @@ def _installed_model() -> Path | None:
         return None
 
 
-def load_classifier(path: str | None):
-    """The rover classifiers of ``path`` (or the committed model); None for 'none'."""
-    from roi_detector.rover_classifier import RoverClassifier
+def load_classifier(path: str | None, cfg: RoverConfig | None = None):
+    """The rover model of ``path`` (default: the committed model); None for 'none'.
 
+    The committed model is used by the methods it holds classifiers for (None
+    otherwise); a model named by ``path`` must hold those of ``cfg``'s method.
+
+    Raises:
+        ValueError: an unreadable model, or one without the method's classifiers.
+    """
+    from roi_detector.rover_classifier import RoverClassifier
+    from roi_detector.rover_pipeline import check_model
+
+    cfg = cfg or RoverConfig()
     if path == "none":
         return None
     model = Path(path) if path else _installed_model()
     if model is None:
         return None
-    return RoverClassifier.load(model)
+    clf = RoverClassifier.load(model)
+    try:
+        check_model(clf, cfg)
+    except ValueError:
+        if path:
+            raise
+        return None
+    return clf
 
 
 def odometry_xy_covariance(track, drift_frac: float) -> np.ndarray:
@@ -67,12 +83,14 @@ def odometry_xy_covariance(track, drift_frac: float) -> np.ndarray:
 
 def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | None = None,
              every: int = 1, drift_frac: float = 0.01, log=print, trace=None,
-             mapper: DriveMapper | None = None) -> tuple:
+             mapper: DriveMapper | None = None, describe: bool = False) -> tuple:
     """Run detection, tracking and the LN over a bag with an odometry file.
 
     ``trace``: set as the elevation map's :attr:`ElevationMap.trace` (diagnostics).
-    ``mapper``: the DriveMapper to fill (built with ``cfg``; default a fresh one), for
-    callers that read its map or far-rock tracks afterwards (benchmarks).
+    ``mapper``: the DriveMapper to fill (built with ``cfg`` and the same model; default a
+    fresh one), for callers that read its map or far-rock tracks afterwards (benchmarks,
+    training). ``describe``: the far blobs carry their appearance even without a
+    classifier (training).
 
     Returns (LocalNetwork, stats dict).
     """
@@ -81,8 +99,10 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
     track = read_tum(odometry)
     track.cov = odometry_xy_covariance(track, drift_frac)
     bad = BadInput(lambda m: log(f"roi_detector: {m}"))
-    detector = RoverDetector(params["base_to_left_camera"], load_classifier(model), cfg, bad)
-    mapper = mapper if mapper is not None else DriveMapper(cfg)
+    classifier = load_classifier(model, cfg)
+    detector = RoverDetector(params["base_to_left_camera"], classifier, cfg, bad)
+    detector.describe_blobs |= describe
+    mapper = mapper if mapper is not None else DriveMapper(cfg, classifier=classifier)
     mapper.map.trace = trace
     n_pairs = n_dets = 0
     t_detect = 0.0
@@ -139,9 +159,12 @@ def _cmd_eval(args) -> int:
 
 
 def _cmd_train(args) -> int:
-    from roi_detector.training import train_rover_model
+    from roi_detector.training import train_far_rock_model, train_rover_model
 
-    summary = train_rover_model(args.bags, args.out, every=args.every, k=args.k)
+    if args.method == "per_pair":
+        summary = train_rover_model(args.bags, args.out, every=args.every, k=args.k)
+    else:
+        summary = train_far_rock_model(args.bags, args.out, k=args.k)
     print(json.dumps(summary, indent=2))
     return 0
 
@@ -193,10 +216,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", default=None)
     p.add_argument("--plot", default=None)
     p.set_defaults(func=_cmd_eval)
-    p = sub.add_parser("train", help="train the Rock Rover / Outcrop Rover classifiers")
+    p = sub.add_parser("train", help="train the rover classifiers (Rock Rover, Outcrop Rover)")
     p.add_argument("bags", nargs="+")
     p.add_argument("--out", required=True)
-    p.add_argument("--every", type=int, default=2)
+    p.add_argument("--method", default="elevation_map", choices=METHODS,
+                   help="elevation_map (default): Rock Rover on the far rocks' candidates; "
+                   "per_pair: Rock Rover and Outcrop Rover on every pair's candidates")
+    p.add_argument("--every", type=int, default=2, help="per_pair: use one stereo pair in N")
     p.add_argument("--k", type=int, default=5)
     p.set_defaults(func=_cmd_train)
     p = sub.add_parser("truth-odometry", help="truth trajectory re-expressed in odom (TUM)")

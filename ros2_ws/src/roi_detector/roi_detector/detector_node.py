@@ -93,14 +93,14 @@ class RoiDetectorNode(Node):
                              "rover.yaml as a params file)")
         from roi_detector.cli import load_classifier
 
-        classifier = load_classifier(model or None)
         if method not in METHODS:
             raise ValueError(f"parameter 'method': unknown '{method}' (one of {METHODS})")
         cfg = RoverConfig(method=method, tracker=TrackerConfig(min_obs=int(min_obs)),
                           far_rocks=bool(far_rocks))
+        classifier = load_classifier(model or None, cfg)
         self.bad = BadInput(lambda m: self.get_logger().warning(m))
         self.detector = RoverDetector(extrinsic, classifier, cfg, self.bad)
-        self.mapper = DriveMapper(cfg)
+        self.mapper = DriveMapper(cfg, classifier=classifier)
         self.odometry = OdometryBuffer(self.max_gap_s)
         self.pending_pairs: dict[int, dict[str, CompressedImage]] = {}
         self.waiting: list = []  # (stamp s, header stamp, PairObservation) awaiting odometry

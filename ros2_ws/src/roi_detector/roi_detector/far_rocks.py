@@ -25,22 +25,40 @@ the view) with the rover's odometry as the stereo baseline.
 - **Measurement**: at the triangulated range, per view, width = angular width x range and
   height = range x (tan elevation of the blob's top - tan elevation of its bottom), their
   medians over the views; area = pi/4 width^2 (the footprint seen edge-on is unknown).
-- **A rock** when the views span ``min_parallax_deg`` of bearing, the rays meet within
-  ``max_residual_px`` (a static object: a blob that slides with the view is not one),
-  the rock was seen from at most ``max_nearest_m``, and its height and area pass the
-  paper's rover thresholds.
+- **A candidate** when the views span ``min_parallax_deg`` of bearing, the rays meet
+  within ``max_residual_px`` (a static object: a blob that slides with the view is not
+  one), the rock was seen from at most ``max_nearest_m``, and its height and area pass
+  the paper's rover thresholds (Sec. 4.2).
+- **Classification** (Sec. 4.3): with a classifier, a candidate is a rock when the
+  paper's "Rock Rover" (PCA + kNN, :mod:`roi_detector.rover_classifier`) votes it one,
+  on :func:`far_rock_features`: the paper's appearance features (RGB, HSV, gray, Gabor,
+  weighted entropy) of its blob and the ground ring around it, the median over its
+  views, with the track's geometry.
 
 Pure numpy/OpenCV: no ROS, no truth.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Final
 
 import cv2
 import numpy as np
 
+from roi_detector.candidates import Region
+from roi_detector.features import PAPER_GROUPS, feature_halo_px, feature_names, region_features
+from roi_detector.metrics import weighted_entropy
 from roi_detector.stereo import StereoCamera
+
+#: Weighted-entropy window of a blob's appearance (pixels, full resolution; the rover
+#: metrics' 7 px at half resolution is 14 px here, but a far blob is 12-200 px).
+ENTROPY_SIZE_PX: Final = 7
+#: The track geometry that :func:`far_rock_features` adds to the appearance.
+GEOMETRY_NAMES: Final = ("far_log_width_m", "far_height_m", "far_log_nearest_m",
+                         "far_log_views", "far_parallax_deg", "far_residual_px",
+                         "far_relief", "far_dark_value", "far_dark_saturation")
 
 
 @dataclass(frozen=True)
@@ -73,6 +91,8 @@ class FarRockConfig:
         max_nearest_m: a rock must have been seen from at most this far (at 30 m a
             0.25 m height is 4 pixels).
         merge_m: tracks whose rocks are closer than this are one rock.
+        min_score: with a classifier, a candidate is a rock when the Rock Rover's vote
+            share is above this.
     """
 
     dark_value: float = 0.55
@@ -92,6 +112,7 @@ class FarRockConfig:
     odom_sigma_per_m: float = 0.01
     max_nearest_m: float = 30.0
     merge_m: float = 1.5
+    min_score: float = 0.5
 
 
 @dataclass
@@ -103,16 +124,54 @@ class Blob:
         box: ``(u0, v0, u1, v1)`` inclusive pixel bounds.
         n_px: pixel count.
         depth_m: median stereo depth of its pixels (blobs with fewer than 3 are dropped).
+        appearance: with ``describe``: the paper's appearance features of the blob
+            (:func:`blob_appearance`), then its value and saturation relative to the
+            ground's (2 more entries).
     """
 
     uv: np.ndarray
     box: tuple[int, int, int, int]
     n_px: int
     depth_m: float
+    appearance: np.ndarray | None = field(default=None, repr=False)
+
+
+def far_feature_names() -> tuple[str, ...]:
+    """Names of :func:`far_rock_features`' entries."""
+    return feature_names(PAPER_GROUPS) + GEOMETRY_NAMES
+
+
+def blob_appearance(rgb_u8: np.ndarray, gray_u8: np.ndarray, footprint: np.ndarray,
+                    box: tuple[int, int, int, int]) -> np.ndarray:
+    """The paper's appearance features (RGB, HSV, gray, Gabor, weighted entropy;
+    :func:`roi_detector.features.region_features`) of one blob, against the ring of
+    ground around it, on a crop of the full-resolution image.
+
+    Args:
+        rgb_u8: (H, W, 3) uint8 RGB image.
+        gray_u8: (H, W) uint8 gray of it.
+        footprint: the blob's pixels in its box (bool, ``(v1 - v0 + 1, u1 - u0 + 1)``).
+        box: the blob's ``(u0, v0, u1, v1)`` inclusive bounds.
+    """
+    h, w = gray_u8.shape
+    m = feature_halo_px() + ENTROPY_SIZE_PX
+    u0, v0, u1, v1 = box
+    r0, c0, r1, c1 = max(v0 - m, 0), max(u0 - m, 0), min(v1 + 1 + m, h), min(u1 + 1 + m, w)
+    gray = np.ascontiguousarray(gray_u8[r0:r1, c0:c1])
+    rgb01 = rgb_u8[r0:r1, c0:c1].astype(np.float32) / 255.0
+    foot = np.asarray(footprint, bool)
+    rows, cols = np.nonzero(foot)
+    pos = np.column_stack([cols, rows]).astype(float)
+    cov = np.cov(pos.T) + np.eye(2) / 12 if len(pos) > 1 else np.eye(2) / 12
+    region = Region(float(rows.mean() + v0 - r0), float(cols.mean() + u0 - c0), 0.0,
+                    int(foot.sum()), cov, (v0 - r0, u0 - c0, v1 + 1 - r0, u1 + 1 - c0), 0.0,
+                    0, foot)
+    return region_features(region, rgb01, gray, weighted_entropy(gray, ENTROPY_SIZE_PX),
+                           PAPER_GROUPS)
 
 
 def dark_blobs(bgr: np.ndarray, disp: np.ndarray, camera: StereoCamera,
-               cfg: FarRockConfig = FarRockConfig()) -> list[Blob]:
+               cfg: FarRockConfig = FarRockConfig(), describe: bool = False) -> list[Blob]:
     """Dark blobs of a left image between ``min_depth_m`` and ``max_depth_m`` deep, not
     touching the image border.
 
@@ -121,6 +180,7 @@ def dark_blobs(bgr: np.ndarray, disp: np.ndarray, camera: StereoCamera,
         disp: its disparity (full-resolution pixels) on any integer subsampling of the
             image grid (the pipeline's half-resolution grid), NaN where invalid.
         camera: the stereo model.
+        describe: also compute each blob's appearance (for the classifier).
     """
     hsv = cv2.cvtColor(bgr, cv2.COLOR_BGR2HSV)
     sat, value = hsv[..., 1].astype(np.float32), hsv[..., 2].astype(np.float32)
@@ -135,6 +195,9 @@ def dark_blobs(bgr: np.ndarray, disp: np.ndarray, camera: StereoCamera,
         (sat < cfg.max_saturation * max(ground_sat, 1.0))
     n, lab, stats, cents = cv2.connectedComponentsWithStats(dark.astype(np.uint8), connectivity=8)
     out = []
+    if describe:
+        rgb_u8 = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+        gray_u8 = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
     for k in range(1, n):
         x0, y0, w, h, area = stats[k]
         # Too small, or cut by the image border (its centroid and size are not the rock's).
@@ -156,8 +219,15 @@ def dark_blobs(bgr: np.ndarray, disp: np.ndarray, camera: StereoCamera,
         depth = camera.fxb / float(np.median(d))
         if not cfg.min_depth_m <= depth <= cfg.max_depth_m:
             continue
-        out.append(Blob(np.asarray(cents[k], float), (int(x0), int(y0), int(x0 + w - 1),
-                                                       int(y0 + h - 1)), int(area), depth))
+        blob = Blob(np.asarray(cents[k], float), (int(x0), int(y0), int(x0 + w - 1),
+                                                  int(y0 + h - 1)), int(area), depth)
+        if describe:
+            box = lab[y0:y0 + h, x0:x0 + w] == k
+            blob.appearance = np.concatenate([
+                blob_appearance(rgb_u8, gray_u8, box, blob.box),
+                [float(value[y0:y0 + h, x0:x0 + w][box].mean()) / max(ground_value, 1.0),
+                 float(sat[y0:y0 + h, x0:x0 + w][box].mean()) / max(ground_sat, 1.0)]])
+        out.append(blob)
     return out
 
 
@@ -172,6 +242,7 @@ class _View:
     travelled: float  # odometry path length at the view
     range_m: float  # stereo range of the blob along the ground (NaN: none)
     range_sigma_m: float
+    appearance: np.ndarray | None = None  # the blob's (Blob.appearance)
 
 
 @dataclass
@@ -221,7 +292,10 @@ class FarRock:
         width_m, height_m, area_m2: the rock's size (see the module).
         n_views, parallax_deg, residual_px, nearest_m: what the rock tests
             read.
-        passed: every rock test passed.
+        candidate: every rule of a candidate passed (Sec. 4.2).
+        passed: a candidate, and with a classifier, the Rock Rover voted it a rock.
+        features: :func:`far_rock_features` (None when the blobs carry no appearance).
+        score: the Rock Rover's vote share (NaN: no classifier, or not a candidate).
     """
 
     track_id: int
@@ -235,7 +309,23 @@ class FarRock:
     parallax_deg: float
     residual_px: float
     nearest_m: float
+    candidate: bool
     passed: bool
+    features: np.ndarray | None = field(default=None, repr=False)
+    score: float = float("nan")
+
+
+def far_rock_features(appearance: list[np.ndarray], width_m: float, height_m: float,
+                      nearest_m: float, n_views: int, parallax_deg: float,
+                      residual_px: float) -> np.ndarray:
+    """A far rock's classifier features (:func:`far_feature_names`): the median of its
+    views' blob appearance, then the track's geometry (log width, height, log nearest
+    range, log views, bearing spread, ray residual, height over width) and the blob's
+    relative value and saturation."""
+    app = np.median(np.stack(appearance), axis=0)
+    geo = [np.log(max(width_m, 1e-3)), height_m, np.log(max(nearest_m, 0.1)),
+           np.log(n_views), parallax_deg, residual_px, height_m / max(width_m, 1e-3)]
+    return np.concatenate([app[:-2], geo, app[-2:]]).astype(np.float32)
 
 
 class FarRockTracker:
@@ -246,10 +336,14 @@ class FarRockTracker:
 
     Args:
         cfg: parameters.
+        classifier: the Rock Rover's vote share of (N, F) :func:`far_rock_features`
+            (the blobs must then carry their appearance); None: the rules alone decide.
     """
 
-    def __init__(self, cfg: FarRockConfig = FarRockConfig()) -> None:
+    def __init__(self, cfg: FarRockConfig = FarRockConfig(),
+                 classifier: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
         self.cfg = cfg
+        self.classifier = classifier
         self.tracks: list[FarTrack] = []
         self.measured: list[FarRock] = []
         self._next = 1
@@ -341,14 +435,17 @@ class FarRockTracker:
         sigma = rng * blob.depth_m / camera.fxb * self.cfg.disparity_sigma_px
         return _View(t, centre, centroid, float(np.arccos(np.clip(left @ right, -1, 1))),
                      tan_el(top), tan_el(bottom), self._travelled,
-                     rng if self.cfg.disparity_sigma_px > 0 else np.nan, sigma)
+                     rng if self.cfg.disparity_sigma_px > 0 else np.nan, sigma,
+                     blob.appearance)
 
-    def rocks(self) -> list[FarRock]:
+    def rocks(self, classified: bool = True) -> list[FarRock]:
         """The closed tracks that pass every rock test, one per rock: a rock whose blob
         was followed by several tracks (lost and found again) is the best-viewed of them,
-        the others within ``merge_m`` dropped."""
+        the others within ``merge_m`` dropped. ``classified=False``: the candidates, as
+        if there were no classifier (benchmarks)."""
         kept: list[FarRock] = []
-        for r in sorted((r for r in self.measured if r.passed), key=lambda r: -r.n_views):
+        for r in sorted((r for r in self.measured if (r.passed if classified else r.candidate)),
+                        key=lambda r: -r.n_views):
             if all(np.linalg.norm(r.xy - k.xy) > self.cfg.merge_m for k in kept):
                 kept.append(r)
         return kept
@@ -381,8 +478,19 @@ class FarRockTracker:
         cov = np.linalg.pinv(info) * max(1.0, (residual / cfg.bearing_sigma_px) ** 2)
         span = tr.views[-1].travelled - tr.views[0].travelled
         cov = cov + np.eye(2) * (cfg.odom_sigma_per_m * span) ** 2 + tr.odom_cov
-        passed = bool(spread >= cfg.min_parallax_deg and residual <= cfg.max_residual_px
-                      and height > cfg.min_height_m
-                      and area > cfg.min_area_m2 and rng.min() <= cfg.max_nearest_m)
+        candidate = bool(spread >= cfg.min_parallax_deg and residual <= cfg.max_residual_px
+                         and height > cfg.min_height_m
+                         and area > cfg.min_area_m2 and rng.min() <= cfg.max_nearest_m)
+        app = [v.appearance for v in tr.views if v.appearance is not None]
+        feats = far_rock_features(app, width, height, float(rng.min()), len(tr.views),
+                                  spread, residual) if app else None
+        score, passed = float("nan"), candidate
+        if candidate and self.classifier is not None:
+            if feats is None:
+                raise ValueError("far rocks: a classifier needs the blobs' appearance "
+                                 "(dark_blobs(describe=True))")
+            score = float(self.classifier(feats[None])[0])
+            passed = score > cfg.min_score
         return FarRock(tr.id, tr.point[:2].copy(), float(tr.point[2]), cov, width, height,
-                       area, len(tr.views), spread, residual, float(rng.min()), passed)
+                       area, len(tr.views), spread, residual, float(rng.min()), candidate,
+                       passed, feats, score)

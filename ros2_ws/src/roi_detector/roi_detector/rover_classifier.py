@@ -31,7 +31,11 @@ from roi_detector.rover_candidates import METRIC_SCALE, Candidate
 from roi_network.records import OUTCROP, ROCK
 
 GEOMETRY_NAMES = ("geo_log_area_m2", "geo_height_m", "geo_log_depth_m", "geo_elongation")
+#: The per_pair method's classifiers.
 CLASSIFIER_NAMES = {ROCK: "rock_rover", OUTCROP: "outcrop_rover"}
+#: The elevation_map method's: Rock Rover on the far rocks' candidates
+#: (:func:`roi_detector.far_rocks.far_rock_features`).
+FAR_ROCK_CLASSIFIER = "far_rock_rover"
 
 
 def _region(c: Candidate) -> Region:
@@ -78,10 +82,12 @@ def features_of(left_bgr: np.ndarray, cands: list[Candidate], metrics: dict[str,
 
 
 class RoverClassifier:
-    """Rock Rover and Outcrop Rover, applied to a pair's candidates.
+    """The rover model: Rock Rover and Outcrop Rover on a pair's candidates (per_pair
+    method), and/or Rock Rover on the far rocks' candidates (elevation_map method).
 
-    A candidate is kept when one classifier's vote share is above ``threshold``; its
-    class is the more confident classifier's, its score that vote share.
+    per_pair: a candidate is kept when one classifier's vote share is above
+    ``threshold``; its class is the more confident classifier's, its score that vote
+    share.
     """
 
     def __init__(self, classifiers: dict[str, BinaryClassifier], feature_set: str,
@@ -90,6 +96,20 @@ class RoverClassifier:
         self.feature_set = feature_set
         self.threshold = threshold
         self.meta = meta or {}
+
+    @property
+    def per_pair(self) -> bool:
+        """The model holds the per_pair method's classifiers."""
+        return all(n in self.classifiers for n in CLASSIFIER_NAMES.values())
+
+    @property
+    def far_rocks(self) -> bool:
+        """The model holds the far rocks' Rock Rover."""
+        return FAR_ROCK_CLASSIFIER in self.classifiers
+
+    def far_rock_proba(self, x: np.ndarray) -> np.ndarray:
+        """(N,) Rock Rover vote share of far-rock candidates' features."""
+        return self.classifiers[FAR_ROCK_CLASSIFIER].predict_proba(x)
 
     def classify(self, left_bgr: np.ndarray, cands: list[Candidate],
                  metrics: dict[str, np.ndarray]) -> list[Candidate]:
@@ -115,12 +135,16 @@ class RoverClassifier:
         from roi_detector.classifier import ModelFileError
 
         classifiers, meta = load_classifiers(path)
-        missing = [n for n in CLASSIFIER_NAMES.values() if n not in classifiers]
-        if missing:
-            raise ModelFileError(f"{path}: classifier(s) {missing} missing (not a rover model)")
+        per_pair = [n for n in CLASSIFIER_NAMES.values() if n in classifiers]
+        if FAR_ROCK_CLASSIFIER not in classifiers and len(per_pair) < len(CLASSIFIER_NAMES):
+            raise ModelFileError(
+                f"{path}: not a rover model (holds {sorted(classifiers)}; expected "
+                f"'{FAR_ROCK_CLASSIFIER}' and/or {sorted(CLASSIFIER_NAMES.values())})")
+        if 0 < len(per_pair) < len(CLASSIFIER_NAMES):
+            raise ModelFileError(f"{path}: per_pair classifiers incomplete (holds {per_pair})")
         prov = meta.get("provenance", {})
         return cls(classifiers, prov.get("feature_set", "stereo"),
-                   float(prov.get("threshold", 0.5)), meta)
+                   float(prov.get("threshold", 0.5)), {**meta, "path": str(path)})
 
 
 def train_classifiers(x: np.ndarray, truth_labels: np.ndarray, feature_set: str,

@@ -100,18 +100,26 @@ class RoverDetector:
 
     Args:
         base_to_left_camera: rover.yaml extrinsic ``[x, y, z, qx, qy, qz, qw]``.
-        classifier: the Rock Rover / Outcrop Rover classifiers; None keeps every
-            candidate with its proposed class (score 1).
+        classifier: the rover model (per_pair: Rock Rover / Outcrop Rover; elevation_map:
+            the far rocks' Rock Rover, which needs the blobs' appearance); None keeps
+            every candidate with its proposed class (score 1).
         cfg: pipeline configuration.
         on_bad: bad-input counter, called as ``on_bad(kind, detail)``.
+
+    Raises:
+        ValueError: unknown method, or a model without the method's classifiers.
     """
 
     def __init__(self, base_to_left_camera, classifier: RoverClassifier | None,
                  cfg: RoverConfig = RoverConfig(), on_bad=None) -> None:
         if cfg.method not in METHODS:
             raise ValueError(f"method: unknown '{cfg.method}' (expected one of {METHODS})")
+        check_model(classifier, cfg)
         self.extrinsic = list(base_to_left_camera)
         self.classifier = classifier
+        #: Compute the far blobs' appearance (the far rocks' classifier reads it;
+        #: training sets it without a classifier).
+        self.describe_blobs = classifier is not None
         self.cfg = cfg
         self.on_bad = on_bad or (lambda kind, detail: None)
         self.camera: StereoCamera | None = None
@@ -141,7 +149,8 @@ class RoverDetector:
         points = points_base(disp, camera, self._rays[::2, ::2], st.max_range_m)
         h, w = points.shape[:2]
         small = cv2.resize(frame.left, (w, h), interpolation=cv2.INTER_AREA)
-        blobs = dark_blobs(frame.left, raw, camera, self.cfg.far) if self.cfg.far_rocks \
+        blobs = dark_blobs(frame.left, raw, camera, self.cfg.far,
+                           describe=self.describe_blobs) if self.cfg.far_rocks \
             else None
         return PairObservation(points=points,
                                appearance=appearance(small, np.isfinite(points[..., 2])),
@@ -210,6 +219,19 @@ def detections_to_records(dets: list[Candidate]) -> np.ndarray:
         r["cov_xx"], r["cov_xy"], r["cov_yy"] = cov[0, 0], cov[0, 1], cov[1, 1]
         r["n_obs"] = 1
     return rec
+
+
+def check_model(classifier: RoverClassifier | None, cfg: RoverConfig) -> None:
+    """Raise ValueError when a rover model lacks what ``cfg``'s method runs."""
+    if classifier is None:
+        return
+    where = classifier.meta.get("path", "the rover model")
+    if cfg.method == "per_pair" and not classifier.per_pair:
+        raise ValueError(f"{where}: no Rock Rover / Outcrop Rover for the per_pair method "
+                         "(train them: roi_detector train --method per_pair)")
+    if cfg.method == "elevation_map" and cfg.far_rocks and not classifier.far_rocks:
+        raise ValueError(f"{where}: no far-rock Rock Rover for the elevation_map method "
+                         "(train it: roi_detector train), or run without a model")
 
 
 #: Far rocks' track ids are offset by this in ROI records (the map's ROIs count from 1).
@@ -294,13 +316,24 @@ def observations_in_odom(records_base: np.ndarray, t: float, r_odom_base: np.nda
 
 
 class DriveMapper:
-    """Tracks and Local Network of a drive, fed pair by pair (odom)."""
+    """Tracks and Local Network of a drive, fed pair by pair (odom).
 
-    def __init__(self, cfg: RoverConfig = RoverConfig(), ln: LocalNetwork | None = None) -> None:
+    Args:
+        cfg: pipeline configuration.
+        ln: the LN to extend (default: a new one).
+        classifier: the rover model whose far-rock Rock Rover decides the far rocks'
+            candidates (the pairs' blobs must then carry their appearance: the
+            RoverDetector given the same model); None: the rules alone.
+    """
+
+    def __init__(self, cfg: RoverConfig = RoverConfig(), ln: LocalNetwork | None = None,
+                 classifier: RoverClassifier | None = None) -> None:
         self.cfg = cfg
         self.tracker = Tracker(cfg.tracker)
         self.map = ElevationMap(cfg.elevation_map)
-        self.far = FarRockTracker(cfg.far)
+        far = classifier.far_rock_proba if classifier is not None and classifier.far_rocks \
+            else None
+        self.far = FarRockTracker(cfg.far, far)
         self.ln = ln if ln is not None else LocalNetwork(cfg.ln)
         self._tracks = empty_records(0)
 
@@ -339,15 +372,15 @@ class DriveMapper:
             self._tracks = self._map_and_far_records()
         return self.current_tracks()
 
-    def _map_and_far_records(self) -> np.ndarray:
-        """The map's ROI records, and the far rocks that no map ROI stands near (within
-        ``far.merge_m`` or half its major axis: the map measures what it reaches better
-        than a far view does)."""
+    def _map_and_far_records(self, far_rocks: list[FarRock] | None = None) -> np.ndarray:
+        """The map's ROI records, and the far rocks (default: the tracker's) that no map
+        ROI stands near (within ``far.merge_m`` or half its major axis: the map measures
+        what it reaches better than a far view does)."""
         rec = self.map.to_records()
         if not self.cfg.far_rocks:
             return rec
         near = [(r.xy, max(self.cfg.far.merge_m, 0.5 * r.major_m)) for r in self.map.rois]
-        far = [r for r in self.far.rocks()
+        far = [r for r in (self.far.rocks() if far_rocks is None else far_rocks)
                if all(np.linalg.norm(r.xy - xy) > d for xy, d in near)]
         return np.concatenate([rec, far_rock_records(far)]) if far else rec
 

@@ -1,22 +1,40 @@
 """Training of the rover classifiers on training bags (reads truth: training code only).
 
-Every candidate of every ``every``-th stereo pair is labelled by DESIGN.md's matching
-rule: its base_link centre, placed in map with the truth pose of its pair, matches a
-truth ROI (rois.geojson) within max(1 m, half the truth major axis), and takes that ROI's
-class; otherwise it is a negative for both classifiers.
+Labels follow DESIGN.md's matching rule: a candidate placed in map with the truth poses
+matches a truth ROI (rois.geojson) within max(1 m, half the truth major axis) and takes
+that ROI's class; otherwise it is a negative.
+
+- elevation_map method (default): the far rocks' Rock Rover, on every far-rock candidate
+  of a drive run with the truth trajectory as odometry (:func:`far_rock_samples`).
+- per_pair method: Rock Rover and Outcrop Rover, on every candidate of every
+  ``every``-th stereo pair (:func:`labelled_candidates`).
 """
 
 from __future__ import annotations
 
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
+from roi_detector.classifier import BinaryClassifier, ClassifierConfig
+from roi_detector.far_rocks import far_feature_names
 from roi_detector.inputs import BadInput, load_rover_params, read_stereo_frames
-from roi_detector.rover_classifier import features_of, save_rover_model, train_classifiers
-from roi_detector.rover_pipeline import RoverConfig, RoverDetector
+from roi_detector.rover_classifier import (
+    FAR_ROCK_CLASSIFIER,
+    features_of,
+    save_rover_model,
+    train_classifiers,
+)
+from roi_detector.rover_pipeline import (
+    DriveMapper,
+    RoverConfig,
+    RoverDetector,
+    far_rock_records,
+)
 from roi_detector.truth import Truth, match_to_truth
+from roi_network.records import ROCK
 
 
 def labelled_candidates(bag_dir: str, feature_sets: tuple[str, ...], every: int = 2,
@@ -62,6 +80,50 @@ def train_rover_model(bags: list[str], out: str, every: int = 2, k: int = 5,
     finite = np.isfinite(xa).all(axis=1)
     xa, ya = xa[finite], ya[finite]
     clfs = train_classifiers(xa, ya, feature_set, k=k)
+    summary = {"method": "per_pair", "bags": [str(Path(b).resolve()) for b in bags],
+               "seeds": _seeds(bags),
+               "every": every, "k": k, "feature_set": feature_set, "threshold": 0.5,
+               "samples": len(ya), "rocks": int((ya == 1).sum()),
+               "outcrops": int((ya == 2).sum()), "negatives": int((ya == 0).sum()),
+               "train_s": round(time.perf_counter() - t0, 1),
+               "command": f"roi_detector train {' '.join(bags)} --out {out} --method "
+                          f"per_pair --every {every}"}
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    save_rover_model(out, clfs, summary)
+    return summary
+
+
+def far_rock_samples(bag_dir: str, log=print) -> dict:
+    """Every far-rock candidate of a drive (the rules passed; truth trajectory as the
+    odometry, every pair): its :func:`~roi_detector.far_rocks.far_rock_features`, whether
+    it matches a truth rock, and its position in map.
+
+    Returns:
+        dict with ``x`` (N, F) float32, ``y`` (N,) 0/1, ``xy_map`` (N, 2).
+    """
+    from roi_detector.cli import build_ln
+    from roi_detector.evaluation import match_nodes, true_nodes
+
+    truth = Truth.load(bag_dir)
+    cfg = RoverConfig(far_rocks=True)
+    mapper = DriveMapper(cfg)
+    with tempfile.TemporaryDirectory() as tmp:
+        odom = Path(tmp) / "truth_odom.tum"
+        truth.write_odom_tum(odom)
+        build_ln(bag_dir, str(odom), "none", cfg, log=lambda m: log(f"{bag_dir}: {m}"),
+                 mapper=mapper, describe=True)
+    cands = [r for r in mapper.far.measured if r.candidate and r.features is not None]
+    n_feat = len(far_feature_names())
+    if not cands:
+        return {"x": np.zeros((0, n_feat), np.float32), "y": np.zeros(0, np.uint8),
+                "xy_map": np.zeros((0, 2))}
+    rec = far_rock_records(cands)
+    pts, j = match_nodes(rec, truth)
+    y = true_nodes(rec, truth.rois, j, ROCK).astype(np.uint8)
+    return {"x": np.stack([r.features for r in cands]), "y": y, "xy_map": pts[:, :2]}
+
+
+def _seeds(bags: list[str]) -> list:
     seeds = []
     for bag in bags:
         try:
@@ -71,12 +133,31 @@ def train_rover_model(bags: list[str], out: str, every: int = 2, k: int = 5,
             seeds.append(w.get("seed", w.get("world", {}).get("seed")))
         except Exception:
             seeds.append(None)
-    summary = {"bags": [str(Path(b).resolve()) for b in bags], "seeds": seeds,
-               "every": every, "k": k, "feature_set": feature_set, "threshold": 0.5,
-               "samples": len(ya), "rocks": int((ya == 1).sum()),
-               "outcrops": int((ya == 2).sum()), "negatives": int((ya == 0).sum()),
+    return seeds
+
+
+def train_far_rock_model(bags: list[str], out: str, k: int = 5, log=print) -> dict:
+    """Train the far rocks' Rock Rover (PCA + kNN) on ``bags`` and write it to ``out``."""
+    t0 = time.perf_counter()
+    x, y = [], []
+    for bag in bags:
+        data = far_rock_samples(bag, log)
+        log(f"{bag}: {len(data['y'])} far-rock candidates, {int(data['y'].sum())} rocks")
+        x.append(data["x"])
+        y.append(data["y"])
+    xa, ya = np.concatenate(x), np.concatenate(y)
+    finite = np.isfinite(xa).all(axis=1)
+    xa, ya = xa[finite], ya[finite]
+    if len(np.unique(ya)) < 2:
+        raise ValueError(f"far-rock candidates of {bags}: {len(ya)} samples, not both rocks "
+                         "and non-rocks: nothing to train on")
+    clf = BinaryClassifier(FAR_ROCK_CLASSIFIER, far_feature_names(),
+                           ClassifierConfig(n_components=8, k=k)).fit(xa, ya)
+    summary = {"method": "elevation_map", "bags": [str(Path(b).resolve()) for b in bags],
+               "seeds": _seeds(bags), "k": k, "threshold": RoverConfig().far.min_score,
+               "samples": len(ya), "rocks": int(ya.sum()), "negatives": int((ya == 0).sum()),
                "train_s": round(time.perf_counter() - t0, 1),
-               "command": f"roi_detector train {' '.join(bags)} --out {out} --every {every}"}
+               "command": f"roi_detector train {' '.join(bags)} --out {out}"}
     Path(out).parent.mkdir(parents=True, exist_ok=True)
-    save_rover_model(out, clfs, summary)
+    save_rover_model(out, {FAR_ROCK_CLASSIFIER: clf}, summary)
     return summary

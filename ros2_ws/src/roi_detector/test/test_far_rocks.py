@@ -140,7 +140,7 @@ def test_the_ln_gets_the_far_rocks_no_map_roi_stands_near():
 
     def far(i, x, y):
         return FarRock(i, np.array([x, y]), 0.3, np.eye(2) * 0.04, 1.2, 0.5, 1.13, 20, 10.0,
-                       0.5, 15.0, True)
+                       0.5, 15.0, True, True)
 
     mapper = DriveMapper(RoverConfig(far_rocks=True))
     mapper.map.rois = [MapRoi(7, ROCK, np.array([10.0, 5.0]), 0.2, 1.5, 0.6, 1.6, 1.2, 0.0,
@@ -188,3 +188,61 @@ def test_far_rocks_are_on_by_default_and_the_cli_turns_them_off(monkeypatch):
         assert cli.main(["ln", "BAG", "--odometry", "o.tum", "--out", "ln.geojson",
                          *flags]) == 1
         assert seen[-1] is expected
+
+
+def _drive_described(camera, tracker, cfg, steps, **scene):
+    r = np.eye(3)
+    for k, x in enumerate(steps):
+        img, disp = _render(camera, x, **scene)
+        tracker.add(dark_blobs(img, disp, camera, cfg, describe=True), float(k), r,
+                    np.array([x, 0, 0.0]), camera)
+    tracker.close_all()
+
+
+def test_blobs_described_by_the_papers_features_and_their_darkness():
+    from roi_detector.far_rocks import far_feature_names
+
+    camera, cfg = _camera(), FarRockConfig()
+    img, disp = _render(camera, 0.0, rocks=[(25.0, 3.0, 0.6, 0.6)])
+    assert dark_blobs(img, disp, camera, cfg)[0].appearance is None  # not asked for
+    (blob,) = dark_blobs(img, disp, camera, cfg, describe=True)
+    names = far_feature_names()
+    # The appearance: the paper's groups, then value and saturation relative to the soil.
+    assert blob.appearance.shape == (len(names) - 7,) and np.isfinite(blob.appearance).all()
+    soil_v, rock_v = max(SOIL) / 255, max(ROCK_BGR) / 255
+    assert blob.appearance[-2] == pytest.approx(rock_v / soil_v, rel=0.05)
+    gray_contrast = blob.appearance[names.index("gray_contrast")]
+    assert gray_contrast < -0.2  # darker than the ring of soil around it
+
+
+def test_the_classifier_decides_the_candidates_and_only_them():
+    from roi_detector.far_rocks import far_feature_names
+
+    camera, cfg = _camera(), FarRockConfig()
+    seen = []
+
+    def says(answer):
+        def proba(x):
+            assert x.shape == (1, len(far_feature_names())) and np.isfinite(x).all()
+            seen.append(x[0])
+            return np.array([answer])
+        return proba
+
+    rock, small = (32.0, 11.0, 0.6, 0.6), (30.0, -10.0, 0.3, 0.3)
+    steps = np.arange(0.0, 20.0, 0.45)
+    yes = FarRockTracker(cfg, says(0.8))
+    _drive_described(camera, yes, cfg, steps, rocks=[rock, small])
+    assert len(yes.rocks()) == 1 and yes.rocks()[0].score == pytest.approx(0.8)
+    # Only the candidate (the small rock fails the rules) reached the classifier.
+    assert len(seen) == 1
+    names = far_feature_names()
+    assert seen[0][names.index("far_height_m")] == pytest.approx(0.6, rel=0.25)
+    no = FarRockTracker(cfg, says(0.2))
+    _drive_described(camera, no, cfg, steps, rocks=[rock, small])
+    assert no.rocks() == [] and len(no.rocks(classified=False)) == 1
+    (cand,) = [m for m in no.measured if m.candidate]
+    assert not cand.passed and cand.score == pytest.approx(0.2)
+    # A classifier needs the blobs' appearance.
+    blind = FarRockTracker(cfg, says(0.8))
+    with pytest.raises(ValueError, match="appearance"):
+        _drive(camera, blind, cfg, steps, rocks=[rock])

@@ -276,6 +276,50 @@ def test_rover_classifier_round_trip(tmp_path):
         RoverClassifier.load(tmp_path / "bad.npz")
 
 
+def test_a_far_rock_model_serves_the_elevation_map_and_only_it(tmp_path):
+    """A model holding the far rocks' Rock Rover alone: loaded, applied to far-rock
+    features, refused by name for the per_pair method; the committed default falls back
+    to no classifier for a method it has none for."""
+    from roi_detector.classifier import BinaryClassifier, ClassifierConfig, ModelFileError
+    from roi_detector.cli import load_classifier
+    from roi_detector.far_rocks import far_feature_names
+    from roi_detector.rover_classifier import (
+        FAR_ROCK_CLASSIFIER,
+        RoverClassifier,
+        save_rover_model,
+    )
+    from roi_detector.rover_pipeline import DriveMapper, RoverConfig, RoverDetector, check_model
+
+    names = far_feature_names()
+    rng = np.random.default_rng(3)
+    f = rng.normal(0, 1, 40)  # one factor carries the class, through every feature
+    x = (f[:, None] + rng.normal(0, 0.1, (40, len(names)))).astype(np.float32)
+    y = (f > 0).astype(np.uint8)
+    clf = BinaryClassifier(FAR_ROCK_CLASSIFIER, names, ClassifierConfig(k=3)).fit(x, y)
+    path = tmp_path / "far.npz"
+    save_rover_model(path, {FAR_ROCK_CLASSIFIER: clf}, {"method": "elevation_map"})
+    model = RoverClassifier.load(path)
+    assert model.far_rocks and not model.per_pair
+    probe = np.array([[3.0], [-3.0]], np.float32) * np.ones(len(names), np.float32)
+    assert model.far_rock_proba(probe).tolist() == [1.0, 0.0]
+    mapper = DriveMapper(RoverConfig(), classifier=model)
+    assert mapper.far.classifier is not None
+    assert load_classifier(str(path)) is not None
+    per_pair = RoverConfig(method="per_pair")
+    with pytest.raises(ValueError, match=r"far\.npz.*per_pair"):
+        check_model(model, per_pair)
+    with pytest.raises(ValueError, match=r"far\.npz.*per_pair"):
+        load_classifier(str(path), per_pair)
+    detector = RoverDetector([0.0] * 6 + [1.0], model, RoverConfig())
+    assert detector.describe_blobs
+    # Not a rover model at all: named, with what it holds.
+    other = tmp_path / "other.npz"
+    save_rover_model(other, {"rock_orbital": BinaryClassifier(
+        "rock_orbital", names, ClassifierConfig(k=3)).fit(x, y)}, {})
+    with pytest.raises(ModelFileError, match=r"other\.npz.*rock_orbital"):
+        RoverClassifier.load(other)
+
+
 def test_records_in_view_rotates_into_base_link():
     from roi_detector.rover_pipeline import records_in_view
     from roi_network.records import empty_records
