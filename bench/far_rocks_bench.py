@@ -44,7 +44,7 @@ def run_bag(bag: str, model: str | None = None, log=print) -> dict:
     from roi_network.records import ROCK
 
     truth = Truth.load(bag)
-    cfg = RoverConfig(far_rocks=True)
+    cfg = RoverConfig(far_rocks=True, classify_far_rocks=model != "none")
     classifier = load_classifier(model, cfg)
     mapper = DriveMapper(cfg, classifier=classifier)
     t0 = time.perf_counter()

@@ -135,7 +135,8 @@ def _cmd_ln(args) -> int:
     from roi_detector.tracking import TrackerConfig
 
     cfg = RoverConfig(method=args.method, tracker=TrackerConfig(min_obs=args.min_obs),
-                      ln=LnConfig(min_obs=args.min_obs), far_rocks=args.far_rocks)
+                      ln=LnConfig(min_obs=args.min_obs), far_rocks=args.far_rocks,
+                      classify_far_rocks=args.classify_far_rocks)
     ln, stats = build_ln(args.bag, args.odometry, args.model, cfg, args.every, args.drift)
     meta = {"source_bag": str(Path(args.bag).resolve()), "odometry": str(args.odometry),
             "model": args.model or str(_installed_model()), **stats}
@@ -206,6 +207,10 @@ def main(argv: list[str] | None = None) -> int:
                    default=RoverConfig().far_rocks,
                    help="elevation_map: also triangulate rocks beyond the map's stereo range "
                    "(roi_detector.far_rocks; default: on)")
+    p.add_argument("--classify-far-rocks", action=argparse.BooleanOptionalAction,
+                   default=RoverConfig().classify_far_rocks,
+                   help="far rocks: also ask the model's far-rock Rock Rover (the paper's "
+                   "PCA + kNN classifier; default: off, the rules alone)")
     p.add_argument("--drift", type=float, default=0.01,
                    help="odometry 1-sigma error per metre travelled (TUM has no covariance)")
     p.set_defaults(func=_cmd_ln)

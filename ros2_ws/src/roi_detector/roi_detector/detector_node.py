@@ -88,6 +88,11 @@ class RoiDetectorNode(Node):
               "map's stereo range from the rover's motion (roi_detector.far_rocks; on by "
               "default: more nodes, earlier and closer fixes, at a lower rock precision)"),
         ).value
+        classify_far = self.declare_parameter(
+            "classify_far_rocks", RoverConfig().classify_far_rocks,
+            d(description="far rocks: a candidate must also be voted a rock by the model's "
+              "far-rock Rock Rover (the paper's PCA + kNN classifier; off by default)"),
+        ).value
         if len(extrinsic) != 7 or not any(extrinsic):
             raise ValueError("parameter 'base_to_left_camera' is not set (pass the bag's "
                              "rover.yaml as a params file)")
@@ -96,7 +101,7 @@ class RoiDetectorNode(Node):
         if method not in METHODS:
             raise ValueError(f"parameter 'method': unknown '{method}' (one of {METHODS})")
         cfg = RoverConfig(method=method, tracker=TrackerConfig(min_obs=int(min_obs)),
-                          far_rocks=bool(far_rocks))
+                          far_rocks=bool(far_rocks), classify_far_rocks=bool(classify_far))
         classifier = load_classifier(model or None, cfg)
         self.bad = BadInput(lambda m: self.get_logger().warning(m))
         self.detector = RoverDetector(extrinsic, classifier, cfg, self.bad)

@@ -62,11 +62,16 @@ class RoverConfig:
             (:mod:`roi_detector.far_rocks`). On by default since 2026-11-26: end to end it
             brings every 1 km seed and quick within 1 m (docs/e2e.md), at a lower rock
             precision of the LN (docs/roi_detector.md).
+        classify_far_rocks: far rocks: a candidate must also be voted a rock by the rover
+            model's far-rock Rock Rover (the paper's Sec. 4.3 classifier). Off by
+            default: on the training bags (leave one bag out) it removes a third of the
+            false candidates and loses one true in 23 (docs/roi_detector.md).
     """
 
     method: str = "elevation_map"
     elevation_map: ElevationMapConfig = field(default_factory=ElevationMapConfig)
     far_rocks: bool = True
+    classify_far_rocks: bool = False
     far: FarRockConfig = field(default_factory=FarRockConfig)
     stereo: StereoConfig = field(default_factory=StereoConfig)
     thresholds: RoverThresholds = field(default_factory=RoverThresholds)
@@ -119,7 +124,7 @@ class RoverDetector:
         self.classifier = classifier
         #: Compute the far blobs' appearance (the far rocks' classifier reads it;
         #: training sets it without a classifier).
-        self.describe_blobs = classifier is not None
+        self.describe_blobs = far_classifier(classifier, cfg) is not None
         self.cfg = cfg
         self.on_bad = on_bad or (lambda kind, detail: None)
         self.camera: StereoCamera | None = None
@@ -229,9 +234,19 @@ def check_model(classifier: RoverClassifier | None, cfg: RoverConfig) -> None:
     if cfg.method == "per_pair" and not classifier.per_pair:
         raise ValueError(f"{where}: no Rock Rover / Outcrop Rover for the per_pair method "
                          "(train them: roi_detector train --method per_pair)")
-    if cfg.method == "elevation_map" and cfg.far_rocks and not classifier.far_rocks:
-        raise ValueError(f"{where}: no far-rock Rock Rover for the elevation_map method "
-                         "(train it: roi_detector train), or run without a model")
+    if cfg.method == "elevation_map" and cfg.far_rocks and cfg.classify_far_rocks and \
+            not classifier.far_rocks:
+        raise ValueError(f"{where}: no far-rock Rock Rover to classify far rocks with "
+                         "(train it: roi_detector train)")
+
+
+def far_classifier(classifier: RoverClassifier | None, cfg: RoverConfig):
+    """The far rocks' Rock Rover (vote share of features) when ``cfg`` classifies far
+    rocks and the model holds one, else None."""
+    if classifier is None or not (cfg.far_rocks and cfg.classify_far_rocks) or \
+            not classifier.far_rocks:
+        return None
+    return classifier.far_rock_proba
 
 
 #: Far rocks' track ids are offset by this in ROI records (the map's ROIs count from 1).
@@ -322,8 +337,9 @@ class DriveMapper:
         cfg: pipeline configuration.
         ln: the LN to extend (default: a new one).
         classifier: the rover model whose far-rock Rock Rover decides the far rocks'
-            candidates (the pairs' blobs must then carry their appearance: the
-            RoverDetector given the same model); None: the rules alone.
+            candidates with ``cfg.classify_far_rocks`` (the pairs' blobs must then carry
+            their appearance: the RoverDetector given the same model and config); None:
+            the rules alone.
     """
 
     def __init__(self, cfg: RoverConfig = RoverConfig(), ln: LocalNetwork | None = None,
@@ -331,9 +347,7 @@ class DriveMapper:
         self.cfg = cfg
         self.tracker = Tracker(cfg.tracker)
         self.map = ElevationMap(cfg.elevation_map)
-        far = classifier.far_rock_proba if classifier is not None and classifier.far_rocks \
-            else None
-        self.far = FarRockTracker(cfg.far, far)
+        self.far = FarRockTracker(cfg.far, far_classifier(classifier, cfg))
         self.ln = ln if ln is not None else LocalNetwork(cfg.ln)
         self._tracks = empty_records(0)
 

@@ -302,16 +302,26 @@ def test_a_far_rock_model_serves_the_elevation_map_and_only_it(tmp_path):
     assert model.far_rocks and not model.per_pair
     probe = np.array([[3.0], [-3.0]], np.float32) * np.ones(len(names), np.float32)
     assert model.far_rock_proba(probe).tolist() == [1.0, 0.0]
-    mapper = DriveMapper(RoverConfig(), classifier=model)
-    assert mapper.far.classifier is not None
-    assert load_classifier(str(path)) is not None
+    classify = RoverConfig(classify_far_rocks=True)
+    assert DriveMapper(classify, classifier=model).far.classifier is not None
+    # Off by default: the model loads, the far rocks keep to the rules.
+    assert DriveMapper(RoverConfig(), classifier=model).far.classifier is None
+    assert not RoverDetector([0.0] * 6 + [1.0], model, RoverConfig()).describe_blobs
+    assert load_classifier(str(path), classify) is not None
     per_pair = RoverConfig(method="per_pair")
     with pytest.raises(ValueError, match=r"far\.npz.*per_pair"):
         check_model(model, per_pair)
     with pytest.raises(ValueError, match=r"far\.npz.*per_pair"):
         load_classifier(str(path), per_pair)
-    detector = RoverDetector([0.0] * 6 + [1.0], model, RoverConfig())
+    detector = RoverDetector([0.0] * 6 + [1.0], model, classify)
     assert detector.describe_blobs
+    # A per_pair model cannot classify far rocks: said by name.
+    pp = tmp_path / "pp.npz"
+    save_rover_model(pp, {n: BinaryClassifier(n, names, ClassifierConfig(k=3)).fit(x, y)
+                          for n in ("rock_rover", "outcrop_rover")}, {})
+    with pytest.raises(ValueError, match=r"pp\.npz.*far-rock"):
+        load_classifier(str(pp), classify)
+    assert load_classifier(str(pp), RoverConfig()) is not None  # far rocks by the rules
     # Not a rover model at all: named, with what it holds.
     other = tmp_path / "other.npz"
     save_rover_model(other, {"rock_orbital": BinaryClassifier(
