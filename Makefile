@@ -91,9 +91,10 @@ orbital-model: training-bags orbital-training-worlds
 	$(RUN_ENV) orbital_gn train $(TRAIN_BAGS) $(ORBITAL_TRAIN_WORLDS) --recipe improved \
 	  --out $(ORBITAL_MODEL_NO_SUN)
 
-# Re-train the committed rover model: the far rocks' Rock Rover (the default
-# elevation_map method's classifier), on the far-rock candidates of the quick bags of
-# ROVER_TRAIN_SEEDS (a quick bag gives 5-15; about 3 min to generate, 3 min to run each).
+# Re-train the committed rover model: the far rocks' Rock Rover (the elevation_map
+# method's classifier, used with classify_far_rocks), on every far track measured in the
+# quick bags of ROVER_TRAIN_SEEDS (120-190 per bag, 8-19 of them rocks; about 3 min to
+# generate and 4 min to run each, two at a time).
 # `roi_detector train ... --method per_pair` trains the paper's per-pair Rock Rover and
 # Outcrop Rover instead (not committed).
 ROVER_MODEL := $(WS)/src/roi_detector/roi_detector/models/rover.npz
@@ -104,7 +105,7 @@ rover-model: setup
 	  if [ ! -d "$(TRAIN_DIR)/train_quick_s$$s/rosbag" ]; then \
 	    $(RUN_ENV) atacama_sim generate --preset quick --seed $$s --no-progress \
 	      --out $(TRAIN_DIR)/train_quick_s$$s || exit 1; fi; done
-	$(RUN_ENV) roi_detector train $(ROVER_TRAIN_BAGS) --out $(ROVER_MODEL)
+	$(RUN_ENV) roi_detector train $(ROVER_TRAIN_BAGS) --out $(ROVER_MODEL) --jobs 2
 
 models: orbital-model rover-model
 

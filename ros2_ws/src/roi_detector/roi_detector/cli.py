@@ -165,7 +165,8 @@ def _cmd_train(args) -> int:
     if args.method == "per_pair":
         summary = train_rover_model(args.bags, args.out, every=args.every, k=args.k)
     else:
-        summary = train_far_rock_model(args.bags, args.out, k=args.k)
+        summary = train_far_rock_model(args.bags, args.out, k=args.k,
+                                       population=args.population, jobs=args.jobs)
     print(json.dumps(summary, indent=2))
     return 0
 
@@ -189,6 +190,8 @@ def main(argv: list[str] | None = None) -> int:
         from roi_detector.detector_node import main as node_main
 
         return node_main(["roi_detector", *argv])
+    from roi_detector.training import FAR_POPULATIONS
+
     ap = argparse.ArgumentParser(prog="roi_detector", description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     p = sub.add_parser("ln", help="the LN a drive builds (odom)")
@@ -228,6 +231,11 @@ def main(argv: list[str] | None = None) -> int:
                    help="elevation_map (default): Rock Rover on the far rocks' candidates; "
                    "per_pair: Rock Rover and Outcrop Rover on every pair's candidates")
     p.add_argument("--every", type=int, default=2, help="per_pair: use one stereo pair in N")
+    p.add_argument("--population", default="measured", choices=FAR_POPULATIONS,
+                   help="elevation_map: train on every measured far track (default) or on "
+                   "the far-rock candidates alone")
+    p.add_argument("--jobs", type=int, default=1,
+                   help="elevation_map: bags run at a time, one process each")
     p.add_argument("--k", type=int, default=5)
     p.set_defaults(func=_cmd_train)
     p = sub.add_parser("truth-odometry", help="truth trajectory re-expressed in odom (TUM)")

@@ -348,3 +348,24 @@ def test_records_in_view_rotates_into_base_link():
     # Covariance long along odom x = across the rover's view (base_link y).
     assert abs(out["cov_yy"][0] - 0.04) < 1e-9 and abs(out["cov_xx"][0] - 0.01) < 1e-9
     assert abs(out["angle_rad"][0] + yaw) < 1e-9
+
+
+def test_the_committed_rover_model_is_the_far_rocks_rock_rover_of_training_seeds():
+    """The committed model loads as the default, holds the far rocks' Rock Rover (and not
+    the per_pair classifiers), was trained on training seeds only (never an evaluation
+    bag's), and says how to re-train it."""
+    from roi_detector.cli import _installed_model, load_classifier
+    from roi_detector.far_rocks import far_feature_names
+    from roi_detector.rover_classifier import FAR_ROCK_CLASSIFIER
+    from roi_detector.rover_pipeline import RoverConfig
+
+    path = _installed_model()
+    assert path is not None and path.stat().st_size < 1_000_000
+    model = load_classifier(None, RoverConfig(classify_far_rocks=True))
+    assert model.far_rocks and not model.per_pair
+    assert model.classifiers[FAR_ROCK_CLASSIFIER].feature_names == far_feature_names()
+    prov = model.meta["provenance"]
+    assert prov["seeds"] and all(s >= 100 for s in prov["seeds"])
+    assert prov["command"].startswith("roi_detector train") and prov["rocks"] > 20
+    # The default method without classify_far_rocks needs no model; per_pair has none here.
+    assert load_classifier(None, RoverConfig(method="per_pair")) is None
