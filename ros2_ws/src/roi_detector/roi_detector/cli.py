@@ -46,7 +46,9 @@ def _installed_model() -> Path | None:
 
 
 def load_classifier(path: str | None, cfg: RoverConfig | None = None):
-    """The rover model of ``path`` (default: the committed model); None for 'none'.
+    """The rover model of ``path`` (default: the committed model) when ``cfg`` runs a
+    classifier (per_pair, or far rocks with ``classify_far_rocks``); else, or for
+    'none', None.
 
     The committed model is used by the methods it holds classifiers for (None
     otherwise); a model named by ``path`` must hold those of ``cfg``'s method.
@@ -58,7 +60,8 @@ def load_classifier(path: str | None, cfg: RoverConfig | None = None):
     from roi_detector.rover_pipeline import check_model
 
     cfg = cfg or RoverConfig()
-    if path == "none":
+    if path == "none" or (cfg.method == "elevation_map" and not (
+            cfg.far_rocks and cfg.classify_far_rocks)):
         return None
     model = Path(path) if path else _installed_model()
     if model is None:

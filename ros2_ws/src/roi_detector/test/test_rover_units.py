@@ -304,7 +304,8 @@ def test_a_far_rock_model_serves_the_elevation_map_and_only_it(tmp_path):
     assert model.far_rock_proba(probe).tolist() == [1.0, 0.0]
     classify = RoverConfig(classify_far_rocks=True)
     assert DriveMapper(classify, classifier=model).far.classifier is not None
-    # Off by default: the model loads, the far rocks keep to the rules.
+    # Off by default: no model is loaded, the far rocks keep to the rules.
+    assert load_classifier(str(path)) is None
     assert DriveMapper(RoverConfig(), classifier=model).far.classifier is None
     assert not RoverDetector([0.0] * 6 + [1.0], model, RoverConfig()).describe_blobs
     assert load_classifier(str(path), classify) is not None
@@ -321,7 +322,7 @@ def test_a_far_rock_model_serves_the_elevation_map_and_only_it(tmp_path):
                           for n in ("rock_rover", "outcrop_rover")}, {})
     with pytest.raises(ValueError, match=r"pp\.npz.*far-rock"):
         load_classifier(str(pp), classify)
-    assert load_classifier(str(pp), RoverConfig()) is not None  # far rocks by the rules
+    assert load_classifier(str(pp), RoverConfig()) is None  # far rocks by the rules alone
     # Not a rover model at all: named, with what it holds.
     other = tmp_path / "other.npz"
     save_rover_model(other, {"rock_orbital": BinaryClassifier(
