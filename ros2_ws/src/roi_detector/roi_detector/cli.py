@@ -50,11 +50,12 @@ def load_classifier(path: str | None, cfg: RoverConfig | None = None):
     classifier (per_pair, or far rocks with ``classify_far_rocks``); else, or for
     'none', None.
 
-    The committed model is used by the methods it holds classifiers for (None
-    otherwise); a model named by ``path`` must hold those of ``cfg``'s method.
+    per_pair uses the committed model if it holds the per-pair classifiers (else none:
+    every candidate kept); ``classify_far_rocks`` asks for a classifier, so a missing
+    one is an error; a model named by ``path`` must hold those of ``cfg``'s method.
 
     Raises:
-        ValueError: an unreadable model, or one without the method's classifiers.
+        ValueError: an unreadable model, or none with the classifiers ``cfg`` needs.
     """
     from roi_detector.rover_classifier import RoverClassifier
     from roi_detector.rover_pipeline import check_model
@@ -65,12 +66,15 @@ def load_classifier(path: str | None, cfg: RoverConfig | None = None):
         return None
     model = Path(path) if path else _installed_model()
     if model is None:
+        if cfg.method == "elevation_map":
+            raise ValueError(f"classify_far_rocks: no rover model (none at {DEFAULT_MODEL}; "
+                             "train one: make rover-model)")
         return None
     clf = RoverClassifier.load(model)
     try:
         check_model(clf, cfg)
     except ValueError:
-        if path:
+        if path or cfg.method == "elevation_map":
             raise
         return None
     return clf

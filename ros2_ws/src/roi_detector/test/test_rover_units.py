@@ -370,3 +370,15 @@ def test_the_committed_rover_model_is_the_far_rocks_rock_rover_of_training_seeds
     assert prov["command"].startswith("roi_detector train") and prov["rocks"] > 20
     # The default method without classify_far_rocks needs no model; per_pair has none here.
     assert load_classifier(None, RoverConfig(method="per_pair")) is None
+
+
+def test_classifying_far_rocks_without_a_model_is_an_error(monkeypatch):
+    """classify_far_rocks asks for the far rocks' Rock Rover: no model is a clear error,
+    not far rocks silently left to the rules."""
+    import roi_detector.cli as cli
+    from roi_detector.rover_pipeline import RoverConfig
+
+    monkeypatch.setattr(cli, "_installed_model", lambda: None)
+    with pytest.raises(ValueError, match="classify_far_rocks: no rover model"):
+        cli.load_classifier(None, RoverConfig(classify_far_rocks=True))
+    assert cli.load_classifier(None, RoverConfig()) is None
