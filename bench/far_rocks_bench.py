@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -37,22 +36,17 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 def run_bag(bag: str, model: str | None = None, log=print) -> dict:
     """Far rocks, map rocks and their union on one bag (see the module)."""
-    from roi_detector.cli import build_ln, load_classifier
+    from roi_detector.cli import load_classifier
     from roi_detector.evaluation import match_nodes, true_nodes
     from roi_detector.rover_pipeline import DriveMapper, RoverConfig, far_rock_records
-    from roi_detector.truth import Truth
+    from roi_detector.training import drive_with_truth_odometry
     from roi_network.records import ROCK
 
-    truth = Truth.load(bag)
     cfg = RoverConfig(far_rocks=True, classify_far_rocks=model != "none")
     classifier = load_classifier(model, cfg)
     mapper = DriveMapper(cfg, classifier=classifier)
     t0 = time.perf_counter()
-    with tempfile.TemporaryDirectory() as tmp:
-        odom = Path(tmp) / "truth_odom.tum"
-        truth.write_odom_tum(odom)
-        _, stats = build_ln(bag, str(odom), model, cfg, log=lambda m: log(f"{bag}: {m}"),
-                            mapper=mapper, describe=True)
+    truth, stats = drive_with_truth_odometry(bag, mapper, log, describe=True)
     seconds = time.perf_counter() - t0
     n, union = stats["pairs"], mapper.current_tracks()
     counted = truth.counted() & (truth.rois["label"] == ROCK)

@@ -61,22 +61,18 @@ def load_classifier(path: str | None, cfg: RoverConfig | None = None):
     from roi_detector.rover_pipeline import check_model
 
     cfg = cfg or RoverConfig()
-    if path == "none" or (cfg.method == "elevation_map" and not (
-            cfg.far_rocks and cfg.classify_far_rocks)):
+    if path == "none" or not cfg.runs_classifier:
         return None
     model = Path(path) if path else _installed_model()
     if model is None:
-        if cfg.method == "elevation_map":
+        if cfg.classifies_far_rocks:
             raise ValueError(f"classify_far_rocks: no rover model (none at {DEFAULT_MODEL}; "
                              "train one: make rover-model)")
         return None
     clf = RoverClassifier.load(model)
-    try:
-        check_model(clf, cfg)
-    except ValueError:
-        if path or cfg.method == "elevation_map":
-            raise
+    if not path and cfg.method == "per_pair" and not clf.per_pair:
         return None
+    check_model(clf, cfg)
     return clf
 
 
@@ -94,10 +90,11 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
     """Run detection, tracking and the LN over a bag with an odometry file.
 
     ``trace``: set as the elevation map's :attr:`ElevationMap.trace` (diagnostics).
-    ``mapper``: the DriveMapper to fill (built with ``cfg`` and the same model; default a
-    fresh one), for callers that read its map or far-rock tracks afterwards (benchmarks,
-    training). ``describe``: the far blobs carry their appearance even without a
-    classifier (training).
+    ``mapper``: the DriveMapper to fill (built with ``cfg`` and its rover model, which the
+    detector then uses: ``model`` is not read; default a fresh one with ``model``), for
+    callers that read its map or far-rock tracks afterwards (benchmarks, training).
+    ``describe``: the far blobs carry their appearance even without a classifier
+    (training).
 
     Returns (LocalNetwork, stats dict).
     """
@@ -106,10 +103,10 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
     track = read_tum(odometry)
     track.cov = odometry_xy_covariance(track, drift_frac)
     bad = BadInput(lambda m: log(f"roi_detector: {m}"))
-    classifier = load_classifier(model, cfg)
-    detector = RoverDetector(params["base_to_left_camera"], classifier, cfg, bad)
+    mapper = mapper if mapper is not None else DriveMapper(
+        cfg, classifier=load_classifier(model, cfg))
+    detector = RoverDetector(params["base_to_left_camera"], mapper.classifier, cfg, bad)
     detector.describe_blobs |= describe
-    mapper = mapper if mapper is not None else DriveMapper(cfg, classifier=classifier)
     mapper.map.trace = trace
     n_pairs = n_dets = 0
     t_detect = 0.0
@@ -197,7 +194,7 @@ def main(argv: list[str] | None = None) -> int:
         from roi_detector.detector_node import main as node_main
 
         return node_main(["roi_detector", *argv])
-    from roi_detector.training import FAR_POPULATIONS
+    from roi_detector.far_rocks import FAR_POPULATIONS
 
     ap = argparse.ArgumentParser(prog="roi_detector", description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)

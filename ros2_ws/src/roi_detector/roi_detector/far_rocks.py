@@ -55,6 +55,13 @@ from roi_detector.stereo import StereoCamera
 #: Weighted-entropy window of a blob's appearance (pixels, full resolution; the rover
 #: metrics' 7 px at half resolution is 14 px here, but a far blob is 12-200 px).
 ENTROPY_SIZE_PX: Final = 7
+#: Which far tracks a far rocks' Rock Rover is trained on (``roi_detector train
+#: --population``): every measured track (the default: 10-20x more than the candidates,
+#: nearly all of them small dark blobs that the rules refuse; left one bag out on the
+#: training bags it keeps a third of the false candidates that a model trained on the
+#: candidates alone keeps, docs/roi_detector.md), or the candidates (what it decides at
+#: run time).
+FAR_POPULATIONS: Final = ("candidates", "measured")
 #: The track geometry that :func:`far_rock_features` adds to the appearance.
 GEOMETRY_NAMES: Final = ("far_log_width_m", "far_height_m", "far_log_nearest_m",
                          "far_log_views", "far_parallax_deg", "far_residual_px",

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from roi_detector.classifier import BinaryClassifier, ClassifierConfig
-from roi_detector.far_rocks import far_feature_names
+from roi_detector.far_rocks import FAR_POPULATIONS, far_feature_names
 from roi_detector.inputs import BadInput, load_rover_params, read_stereo_frames
 from roi_detector.rover_classifier import (
     FAR_ROCK_CLASSIFIER,
@@ -93,12 +93,21 @@ def train_rover_model(bags: list[str], out: str, every: int = 2, k: int = 5,
     return summary
 
 
-#: Which far tracks the far rocks' Rock Rover is trained on: every measured track (the
-#: default: 10-20x more than the candidates, nearly all of them small dark blobs that the
-#: rules refuse; left-one-bag-out on the training bags it keeps a third of the false
-#: candidates that a model trained on the candidates alone keeps, docs/roi_detector.md),
-#: or the candidates (what it decides at run time).
-FAR_POPULATIONS = ("candidates", "measured")
+def drive_with_truth_odometry(bag_dir: str, mapper: DriveMapper, log=print,
+                              describe: bool = False) -> tuple[Truth, dict]:
+    """Run the pipeline over a bag with its truth trajectory (re-expressed in odom) as the
+    odometry, filling ``mapper`` (built with its config and model): detection geometry
+    alone. Returns the bag's truth and :func:`~roi_detector.cli.build_ln`'s stats."""
+    from roi_detector.cli import build_ln
+
+    truth = Truth.load(bag_dir)
+    with tempfile.TemporaryDirectory() as tmp:
+        odom = Path(tmp) / "truth_odom.tum"
+        truth.write_odom_tum(odom)
+        _, stats = build_ln(bag_dir, str(odom), None, mapper.cfg,
+                            log=lambda m: log(f"{bag_dir}: {m}"), mapper=mapper,
+                            describe=describe)
+    return truth, stats
 
 
 def far_rock_samples(bag_dir: str, log=print, population: str = "measured") -> dict:
@@ -113,17 +122,10 @@ def far_rock_samples(bag_dir: str, log=print, population: str = "measured") -> d
     """
     if population not in FAR_POPULATIONS:
         raise ValueError(f"population: unknown '{population}' (one of {FAR_POPULATIONS})")
-    from roi_detector.cli import build_ln
     from roi_detector.evaluation import match_nodes, true_nodes
 
-    truth = Truth.load(bag_dir)
-    cfg = RoverConfig(far_rocks=True)
-    mapper = DriveMapper(cfg)
-    with tempfile.TemporaryDirectory() as tmp:
-        odom = Path(tmp) / "truth_odom.tum"
-        truth.write_odom_tum(odom)
-        build_ln(bag_dir, str(odom), "none", cfg, log=lambda m: log(f"{bag_dir}: {m}"),
-                 mapper=mapper, describe=True)
+    mapper = DriveMapper(RoverConfig(far_rocks=True))
+    truth, _ = drive_with_truth_odometry(bag_dir, mapper, log, describe=True)
     tracks = [r for r in mapper.far.measured if r.features is not None
               and (r.candidate or population == "measured")]
     n_feat = len(far_feature_names())
