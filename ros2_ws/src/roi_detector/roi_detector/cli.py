@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from roi_detector.far_rocks import FAR_KINDS, FAR_POPULATIONS, FarRockConfig
 from roi_detector.inputs import BadInput, load_rover_params, read_stereo_frames, read_tum
 from roi_detector.rover_pipeline import (
     METHODS,
@@ -140,7 +141,8 @@ def _cmd_ln(args) -> int:
 
     cfg = RoverConfig(method=args.method, tracker=TrackerConfig(min_obs=args.min_obs),
                       ln=LnConfig(min_obs=args.min_obs), far_rocks=args.far_rocks,
-                      classify_far_rocks=args.classify_far_rocks)
+                      classify_far_rocks=args.classify_far_rocks,
+                      far=FarRockConfig(classified=args.far_classified))
     ln, stats = build_ln(args.bag, args.odometry, args.model, cfg, args.every, args.drift)
     meta = {"source_bag": str(Path(args.bag).resolve()), "odometry": str(args.odometry),
             "model": args.model or str(_installed_model()), **stats}
@@ -170,7 +172,8 @@ def _cmd_train(args) -> int:
         summary = train_rover_model(args.bags, args.out, every=args.every, k=args.k)
     else:
         summary = train_far_rock_model(args.bags, args.out, k=args.k,
-                                       population=args.population, jobs=args.jobs)
+                                       population=args.population, jobs=args.jobs,
+                                       kind=args.kind)
     print(json.dumps(summary, indent=2))
     return 0
 
@@ -194,7 +197,6 @@ def main(argv: list[str] | None = None) -> int:
         from roi_detector.detector_node import main as node_main
 
         return node_main(["roi_detector", *argv])
-    from roi_detector.far_rocks import FAR_POPULATIONS
 
     ap = argparse.ArgumentParser(prog="roi_detector", description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -216,8 +218,14 @@ def main(argv: list[str] | None = None) -> int:
                    "(roi_detector.far_rocks; default: on)")
     p.add_argument("--classify-far-rocks", action=argparse.BooleanOptionalAction,
                    default=RoverConfig().classify_far_rocks,
-                   help="far rocks: also ask the model's far-rock Rock Rover (the paper's "
-                   "PCA + kNN classifier; default: off, the rules alone)")
+                   help="far rocks: the model's far-rock Rock Rover decides them (the "
+                   "paper's Sec. 4.3 classifier)")
+    p.add_argument("--far-classified", default=FarRockConfig().classified,
+                   choices=FAR_POPULATIONS,
+                   help="classified far rocks: the Rock Rover decides every measured track "
+                   "that passes the geometric tests, in place of the size thresholds "
+                   "(measured, default), or the candidates the rules pass (the paper's "
+                   "order)")
     p.add_argument("--drift", type=float, default=0.01,
                    help="odometry 1-sigma error per metre travelled (TUM has no covariance)")
     p.set_defaults(func=_cmd_ln)
@@ -240,7 +248,10 @@ def main(argv: list[str] | None = None) -> int:
                    "the far-rock candidates alone")
     p.add_argument("--jobs", type=int, default=1,
                    help="elevation_map: bags run at a time, one process each")
-    p.add_argument("--k", type=int, default=5)
+    p.add_argument("--kind", default=FAR_KINDS[0], choices=FAR_KINDS,
+                   help="elevation_map: the far rocks' Rock Rover as boosted trees (default) "
+                   "or the paper's PCA + kNN")
+    p.add_argument("--k", type=int, default=5, help="kNN neighbours")
     p.set_defaults(func=_cmd_train)
     p = sub.add_parser("truth-odometry", help="truth trajectory re-expressed in odom (TUM)")
     p.add_argument("bag")

@@ -26,6 +26,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, PointCloud2
 
+from roi_detector.far_rocks import FAR_POPULATIONS, FarRockConfig
 from roi_detector.inputs import BadInput, OdometryBuffer, StereoFrame, decode_image
 from roi_detector.rover_pipeline import (
     METHODS,
@@ -90,8 +91,15 @@ class RoiDetectorNode(Node):
         ).value
         classify_far = self.declare_parameter(
             "classify_far_rocks", RoverConfig().classify_far_rocks,
-            d(description="far rocks: a candidate must also be voted a rock by the model's "
-              "far-rock Rock Rover (the paper's PCA + kNN classifier; off by default)"),
+            d(description="far rocks: the model's far-rock Rock Rover decides them "
+              "(the paper's Sec. 4.3 classifier; see far_classified)"),
+        ).value
+        far_classified = self.declare_parameter(
+            "far_classified", FarRockConfig().classified,
+            d(description=f"one of {FAR_POPULATIONS}: with classify_far_rocks, the Rock "
+              "Rover decides every measured far track that passes the geometric tests, in "
+              "place of the size thresholds (default), or the candidates the rules pass "
+              "(the paper's order)"),
         ).value
         if len(extrinsic) != 7 or not any(extrinsic):
             raise ValueError("parameter 'base_to_left_camera' is not set (pass the bag's "
@@ -100,8 +108,12 @@ class RoiDetectorNode(Node):
 
         if method not in METHODS:
             raise ValueError(f"parameter 'method': unknown '{method}' (one of {METHODS})")
+        if far_classified not in FAR_POPULATIONS:
+            raise ValueError(f"parameter 'far_classified': unknown '{far_classified}' (one "
+                             f"of {FAR_POPULATIONS})")
         cfg = RoverConfig(method=method, tracker=TrackerConfig(min_obs=int(min_obs)),
-                          far_rocks=bool(far_rocks), classify_far_rocks=bool(classify_far))
+                          far_rocks=bool(far_rocks), classify_far_rocks=bool(classify_far),
+                          far=FarRockConfig(classified=str(far_classified)))
         classifier = load_classifier(model or None, cfg)
         self.bad = BadInput(lambda m: self.get_logger().warning(m))
         self.detector = RoverDetector(extrinsic, classifier, cfg, self.bad)

@@ -55,13 +55,16 @@ from roi_detector.stereo import StereoCamera
 #: Weighted-entropy window of a blob's appearance (pixels, full resolution; the rover
 #: metrics' 7 px at half resolution is 14 px here, but a far blob is 12-200 px).
 ENTROPY_SIZE_PX: Final = 7
-#: Which far tracks a far rocks' Rock Rover is trained on (``roi_detector train
-#: --population``): every measured track (the default: 10-20x more than the candidates,
-#: nearly all of them small dark blobs that the rules refuse; left one bag out on the
-#: training bags it keeps a third of the false candidates that a model trained on the
-#: candidates alone keeps, docs/roi_detector.md), or the candidates (what it decides at
-#: run time).
+#: Far-track populations: which tracks a far rocks' Rock Rover is trained on
+#: (``roi_detector train --population``) and which it decides at run time
+#: (:attr:`FarRockConfig.classified`): every measured track (10-20x more than the
+#: candidates, nearly all of them small dark blobs that the rules refuse), or the
+#: candidates (every rule passed, size included).
 FAR_POPULATIONS: Final = ("candidates", "measured")
+#: The far rocks' Rock Rover's kinds (``roi_detector train --kind``): boosted trees (the
+#: default: left one training bag out they keep more of the true far rocks, at a higher
+#: precision, than the paper's kNN: docs/roi_detector.md) or the paper's PCA + kNN.
+FAR_KINDS: Final = ("gradient_boosting", "knn")
 #: The track geometry that :func:`far_rock_features` adds to the appearance.
 GEOMETRY_NAMES: Final = ("far_log_width_m", "far_height_m", "far_log_nearest_m",
                          "far_log_views", "far_parallax_deg", "far_residual_px",
@@ -98,8 +101,16 @@ class FarRockConfig:
         max_nearest_m: a rock must have been seen from at most this far (at 30 m a
             0.25 m height is 4 pixels).
         merge_m: tracks whose rocks are closer than this are one rock.
-        min_score: with a classifier, a candidate is a rock when the Rock Rover's vote
-            share is above this.
+        min_score: with a classifier, a track it decides is a rock when the Rock Rover's
+            score (kNN: vote share; boosted trees: probability) is above this.
+        classified: with a classifier, which tracks it decides (:data:`FAR_POPULATIONS`):
+            ``"measured"``: every track that passes the geometric tests (views, bearing
+            spread, ray residual, nearest range), the classifier standing in for the
+            size thresholds (from 12-40 m a rock's dark blob gives its area at a median
+            0.62 of the truth, 0.05-1.1 from the 10th to the 90th percentile, so
+            that the thresholds refuse most of the true rocks: docs/roi_detector.md);
+            ``"candidates"``: the paper's order, the rules (size included) then the
+            classifier.
     """
 
     dark_value: float = 0.55
@@ -120,6 +131,12 @@ class FarRockConfig:
     max_nearest_m: float = 30.0
     merge_m: float = 1.5
     min_score: float = 0.5
+    classified: str = "measured"
+
+    def __post_init__(self) -> None:
+        if self.classified not in FAR_POPULATIONS:
+            raise ValueError(f"far rocks: classified: unknown '{self.classified}' (one of "
+                             f"{FAR_POPULATIONS})")
 
 
 @dataclass
@@ -300,9 +317,11 @@ class FarRock:
         n_views, parallax_deg, residual_px, nearest_m: what the rock tests
             read.
         candidate: every rule of a candidate passed (Sec. 4.2).
-        passed: a candidate, and with a classifier, the Rock Rover voted it a rock.
+        passed: what the LN gets: without a classifier, a candidate; with one, a track
+            it decides (:attr:`FarRockConfig.classified`) that it scores a rock.
         features: :func:`far_rock_features` (None when the blobs carry no appearance).
-        score: the Rock Rover's vote share (NaN: no classifier, or not a candidate).
+        score: the Rock Rover's score (NaN: no classifier, or a track it does not
+            decide).
     """
 
     track_id: int
@@ -485,19 +504,23 @@ class FarRockTracker:
         cov = np.linalg.pinv(info) * max(1.0, (residual / cfg.bearing_sigma_px) ** 2)
         span = tr.views[-1].travelled - tr.views[0].travelled
         cov = cov + np.eye(2) * (cfg.odom_sigma_per_m * span) ** 2 + tr.odom_cov
-        candidate = bool(spread >= cfg.min_parallax_deg and residual <= cfg.max_residual_px
-                         and height > cfg.min_height_m
-                         and area > cfg.min_area_m2 and rng.min() <= cfg.max_nearest_m)
+        geometric = bool(spread >= cfg.min_parallax_deg and residual <= cfg.max_residual_px
+                         and rng.min() <= cfg.max_nearest_m)
+        candidate = geometric and height > cfg.min_height_m and area > cfg.min_area_m2
         app = [v.appearance for v in tr.views if v.appearance is not None]
         feats = far_rock_features(app, width, height, float(rng.min()), len(tr.views),
                                   spread, residual) if app else None
         score, passed = float("nan"), candidate
-        if candidate and self.classifier is not None:
-            if feats is None:
-                raise ValueError("far rocks: a classifier needs the blobs' appearance "
-                                 "(dark_blobs(describe=True))")
-            score = float(self.classifier(feats[None])[0])
-            passed = score > cfg.min_score
+        if self.classifier is not None:
+            # The Rock Rover decides the candidates (the paper's order) or, in place of the
+            # size thresholds, every track that passed the geometric tests.
+            passed = False
+            if candidate if cfg.classified == "candidates" else geometric:
+                if feats is None:
+                    raise ValueError("far rocks: a classifier needs the blobs' appearance "
+                                     "(dark_blobs(describe=True))")
+                score = float(self.classifier(feats[None])[0])
+                passed = score > cfg.min_score
         return FarRock(tr.id, tr.point[:2].copy(), float(tr.point[2]), cov, width, height,
                        area, len(tr.views), spread, residual, float(rng.min()), candidate,
                        passed, feats, score)

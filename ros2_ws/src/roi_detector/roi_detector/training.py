@@ -4,8 +4,9 @@ Labels follow DESIGN.md's matching rule: a candidate placed in map with the trut
 matches a truth ROI (rois.geojson) within max(1 m, half the truth major axis) and takes
 that ROI's class; otherwise it is a negative.
 
-- elevation_map method (default): the far rocks' Rock Rover, on every far-rock candidate
-  of a drive run with the truth trajectory as odometry (:func:`far_rock_samples`).
+- elevation_map method (default): the far rocks' Rock Rover, on every measured far track
+  (or every far-rock candidate) of a drive run with the truth trajectory as odometry
+  (:func:`far_rock_samples`).
 - per_pair method: Rock Rover and Outcrop Rover, on every candidate of every
   ``every``-th stereo pair (:func:`labelled_candidates`).
 """
@@ -19,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from roi_detector.classifier import BinaryClassifier, ClassifierConfig
-from roi_detector.far_rocks import FAR_POPULATIONS, far_feature_names
+from roi_detector.far_rocks import FAR_KINDS, FAR_POPULATIONS, far_feature_names
 from roi_detector.inputs import BadInput, load_rover_params, read_stereo_frames
 from roi_detector.rover_classifier import (
     FAR_ROCK_CLASSIFIER,
@@ -157,10 +158,14 @@ def _far_samples_quiet(bag: str, population: str) -> dict:
 
 
 def train_far_rock_model(bags: list[str], out: str, k: int = 5, log=print,
-                         population: str = "measured", jobs: int = 1) -> dict:
-    """Train the far rocks' Rock Rover (PCA + kNN) on the far tracks (``population``, see
-    :data:`FAR_POPULATIONS`) of ``bags`` (``jobs`` bags at a time, each in its own
-    process) and write it to ``out``."""
+                         population: str = "measured", jobs: int = 1,
+                         kind: str = "gradient_boosting") -> dict:
+    """Train the far rocks' Rock Rover (``kind``: boosted trees, or the paper's PCA + kNN
+    with ``k`` neighbours) on the far tracks (``population``, see :data:`FAR_POPULATIONS`)
+    of ``bags`` (``jobs`` bags at a time, each in its own process) and write it to
+    ``out``."""
+    if kind not in FAR_KINDS:
+        raise ValueError(f"kind: unknown '{kind}' (one of {FAR_KINDS})")
     t0 = time.perf_counter()
     x, y = [], []
     if jobs > 1:
@@ -182,14 +187,15 @@ def train_far_rock_model(bags: list[str], out: str, k: int = 5, log=print,
         raise ValueError(f"far-rock candidates of {bags}: {len(ya)} samples, not both rocks "
                          "and non-rocks: nothing to train on")
     clf = BinaryClassifier(FAR_ROCK_CLASSIFIER, far_feature_names(),
-                           ClassifierConfig(n_components=8, k=k)).fit(xa, ya)
+                           ClassifierConfig(n_components=8, k=k, kind=kind)).fit(xa, ya)
     summary = {"method": "elevation_map", "bags": [str(Path(b).resolve()) for b in bags],
-               "seeds": _seeds(bags), "k": k, "threshold": RoverConfig().far.min_score,
+               "seeds": _seeds(bags), "kind": kind, "k": k,
+               "threshold": RoverConfig().far.min_score,
                "population": population, "samples": len(ya), "rocks": int(ya.sum()),
                "negatives": int((ya == 0).sum()),
                "train_s": round(time.perf_counter() - t0, 1),
                "command": f"roi_detector train {' '.join(bags)} --out {out} "
-                          f"--population {population}"}
+                          f"--population {population} --kind {kind}"}
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     save_rover_model(out, {FAR_ROCK_CLASSIFIER: clf}, summary)
     return summary

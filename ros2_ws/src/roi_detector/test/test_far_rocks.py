@@ -215,34 +215,69 @@ def test_blobs_described_by_the_papers_features_and_their_darkness():
     assert gray_contrast < -0.2  # darker than the ring of soil around it
 
 
-def test_the_classifier_decides_the_candidates_and_only_them():
+def _says(answer, seen):
     from roi_detector.far_rocks import far_feature_names
 
-    camera, cfg = _camera(), FarRockConfig()
+    def proba(x):
+        assert x.shape == (1, len(far_feature_names())) and np.isfinite(x).all()
+        seen.append(x[0])
+        return np.array([answer])
+    return proba
+
+
+def test_the_classifier_decides_the_candidates_in_the_papers_order():
+    from roi_detector.far_rocks import far_feature_names
+
+    camera, cfg = _camera(), FarRockConfig(classified="candidates")
     seen = []
-
-    def says(answer):
-        def proba(x):
-            assert x.shape == (1, len(far_feature_names())) and np.isfinite(x).all()
-            seen.append(x[0])
-            return np.array([answer])
-        return proba
-
     rock, small = (32.0, 11.0, 0.6, 0.6), (30.0, -10.0, 0.3, 0.3)
     steps = np.arange(0.0, 20.0, 0.45)
-    yes = FarRockTracker(cfg, says(0.8))
+    yes = FarRockTracker(cfg, _says(0.8, seen))
     _drive_described(camera, yes, cfg, steps, rocks=[rock, small])
     assert len(yes.rocks()) == 1 and yes.rocks()[0].score == pytest.approx(0.8)
     # Only the candidate (the small rock fails the rules) reached the classifier.
     assert len(seen) == 1
     names = far_feature_names()
     assert seen[0][names.index("far_height_m")] == pytest.approx(0.6, rel=0.25)
-    no = FarRockTracker(cfg, says(0.2))
+    no = FarRockTracker(cfg, _says(0.2, []))
     _drive_described(camera, no, cfg, steps, rocks=[rock, small])
     assert no.rocks() == [] and len(no.rocks(classified=False)) == 1
     (cand,) = [m for m in no.measured if m.candidate]
     assert not cand.passed and cand.score == pytest.approx(0.2)
     # A classifier needs the blobs' appearance.
-    blind = FarRockTracker(cfg, says(0.8))
+    blind = FarRockTracker(cfg, _says(0.8, []))
     with pytest.raises(ValueError, match="appearance"):
         _drive(camera, blind, cfg, steps, rocks=[rock])
+
+
+def test_the_classifier_stands_in_for_the_size_thresholds_on_every_measured_track():
+    """By default (``classified="measured"``) the Rock Rover decides every track that
+    passed the geometric tests, whatever its measured size: the small rock, refused by the
+    area threshold, is a rock when the classifier says so, and the candidate is not when
+    it says no. A track that fails the geometry never reaches it."""
+    camera, cfg = _camera(), FarRockConfig()
+    assert cfg.classified == "measured"
+    rock, small = (32.0, 11.0, 0.6, 0.6), (30.0, -10.0, 0.3, 0.3)
+    steps = np.arange(0.0, 20.0, 0.45)
+    seen = []
+    yes = FarRockTracker(cfg, _says(0.8, seen))
+    _drive_described(camera, yes, cfg, steps, rocks=[rock, small])
+    got = sorted(yes.rocks(), key=lambda r: r.xy[1])
+    assert len(got) == 2 and np.hypot(*(got[0].xy - [30.0, -10.0])) < 1.0
+    assert not got[0].candidate and got[0].passed and got[0].area_m2 < cfg.min_area_m2
+    assert len(yes.rocks(classified=False)) == 1  # the rules alone: the big rock
+    decided = [m for m in yes.measured if np.isfinite(m.score)]
+    assert len(seen) == len(decided) >= 2
+    assert all(m.parallax_deg >= cfg.min_parallax_deg and m.residual_px <= cfg.max_residual_px
+               for m in decided)
+    no = FarRockTracker(cfg, _says(0.2, []))
+    _drive_described(camera, no, cfg, steps, rocks=[rock, small])
+    assert no.rocks() == [] and len(no.rocks(classified=False)) == 1
+    # Geometry still gates: with a 90 deg bearing-spread demand no track is decided.
+    strict = FarRockConfig(min_parallax_deg=90.0)
+    seen = []
+    none = FarRockTracker(strict, _says(0.8, seen))
+    _drive_described(camera, none, strict, steps, rocks=[rock, small])
+    assert none.rocks() == [] and seen == []
+    with pytest.raises(ValueError, match=r"classified.*'tracks'"):
+        FarRockConfig(classified="tracks")

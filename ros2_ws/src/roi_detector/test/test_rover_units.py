@@ -368,8 +368,20 @@ def test_the_committed_rover_model_is_the_far_rocks_rock_rover_of_training_seeds
     prov = model.meta["provenance"]
     assert prov["seeds"] and all(s >= 100 for s in prov["seeds"])
     assert prov["command"].startswith("roi_detector train") and prov["rocks"] > 20
+    # Boosted trees, trained on every measured far track, as the command says.
+    assert model.classifiers[FAR_ROCK_CLASSIFIER].config.kind == prov["kind"] == \
+        "gradient_boosting"
+    assert prov["population"] == "measured" and "--kind gradient_boosting" in prov["command"]
     # The default method without classify_far_rocks needs no model; per_pair has none here.
     assert load_classifier(None, RoverConfig(method="per_pair")) is None
+
+
+def test_far_rock_training_refuses_an_unknown_kind(tmp_path):
+    from roi_detector.training import train_far_rock_model
+
+    with pytest.raises(ValueError, match=r"kind.*'svm'"):
+        train_far_rock_model(["no/such/bag"], str(tmp_path / "m.npz"), kind="svm")
+    assert not (tmp_path / "m.npz").exists()
 
 
 def test_classifying_far_rocks_without_a_model_is_an_error(monkeypatch):
