@@ -87,6 +87,16 @@ class MatchConfig:
             20 m off after 900 m, 2 deg of drift over a 600 m lever arm), and the old
             nodes weigh less. The first fix keeps the least uncertain node as anchor (its
             odds need the whole LN).
+        localized_keep_likelier: once the rover is localized, :meth:`match_or_track`
+            tracks near the estimate even when the global search fixes, and keeps the
+            fix less likely to be a chance alignment (the smaller ``p_false``, each
+            judged with its own count of alignments examined). False: the global
+            search's fix whenever it has one (before 2026-11-26, evening). On
+            atacama_1km seed 3 a lone node at 881 m, after 620 m with none, tilted the
+            global fit 2 deg about the early cluster (19 m off at the rover, p_false
+            0.008), where tracking near the estimate fitted it right; replayed on the
+            31 runs kept (bench/replay_matcher.py), nothing else changed by more than
+            0.01 m (docs/e2e.md).
         min_tol_m: smallest node tolerance in the edge tolerance d_D, metres.
         min_gate_m: smallest verification gate, metres: a node within this of a GN node
             of its class under a hypothesis votes for it. Too tight and the precise
@@ -218,6 +228,7 @@ class MatchConfig:
     ln_sigma_floor_m: float = 0.2
     ln_sigma_relative: bool = True
     localized_anchor_newest: bool = True
+    localized_keep_likelier: bool = True
     first_fix_judged_at_newest: bool = True
     min_tol_m: float = 1.0
     min_gate_m: float = 2.5
@@ -605,20 +616,28 @@ class Matcher:
         ln_sigma: np.ndarray | None = None,
         odom_cov: np.ndarray | None = None,
     ) -> MatchResult:
-        """The global search (:meth:`match`); when it gives no fix and a prior alignment is
-        given (the rover is localized), :meth:`track` near it. The darces_matcher node's
-        decision for each LN. Once localized, node sigmas are relative to the newest node
+        """The global search (:meth:`match`) and, when a prior alignment is given (the
+        rover is localized), :meth:`track` near it: the tracked fix when the search gives
+        none, or (``MatchConfig.localized_keep_likelier``) when it is the less likely of
+        the two to be a chance alignment. The darces_matcher node's decision for each LN.
+        Once localized, node sigmas are relative to the newest node
         (``MatchConfig.localized_anchor_newest``). ``timings_ms["total"]`` covers both;
         ``"search"`` is the global search's share when tracking ran."""
         newest = prior is not None and self.config.localized_anchor_newest
         result = self.match(ln, ln_sigma, newest, odom_cov)
-        if result.is_fix or prior is None:
+        if prior is None or (result.is_fix and not self.config.localized_keep_likelier):
             return result
         searched_ms = result.timings_ms.get("total", 0.0)
-        result = self.track(ln, prior, prior_covariance, ln_sigma, newest, odom_cov)
-        result.timings_ms["search"] = searched_ms
-        result.timings_ms["total"] = result.timings_ms.get("total", 0.0) + searched_ms
-        return result
+        tracked = self.track(ln, prior, prior_covariance, ln_sigma, newest, odom_cov)
+        if result.is_fix and not (tracked.is_fix and tracked.false_match_probability
+                                  < result.false_match_probability):
+            tracked_ms = tracked.timings_ms.get("total", 0.0)
+            result.timings_ms["search"] = searched_ms
+            result.timings_ms["total"] = searched_ms + tracked_ms
+            return result
+        tracked.timings_ms["search"] = searched_ms
+        tracked.timings_ms["total"] = tracked.timings_ms.get("total", 0.0) + searched_ms
+        return tracked
 
     @staticmethod
     def prior_search_size(pts: np.ndarray, var: np.ndarray, prior_covariance: np.ndarray,

@@ -112,13 +112,13 @@ def test_track_bad_input(gn, matcher, lns) -> None:
     assert few.status == "no_fix" and few.reason == "too_few_nodes"
 
 
-def test_match_or_track_tracks_only_when_the_search_fails_and_a_prior_is_given(gn, lns) -> None:
+def test_search_first_tracks_only_when_the_search_fails_and_a_prior_is_given(gn, lns) -> None:
     # The control flow on a fixture where one five-node prefix is left unfixed by the
     # search and placed by the prior. That prefix (nodes 0.7-1.9 m, 1 sigma) is placed at
     # odds 0.005 with its covariance as it is, and just misses the 0.01 threshold (0.012)
     # with the node sigmas relative to its first node, whose smaller cells count more
     # distinct alignments inside the prior: the records' covariance as it is, here.
-    matcher = Matcher(gn, MatchConfig(ln_sigma_relative=False))
+    matcher = Matcher(gn, MatchConfig(ln_sigma_relative=False, localized_keep_likelier=False))
     gn_pts = xy(gn.records)
     # A whole LN: the global search fixes it, the prior is not used.
     sim = lns[0]
@@ -147,6 +147,36 @@ def test_match_or_track_tracks_only_when_the_search_fails_and_a_prior_is_given(g
             assert result.reason == "ok_tracked"
             assert transform_error(result.map_T_odom, short, gn_pts) < 6.0
     assert tracked >= 1
+
+
+def test_once_localized_the_likelier_of_search_and_track_is_kept(gn, lns) -> None:
+    """With a prior (the rover localized), the global search and tracking near the prior
+    both decide; the fix less likely a chance alignment is kept: near a right prior the
+    tracked one (a smaller search), far from it the search's (tracking finds nothing)."""
+    matcher = Matcher(gn, MatchConfig())
+    gn_pts = xy(gn.records)
+    kinds = set()
+    for sim in lns[:6]:
+        searched = matcher.match(sim.records, None, True)
+        assert searched.is_fix
+        near, cov = _prior(sim.map_T_odom, xy(sim.records).mean(axis=0), np.zeros(3), 0.5,
+                           np.radians(0.2))
+        tracked = matcher.track(sim.records, near, cov, None, True)
+        result = matcher.match_or_track(sim.records, near, cov)
+        assert result.is_fix and "search" in result.timings_ms
+        best = min((searched, tracked), key=lambda r: r.false_match_probability
+                   if r.is_fix else np.inf)
+        assert result.reason == best.reason
+        assert result.false_match_probability == pytest.approx(best.false_match_probability)
+        assert transform_error(result.map_T_odom, sim, gn_pts) < 6.0
+        kinds.add(result.reason)
+        far, cov = _prior(sim.map_T_odom, xy(sim.records).mean(axis=0),
+                          np.array([60.0, -40.0, 0.0]), 2.0, np.radians(1.0))
+        result = matcher.match_or_track(sim.records, far, cov)
+        assert result.is_fix and result.reason == searched.reason
+        assert result.timings_ms["total"] >= result.timings_ms["search"]
+        assert transform_error(result.map_T_odom, sim, gn_pts) < 6.0
+    assert "ok_tracked" in kinds  # a tight, right prior wins at least once
 
 
 def _bent_ln(gn: RoiNetwork, sim, drift_deg: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

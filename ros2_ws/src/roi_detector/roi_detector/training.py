@@ -125,7 +125,8 @@ def far_rock_samples(bag_dir: str, log=print, population: str = "measured") -> d
         raise ValueError(f"population: unknown '{population}' (one of {FAR_POPULATIONS})")
     from roi_detector.evaluation import match_nodes, true_nodes
 
-    mapper = DriveMapper(RoverConfig(far_rocks=True))
+    # No classifier: every track is measured and described, whatever a model would say.
+    mapper = DriveMapper(RoverConfig(far_rocks=True, classify_far_rocks=False))
     truth, _ = drive_with_truth_odometry(bag_dir, mapper, log, describe=True)
     tracks = [r for r in mapper.far.measured if r.features is not None
               and (r.candidate or population == "measured")]

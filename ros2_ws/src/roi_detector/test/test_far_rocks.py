@@ -170,24 +170,33 @@ def test_dark_blob_reads_the_disparity_of_its_own_rows():
 
 
 
-def test_far_rocks_are_on_by_default_and_the_cli_turns_them_off(monkeypatch):
+def test_far_rocks_are_on_and_classified_by_default_and_the_cli_turns_them_off(monkeypatch):
     """One default (RoverConfig) for the library, the offline CLI and the node;
-    ``roi_detector ln --no-far-rocks`` builds the map's LN alone."""
+    ``roi_detector ln --no-far-rocks`` builds the map's LN alone,
+    ``--no-classify-far-rocks`` leaves the far rocks to the rules, ``--far-classified
+    candidates`` classifies in the paper's order."""
     from roi_detector import cli
     from roi_detector.rover_pipeline import RoverConfig
 
-    assert RoverConfig().far_rocks is True
+    cfg = RoverConfig()
+    assert cfg.far_rocks and cfg.classify_far_rocks and cfg.far.classified == "measured"
     seen = []
 
     def build_ln(bag, odometry, model, cfg, *args, **kwargs):
-        seen.append(cfg.far_rocks)
+        seen.append((cfg.far_rocks, cfg.classify_far_rocks, cfg.far.classified))
         raise ValueError("stop here")  # the CLI reports it and exits 1
 
     monkeypatch.setattr(cli, "build_ln", build_ln)
-    for flags, expected in (([], True), (["--no-far-rocks"], False), (["--far-rocks"], True)):
+    for flags, expected in (([], (True, True, "measured")),
+                            (["--no-far-rocks"], (False, True, "measured")),
+                            (["--far-rocks"], (True, True, "measured")),
+                            (["--no-classify-far-rocks"], (True, False, "measured")),
+                            (["--far-classified", "candidates"], (True, True, "candidates"))):
         assert cli.main(["ln", "BAG", "--odometry", "o.tum", "--out", "ln.geojson",
                          *flags]) == 1
-        assert seen[-1] is expected
+        assert seen[-1] == expected
+    with pytest.raises(SystemExit):  # argparse names the choices
+        cli.main(["ln", "BAG", "--odometry", "o.tum", "--out", "ln", "--far-classified", "x"])
 
 
 def _drive_described(camera, tracker, cfg, steps, **scene):

@@ -302,12 +302,13 @@ def test_a_far_rock_model_serves_the_elevation_map_and_only_it(tmp_path):
     assert model.far_rocks and not model.per_pair
     probe = np.array([[3.0], [-3.0]], np.float32) * np.ones(len(names), np.float32)
     assert model.far_rock_proba(probe).tolist() == [1.0, 0.0]
-    classify = RoverConfig(classify_far_rocks=True)
+    classify = RoverConfig()  # on by default
     assert DriveMapper(classify, classifier=model).far.classifier is not None
-    # Off by default: no model is loaded, the far rocks keep to the rules.
-    assert load_classifier(str(path)) is None
-    assert DriveMapper(RoverConfig(), classifier=model).far.classifier is None
-    assert not RoverDetector([0.0] * 6 + [1.0], model, RoverConfig()).describe_blobs
+    # Turned off: no model is loaded, the far rocks keep to the rules.
+    rules = RoverConfig(classify_far_rocks=False)
+    assert load_classifier(str(path), rules) is None
+    assert DriveMapper(rules, classifier=model).far.classifier is None
+    assert not RoverDetector([0.0] * 6 + [1.0], model, rules).describe_blobs
     assert load_classifier(str(path), classify) is not None
     per_pair = RoverConfig(method="per_pair")
     with pytest.raises(ValueError, match=r"far\.npz.*per_pair"):
@@ -322,7 +323,7 @@ def test_a_far_rock_model_serves_the_elevation_map_and_only_it(tmp_path):
                           for n in ("rock_rover", "outcrop_rover")}, {})
     with pytest.raises(ValueError, match=r"pp\.npz.*far-rock"):
         load_classifier(str(pp), classify)
-    assert load_classifier(str(pp), RoverConfig()) is None  # far rocks by the rules alone
+    assert load_classifier(str(pp), rules) is None  # far rocks by the rules alone
     # Not a rover model at all: named, with what it holds.
     other = tmp_path / "other.npz"
     save_rover_model(other, {"rock_orbital": BinaryClassifier(
@@ -362,7 +363,7 @@ def test_the_committed_rover_model_is_the_far_rocks_rock_rover_of_training_seeds
 
     path = _installed_model()
     assert path is not None and path.stat().st_size < 1_000_000
-    model = load_classifier(None, RoverConfig(classify_far_rocks=True))
+    model = load_classifier(None, RoverConfig())
     assert model.far_rocks and not model.per_pair
     assert model.classifiers[FAR_ROCK_CLASSIFIER].feature_names == far_feature_names()
     prov = model.meta["provenance"]
@@ -392,5 +393,5 @@ def test_classifying_far_rocks_without_a_model_is_an_error(monkeypatch):
 
     monkeypatch.setattr(cli, "_installed_model", lambda: None)
     with pytest.raises(ValueError, match="classify_far_rocks: no rover model"):
-        cli.load_classifier(None, RoverConfig(classify_far_rocks=True))
-    assert cli.load_classifier(None, RoverConfig()) is None
+        cli.load_classifier(None, RoverConfig())  # the default classifies far rocks
+    assert cli.load_classifier(None, RoverConfig(classify_far_rocks=False)) is None
