@@ -64,9 +64,9 @@ def samples(bag: str, cache: Path) -> dict:
     data["n_counted"] = int(counted.sum())
     names, cfg = far_feature_names(), FarRockConfig()
     x = data["x"]
-    data["geometric"] = (x[:, names.index("far_parallax_deg")] >= cfg.min_parallax_deg) & \
-        (x[:, names.index("far_residual_px")] <= cfg.max_residual_px) & \
-        (np.exp(x[:, names.index("far_log_nearest_m")]) <= cfg.max_nearest_m)
+    data["geometric"] = cfg.passes_geometry(x[:, names.index("far_parallax_deg")],
+                                            x[:, names.index("far_residual_px")],
+                                            np.exp(x[:, names.index("far_log_nearest_m")]))
     return data
 
 

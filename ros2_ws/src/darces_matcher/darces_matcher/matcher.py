@@ -629,15 +629,12 @@ class Matcher:
             return result
         searched_ms = result.timings_ms.get("total", 0.0)
         tracked = self.track(ln, prior, prior_covariance, ln_sigma, newest, odom_cov)
-        if result.is_fix and not (tracked.is_fix and tracked.false_match_probability
-                                  < result.false_match_probability):
-            tracked_ms = tracked.timings_ms.get("total", 0.0)
-            result.timings_ms["search"] = searched_ms
-            result.timings_ms["total"] = searched_ms + tracked_ms
-            return result
-        tracked.timings_ms["search"] = searched_ms
-        tracked.timings_ms["total"] = tracked.timings_ms.get("total", 0.0) + searched_ms
-        return tracked
+        likelier = tracked.is_fix and \
+            tracked.false_match_probability < result.false_match_probability
+        kept = result if result.is_fix and not likelier else tracked
+        kept.timings_ms["total"] = searched_ms + tracked.timings_ms.get("total", 0.0)
+        kept.timings_ms["search"] = searched_ms
+        return kept
 
     @staticmethod
     def prior_search_size(pts: np.ndarray, var: np.ndarray, prior_covariance: np.ndarray,

@@ -138,6 +138,13 @@ class FarRockConfig:
             raise ValueError(f"far rocks: classified: unknown '{self.classified}' (one of "
                              f"{FAR_POPULATIONS})")
 
+    def passes_geometry(self, parallax_deg, residual_px, nearest_m):
+        """The geometric tests of a far track (bearing spread, ray residual, nearest
+        range): scalars or arrays, elementwise."""
+        return (np.asarray(parallax_deg) >= self.min_parallax_deg) & \
+            (np.asarray(residual_px) <= self.max_residual_px) & \
+            (np.asarray(nearest_m) <= self.max_nearest_m)
+
 
 @dataclass
 class Blob:
@@ -504,8 +511,7 @@ class FarRockTracker:
         cov = np.linalg.pinv(info) * max(1.0, (residual / cfg.bearing_sigma_px) ** 2)
         span = tr.views[-1].travelled - tr.views[0].travelled
         cov = cov + np.eye(2) * (cfg.odom_sigma_per_m * span) ** 2 + tr.odom_cov
-        geometric = bool(spread >= cfg.min_parallax_deg and residual <= cfg.max_residual_px
-                         and rng.min() <= cfg.max_nearest_m)
+        geometric = bool(cfg.passes_geometry(spread, residual, rng.min()))
         candidate = geometric and height > cfg.min_height_m and area > cfg.min_area_m2
         app = [v.appearance for v in tr.views if v.appearance is not None]
         feats = far_rock_features(app, width, height, float(rng.min()), len(tr.views),
@@ -514,8 +520,9 @@ class FarRockTracker:
         if self.classifier is not None:
             # The Rock Rover decides the candidates (the paper's order) or, in place of the
             # size thresholds, every track that passed the geometric tests.
+            decided = candidate if cfg.classified == "candidates" else geometric
             passed = False
-            if candidate if cfg.classified == "candidates" else geometric:
+            if decided:
                 if feats is None:
                     raise ValueError("far rocks: a classifier needs the blobs' appearance "
                                      "(dark_blobs(describe=True))")

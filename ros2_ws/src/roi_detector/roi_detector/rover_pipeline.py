@@ -82,7 +82,7 @@ class RoverConfig:
 
     @property
     def classifies_far_rocks(self) -> bool:
-        """The far rocks' Rock Rover decides the far rocks' candidates."""
+        """The far rocks' Rock Rover decides the far rocks (``far.classified``: which)."""
         return self.method == "elevation_map" and self.far_rocks and self.classify_far_rocks
 
     @property
