@@ -23,7 +23,7 @@ Usage (repository root, after ``source env.sh``)::
 
     python bench/far_classifier_bench.py bags/train_quick_s101 ... bags/train_quick_s112
 
-Writes bench/results/far_classifier.{json,md}.
+Writes bench/results/NAME.{json,md} (``--name``, default far_classifier).
 """
 
 from __future__ import annotations
@@ -64,9 +64,11 @@ def samples(bag: str, cache: Path) -> dict:
     data["n_counted"] = int(counted.sum())
     names, cfg = far_feature_names(), FarRockConfig()
     x = data["x"]
-    data["geometric"] = cfg.passes_geometry(x[:, names.index("far_parallax_deg")],
-                                            x[:, names.index("far_residual_px")],
-                                            np.exp(x[:, names.index("far_log_nearest_m")]))
+    geometry = (x[:, names.index("far_parallax_deg")], x[:, names.index("far_residual_px")],
+                np.exp(x[:, names.index("far_log_nearest_m")]))
+    # The rules' geometric tests, and those of a track the classifier decides.
+    data["geometric"] = cfg.passes_geometry(*geometry)
+    data["decidable"] = cfg.passes_geometry(*geometry, classified=True)
     return data
 
 
@@ -103,17 +105,25 @@ def tally(data: dict[str, dict], keep: list) -> dict:
             "counted_found": found}
 
 
-#: (label, classified, trained on, kind): the rows after the rules alone.
-RECIPES = (("paper's order", "candidates", "candidates", "knn"),
-           ("paper's order", "candidates", "measured", "knn"),
-           ("in place of the size thresholds", "measured", "measured", "knn"),
-           ("in place of the size thresholds", "measured", "measured", "gradient_boosting"))
+#: (label, classified, trained on, kind, tracks decided): the rows after the rules alone.
+#: Decided: the candidates, or the tracks that pass the rules' geometric tests
+#: ("geometric", bearing spread >= ``min_parallax_deg`` included) or those of a track the
+#: classifier decides ("decidable", the pipeline's: ``classified_min_parallax_deg``).
+RECIPES = (("paper's order", "candidates", "candidates", "knn", "candidate"),
+           ("paper's order", "candidates", "measured", "knn", "candidate"),
+           ("in place of the size thresholds", "measured", "measured", "knn", "decidable"),
+           ("in place of the size thresholds, spread >= 4 deg", "measured", "measured",
+            "gradient_boosting", "geometric"),
+           ("in place of the size thresholds", "measured", "measured", "gradient_boosting",
+            "decidable"))
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("bags", nargs="+")
     ap.add_argument("--cache", type=Path, default=Path("out/far_classifier"))
+    ap.add_argument("--name", default="far_classifier",
+                    help="results file name (bench/results/NAME.{json,md})")
     args = ap.parse_args(argv)
     data = {b: samples(b, args.cache) for b in args.bags}
     n_cand = sum(int(d["candidate"].sum()) for d in data.values())
@@ -122,14 +132,15 @@ def main(argv: list[str] | None = None) -> int:
     rules = {"recipe": "rules alone", "classified": "-", "trained_on": "-", "kind": "-",
              "threshold": None, **tally(data, [d["candidate"] for d in data.values()])}
     rows = [rules]
-    for label, classified, trained_on, kind in RECIPES:
+    for label, classified, trained_on, kind, decided in RECIPES:
         scores = leave_one_out(data, trained_on, kind)
         for th in THRESHOLDS:
-            keep = [(d["candidate"] if classified == "candidates" else d["geometric"]) &
-                    (sc > th) for d, sc in zip(data.values(), scores, strict=True)]
+            keep = [d[decided] & (sc > th) for d, sc in zip(data.values(), scores, strict=True)]
             rows.append({"recipe": label, "classified": classified, "trained_on": trained_on,
                          "kind": kind, "threshold": th, **tally(data, keep)})
-    report = {"command": "python bench/far_classifier_bench.py " + " ".join(args.bags),
+    report = {"command": "python bench/far_classifier_bench.py " + " ".join(args.bags)
+              + (f" --cache {args.cache}" if args.cache != Path("out/far_classifier") else "")
+              + (f" --name {args.name}" if args.name != "far_classifier" else ""),
               "bags": {Path(b).name: {"measured": len(d["y"]), "rocks": int(d["y"].sum()),
                                       "candidates": int(d["candidate"].sum()),
                                       "true_candidates": int(d["y"][d["candidate"]].sum()),
@@ -148,8 +159,9 @@ def main(argv: list[str] | None = None) -> int:
              "other bags: kNN is the paper's (standardise, PCA to 8, k = 5); "
              "gradient_boosting is scikit-learn's histogram gradient boosting, classes "
              "weighted. *decides*: the candidates (after the rules, the paper's order) or "
-             "every track that passes the geometric tests (views, bearing spread, ray "
-             "residual, nearest range), in place of the size thresholds.", "",
+             "every track that passes the geometric tests (views, ray residual, nearest "
+             "range; the bearing spread as the row says), in place of the size "
+             "thresholds.", "",
              "| recipe | decides | trained on | kind | score > | true kept | false kept "
              "| precision | counted rocks found |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
@@ -159,8 +171,8 @@ def main(argv: list[str] | None = None) -> int:
                      f"| {r['counted_found']} / {n_counted} |")
     md = "\n".join(lines) + "\n"
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "far_classifier.json").write_text(json.dumps(report, indent=1) + "\n")
-    (RESULTS / "far_classifier.md").write_text(md)
+    (RESULTS / f"{args.name}.json").write_text(json.dumps(report, indent=1) + "\n")
+    (RESULTS / f"{args.name}.md").write_text(md)
     print(md)
     return 0
 

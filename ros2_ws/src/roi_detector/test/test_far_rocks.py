@@ -79,8 +79,10 @@ def _drive(camera, tracker, cfg, steps, **scene):
     tracker.close_all()
 
 
-def test_a_rock_beside_the_route_is_triangulated_and_measured():
-    camera, cfg = _camera(), FarRockConfig()
+@pytest.mark.parametrize("variance_components", [False, True])
+def test_a_rock_beside_the_route_is_triangulated_and_measured(variance_components):
+    camera = _camera()
+    cfg = FarRockConfig(variance_components=variance_components)
     tracker = FarRockTracker(cfg)
     # 11 m beside the route, seen from 33 m down to 16 m (it leaves the 70 deg view),
     # always beyond the elevation map's 20 m... and 12 m blob limit.
@@ -89,7 +91,11 @@ def test_a_rock_beside_the_route_is_triangulated_and_measured():
     rocks = tracker.rocks()
     assert len(rocks) == 1
     r = rocks[0]
-    assert np.hypot(r.xy[0] - 32.0, r.xy[1] - 11.0) < 0.4
+    # The noise-free disparities of this scene are those of the rock's near face, 0.6 m
+    # short of its centre and all alike: the estimated range error is then small and the
+    # fit leans on them, within the half width that the covariance allows for where the
+    # blob sits on the rock.
+    assert np.hypot(r.xy[0] - 32.0, r.xy[1] - 11.0) < (0.6 if variance_components else 0.4)
     assert r.width_m == pytest.approx(1.2, rel=0.2)
     assert r.height_m == pytest.approx(0.6, rel=0.25)
     assert r.parallax_deg > 8 and r.residual_px < 1.0
@@ -277,16 +283,74 @@ def test_the_classifier_stands_in_for_the_size_thresholds_on_every_measured_trac
     assert len(yes.rocks(classified=False)) == 1  # the rules alone: the big rock
     decided = [m for m in yes.measured if np.isfinite(m.score)]
     assert len(seen) == len(decided) >= 2
-    assert all(m.parallax_deg >= cfg.min_parallax_deg and m.residual_px <= cfg.max_residual_px
-               for m in decided)
+    assert all(m.parallax_deg >= cfg.classified_min_parallax_deg
+               and m.residual_px <= cfg.max_residual_px for m in decided)
     no = FarRockTracker(cfg, _says(0.2, []))
     _drive_described(camera, no, cfg, steps, rocks=[rock, small])
     assert no.rocks() == [] and len(no.rocks(classified=False)) == 1
-    # Geometry still gates: with a 90 deg bearing-spread demand no track is decided.
-    strict = FarRockConfig(min_parallax_deg=90.0)
+    # Geometry still gates: with a 90 deg bearing-spread demand on the tracks it decides,
+    # no track is decided.
+    strict = FarRockConfig(classified_min_parallax_deg=90.0)
     seen = []
     none = FarRockTracker(strict, _says(0.8, seen))
     _drive_described(camera, none, strict, steps, rocks=[rock, small])
     assert none.rocks() == [] and seen == []
+    # The rules' bearing-spread test is the candidates' alone: the classifier still decides
+    # both tracks, where in the paper's order (the candidates) it decides none.
+    rules_strict = FarRockConfig(min_parallax_deg=90.0)
+    both = FarRockTracker(rules_strict, _says(0.8, []))
+    _drive_described(camera, both, rules_strict, steps, rocks=[rock, small])
+    assert len(both.rocks()) == 2 and both.rocks(classified=False) == []
+    paper = FarRockConfig(min_parallax_deg=90.0, classified="candidates")
+    seen = []
+    order = FarRockTracker(paper, _says(0.8, seen))
+    _drive_described(camera, order, paper, steps, rocks=[rock, small])
+    assert order.rocks() == [] and seen == []
     with pytest.raises(ValueError, match=r"classified.*'tracks'"):
         FarRockConfig(classified="tracks")
+
+
+def _noisy_track(rng, bearing_px, range_share, n=30):
+    """A track of ``n`` views of a rock at (30, 12) from a straight drive along x, its
+    bearings off by ``bearing_px`` (1 sigma) and its stereo ranges by ``range_share`` of
+    their nominal sigma (0.5 px of disparity)."""
+    from roi_detector.far_rocks import FarTrack, _View
+
+    rock = np.array([30.0, 12.0])
+    views = []
+    for x in np.linspace(0.0, 14.0, n):
+        c = np.array([x, 0.0, 1.5])
+        true = rock - c[:2]
+        r = float(np.linalg.norm(true))
+        a = np.arctan2(true[1], true[0]) + rng.normal(0, bearing_px / FX)
+        sigma = r * r / (FX * 0.2) * 0.5
+        ray = np.array([np.cos(a), np.sin(a), -0.05])
+        views.append(_View(0.0, c, ray / np.linalg.norm(ray), 0.04, 0.0, -0.02, x,
+                           r + rng.normal(0, range_share * sigma), sigma))
+    tr = FarTrack(1, views, np.r_[views[0].centre[:2] + views[0].ray[:2] * 20.0, 0.0])
+    for k in range(1, n + 1):  # as the tracker does, view by view
+        sub = FarTrack(1, views[:k], tr.point)
+        sub.triangulate(1.0 / FX)
+        tr.point = sub.point
+    return tr, rock
+
+
+def test_variance_components_estimate_the_tracks_own_errors_and_place_it_better():
+    rng = np.random.default_rng(3)
+    prior, fitted, scales = [], [], []
+    for _ in range(40):
+        # Bearings worse than the 1 px prior, stereo ranges better than theirs.
+        tr, rock = _noisy_track(rng, bearing_px=1.5, range_share=0.3)
+        prior.append(np.linalg.norm(tr.point[:2] - rock))
+        sb, info = tr.refine(1.0 / FX, 0.5)
+        fitted.append(np.linalg.norm(tr.point[:2] - rock))
+        scales.append(sb * FX)
+        assert info.shape == (2, 2) and np.all(np.linalg.eigvalsh(info) > 0)
+    assert np.median(scales) == pytest.approx(1.5, rel=0.2)
+    assert np.median(fitted) < 0.7 * np.median(prior)
+    # Noise as the priors say: the scales stay near them and the fit does not degrade.
+    tr, rock = _noisy_track(np.random.default_rng(4), bearing_px=1.0, range_share=1.0)
+    before = np.linalg.norm(tr.point[:2] - rock)
+    sb, _ = tr.refine(1.0 / FX, 0.5)
+    assert 0.6 < sb * FX < 1.5
+    assert np.linalg.norm(tr.point[:2] - rock) < before + 0.3
