@@ -113,16 +113,16 @@ class FarRockConfig:
             errors and of its stereo ranges' errors from its own residuals (variance
             component estimation, a few re-weighted fits) and place the rock with them,
             instead of the priors ``bearing_sigma_px`` and ``disparity_sigma_px``. On
-            the 12 training bags a blob's median disparity errs ~0.4 of the prior
-            (0.87 m at 20 m, for 2.0 m), its centroid 1.5 px; the priors' fit placed the
-            rock a median 0.83 m from it, the estimated scales 0.76 m
+            the 12 training bags a blob's median disparity errs ~0.45 of the prior
+            (0.89 m at 20 m, for 2.0 m), its centroid 1.25 px; the priors' fit placed the
+            rock a median 0.83 m from it, the estimated scales 0.74 m
             (docs/roi_detector.md).
         min_bearing_scale: the estimated bearing scale is at least this share of
             ``bearing_sigma_px`` (a short track's residuals can be near zero by chance).
         centre_sigma_width: 1 sigma of where the dark blob sits on the rock (its dark,
             shaded part, not its outline), times the rock's measured width, added to the
             position covariance: the tracks' residuals cannot see it, and without it the
-            covariance was ~20x too confident on the training bags.
+            covariance's sigmas were ~15x too small on the training bags.
         odom_sigma_per_m: 1-sigma odometry error per metre between the views (relative
             drift across the track), added to the position covariance.
         max_nearest_m: a rock must have been seen from at most this far (at 30 m a
