@@ -65,7 +65,9 @@ class CpuSampler:
     """CPU seconds per process name of a process tree, sampled every ``period_s``.
 
     A process is named by its ROS node name (``__node:=NAME``) or, for the tools,
-    ``globloc_<subcommand>``; a restarted node's incarnations add up.
+    ``globloc_<subcommand>``; a restarted node's incarnations add up. The name is read at
+    every sample: a child seen between its fork and its exec still carries its parent's
+    command line (a node's CPU had been counted as ``globloc_run``'s).
     """
 
     def __init__(self, root: psutil.Process, period_s: float = 0.5) -> None:
@@ -94,7 +96,8 @@ class CpuSampler:
             try:
                 with p.oneshot():
                     t = p.cpu_times()
-                    name = self.cpu_s.get(p.pid, (None,))[0] or self._name(p.cmdline())
+                    cmd = p.cmdline()  # empty once the process exits: keep its name
+                    name = self._name(cmd) if cmd else self.cpu_s.get(p.pid, ("?",))[0]
                     self.cpu_s[p.pid] = (name, t.user + t.system)
             except psutil.Error:
                 continue

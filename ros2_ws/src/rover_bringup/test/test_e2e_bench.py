@@ -119,3 +119,40 @@ def test_rois_passed_counts_by_the_closest_point_along_the_route(bench: ModuleTy
     assert bench.rois_passed(back, np.array([[100.0, 19.0]]), (200, 700, 720)) == {
         200: 0, 700: 0, 720: 1}
     assert bench.rois_passed(route, np.zeros((0, 2)), (100,)) == {100: 0}
+
+
+def test_cpu_sampler_names_a_child_by_its_command_after_exec(bench: ModuleType):
+    """A child sampled between its fork and its exec carries its parent's command line;
+    once it runs its node, its CPU is the node's, not ``globloc run``'s."""
+    run_cmd = ['python', '-m', 'rover_bringup.cli', 'run', 'bags/quick']
+
+    class Times:
+        def __init__(self, s: float) -> None:
+            self.user, self.system = s, 0.0
+
+    class Proc:
+        def __init__(self, pid: int, cmdline: list[str]) -> None:
+            self.pid, self.cmd, self.cpu = pid, cmdline, 1.0
+
+        def oneshot(self):
+            import contextlib
+            return contextlib.nullcontext()
+
+        def cpu_times(self) -> Times:
+            return Times(self.cpu)
+
+        def cmdline(self) -> list[str]:
+            return self.cmd
+
+    root, child = Proc(1, run_cmd), Proc(2, run_cmd)  # forked, not yet exec'd
+    root.children = lambda recursive=True: [child]
+    sampler = bench.CpuSampler(root)
+    sampler._sample()
+    assert sampler.per_name() == {'globloc_run': 2.0}
+    child.cmd = ['ln_builder', '--ros-args', '-r', '__node:=ln_builder']  # exec'd
+    child.cpu = 5.0
+    sampler._sample()
+    assert sampler.per_name() == {'globloc_run': 1.0, 'ln_builder': 5.0}
+    child.cmd = []  # exited: its name stays
+    sampler._sample()
+    assert sampler.per_name() == {'globloc_run': 1.0, 'ln_builder': 5.0}
