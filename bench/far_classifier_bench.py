@@ -139,8 +139,8 @@ def main(argv: list[str] | None = None) -> int:
             rows.append({"recipe": label, "classified": classified, "trained_on": trained_on,
                          "kind": kind, "threshold": th, **tally(data, keep)})
     report = {"command": "python bench/far_classifier_bench.py " + " ".join(args.bags)
-              + (f" --cache {args.cache}" if args.cache != Path("out/far_classifier") else "")
-              + (f" --name {args.name}" if args.name != "far_classifier" else ""),
+              + (f" --cache {args.cache}" if args.cache != ap.get_default("cache") else "")
+              + (f" --name {args.name}" if args.name != ap.get_default("name") else ""),
               "bags": {Path(b).name: {"measured": len(d["y"]), "rocks": int(d["y"].sum()),
                                       "candidates": int(d["candidate"].sum()),
                                       "true_candidates": int(d["y"][d["candidate"]].sum()),
