@@ -93,11 +93,84 @@ def test_outcrop_from_pale_cells():
     rec = emap.to_records()
     assert len(rec) == 1 and rec["label"][0] == OUTCROP
     assert np.hypot(rec["x"][0] - 10.0, rec["y"][0] + 3.0) < 0.3
-    assert 7.0 < rec["area_m2"][0] < 11.0
+    # The colour averaged over 0.2 m crosses the threshold about that far inside the
+    # slab's edge: 2.6 m of its 3 m.
+    assert 6.0 < rec["area_m2"][0] < 11.0
     # The same slab with the soil's colour: nothing (the paper's 5.5 m^2 is the size).
     emap = ElevationMap(ElevationMapConfig(detect_every=2))
     _drive(emap, pts, appearance=np.ones_like(app))
     assert len(emap.to_records()) == 0
+
+
+def _striped_slab(seed=5):
+    """A 3 x 3 m grey slab 0.1 m thick seen in sparse stripes (every other 0.1 m band of
+    cells gets no point, as from afar), its points' saturation scattered across the
+    threshold (0.4 +- 0.25 per point, the soil at 1)."""
+    rng = np.random.default_rng(seed)
+    pts = _scene(rock=False, swell=False)
+    x, y = pts[:, 0, 0], pts[:, 0, 1]
+    slab = (np.abs(x - 10.0) < 1.5) & (np.abs(y + 3.0) < 1.5)
+    gap = slab & (np.floor(x / 0.1).astype(int) % 2 == 1)
+    pts[slab, 0, 2] += 0.1
+    app = np.ones((len(pts), 1, 2), np.float32)
+    app[slab, 0, 0] = 0.4 + rng.normal(0.0, 0.25, slab.sum())
+    return pts[~gap], app[~gap]
+
+
+def test_outcrop_seen_in_sparse_stripes_is_found_on_its_smoothed_colour():
+    pts, app = _striped_slab()
+    emap = ElevationMap(ElevationMapConfig(detect_every=2))
+    _drive(emap, pts, appearance=app)
+    rec = emap.to_records()
+    assert len(rec) == 1 and rec["label"][0] == OUTCROP
+    assert np.hypot(rec["x"][0] - 10.0, rec["y"][0] + 3.0) < 0.3
+    # The soil blurred into its rim costs a band about one sigma wide (2.6 m of 3 m).
+    assert 5.5 < rec["area_m2"][0] < 11.0
+    # Its observations are the 8 pairs that saw it, not a median over its unseen stripes.
+    assert rec["n_obs"][0] == 8
+    # Per observed cell, unsmoothed (the rule until 2026-11-27): the stripes and the
+    # scatter break the slab into pieces below the paper's 5.5 m^2.
+    emap = ElevationMap(ElevationMapConfig(
+        detect_every=2, outcrop_colour_sigma_m=0.0, outcrop_opening=2,
+        outcrop_max_saturation=0.6, outcrop_min_value=0.8, outcrop_min_cells_fraction=1.0))
+    _drive(emap, pts, appearance=app)
+    assert len(emap.to_records()) == 0
+
+
+def test_a_gravel_patch_is_no_outcrop():
+    """A flat 4 x 4 m patch of gravel: greyer than the soil, but not an outcrop's grey
+    (the simulator's gravel has 0.58 of the soil's saturation and 0.82 of its value,
+    its outcrops 0.36 and 0.84-1.15)."""
+    pts = _scene(rock=False, swell=False)
+    x, y = pts[:, 0, 0], pts[:, 0, 1]
+    patch = (np.abs(x - 10.0) < 2.0) & (np.abs(y + 3.0) < 2.0)
+    app = np.ones((len(pts), 1, 2), np.float32)
+    app[patch, 0] = (0.58, 0.82)
+    emap = ElevationMap(ElevationMapConfig(detect_every=2))
+    _drive(emap, pts, appearance=app)
+    assert len(emap.to_records()) == 0
+    app[patch, 0] = (0.36, 0.95)  # the same patch in an outcrop's colour
+    emap = ElevationMap(ElevationMapConfig(detect_every=2))
+    _drive(emap, pts, appearance=app)
+    rec = emap.to_records()
+    assert len(rec) == 1 and rec["label"][0] == OUTCROP
+
+
+def test_an_outcrop_keeps_its_largest_footprint_a_rock_its_latest():
+    from roi_detector.elevation_map import MapRoi
+
+    emap = ElevationMap(ElevationMapConfig())
+    def roi(label, x, area):
+        return MapRoi(0, label, np.array([x, 0.0]), 0.0, area, 0.2, 6.0, 3.0, 0.0)
+    emap._associate(roi(OUTCROP, 0.0, 30.0))
+    emap._associate(roi(OUTCROP, 2.0, 8.0))  # the slab cut at the examined cells' border
+    assert len(emap.rois) == 1 and emap.rois[0].rounds == 2
+    assert emap.rois[0].area_m2 == 30.0 and emap.rois[0].xy[0] == 0.0
+    emap._associate(roi(OUTCROP, 0.5, 35.0))
+    assert emap.rois[0].area_m2 == 35.0 and emap.rois[0].rounds == 3
+    emap._associate(roi(ROCK, 20.0, 1.5))
+    emap._associate(roi(ROCK, 20.3, 1.0))
+    assert emap.rois[1].area_m2 == 1.0 and emap.rois[1].rounds == 2
 
 
 def test_window_follows_the_rover_and_keeps_odom_positions():
