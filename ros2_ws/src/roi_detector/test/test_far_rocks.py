@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 from roi_detector.far_rocks import FarRockConfig, FarRockTracker, dark_blobs
 from roi_detector.rover_pipeline import FAR_ROCK_ID_BASE, far_rock_records
 from roi_detector.stereo import StereoCamera
-from roi_network.records import ROCK
+from roi_network.records import OUTCROP, ROCK
 
 # The bags' navigation camera: 640 x 480, 70 deg, 1.54 m high, 20 deg down, 0.2 m baseline.
 TILT = np.radians(20.0)
@@ -150,10 +150,14 @@ def test_the_ln_gets_the_far_rocks_no_map_roi_stands_near():
 
     mapper = DriveMapper(RoverConfig(far_rocks=True))
     mapper.map.rois = [MapRoi(7, ROCK, np.array([10.0, 5.0]), 0.2, 1.5, 0.6, 1.6, 1.2, 0.0,
-                              rounds=3, examined=3, n_pairs=12)]
-    mapper.far.measured = [far(1, 10.8, 5.3), far(2, 30.0, -8.0)]
+                              rounds=3, examined=3, n_pairs=12),
+                       MapRoi(8, OUTCROP, np.array([40.0, 0.0]), 0.1, 30.0, 0.2, 8.0, 5.0,
+                              0.0, rounds=3, examined=3, n_pairs=12)]
+    # Far rock 1 is the map's rock 7 seen from afar; rock 3 stands beside outcrop 8, 2 m
+    # from its centre (within half its major axis): a rock, not the outcrop.
+    mapper.far.measured = [far(1, 10.8, 5.3), far(2, 30.0, -8.0), far(3, 42.0, 0.0)]
     rec = mapper._map_and_far_records()
-    assert sorted(rec["id"]) == [7, FAR_ROCK_ID_BASE + 2]
+    assert sorted(rec["id"]) == [7, 8, FAR_ROCK_ID_BASE + 2, FAR_ROCK_ID_BASE + 3]
     off = DriveMapper(RoverConfig(far_rocks=False))  # far rocks off: the map's alone
     off.far.measured = [far(2, 30.0, -8.0)]
     assert len(off._map_and_far_records()) == 0
