@@ -112,7 +112,7 @@ class ElevationMapConfig:
             ``ground_percentile`` of its fine cells (robust to single bad cells).
         outcrop_max_saturation: outcrop cells' colour saturation, relative to the
             median of the pairs that saw them, is below this. 0.5 (0.6 until
-            2026-11-27): between the simulator's outcrops (0.36 of the soil's
+            2026-11-26, late): between the simulator's outcrops (0.36 of the soil's
             saturation by their albedos) and its gravel patches (0.58), which the
             averaged colour took for outcrops at 0.6 (on 8 training bags, 27 of 51
             outcrop nodes false; at 0.5 none of 17; at 0.45, 12 of 26 counted outcrops
@@ -120,7 +120,7 @@ class ElevationMapConfig:
         outcrop_min_value: and their value (brightness) above this: not dark, the
             complement of ``rock_dark_value`` (0.55). Outcrops are grey slabs, pale or
             not: on the training bags they measure 0.74-1.54 of the soil's brightness,
-            and 0.8, the threshold until 2026-11-27, refused the darker ones.
+            and 0.8, the threshold until 2026-11-26, late, refused the darker ones.
         outcrop_min_area_m2: the paper's rover outcrop threshold, on the convex hull of
             the region's cells (as a rock's footprint).
         outcrop_colour_sigma_m: the saturation and value are averaged over a Gaussian
@@ -129,7 +129,7 @@ class ElevationMapConfig:
             afar, in sparse stripes of cells whose colour scatters across the
             thresholds, and the per-cell test broke it into pieces (on the training
             bags 5 of 15 counted outcrops found at the best moment per cell, 12
-            smoothed). 0: per observed cell, the rule until 2026-11-27.
+            smoothed). 0: per observed cell, the rule until 2026-11-26, late.
         outcrop_opening: iterations of the opening that removes specks from the pale
             mask (2 with the per-cell colour).
         outcrop_min_cells_fraction: a region's cells must cover at least this fraction

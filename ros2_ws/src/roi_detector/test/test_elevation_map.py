@@ -128,7 +128,7 @@ def test_outcrop_seen_in_sparse_stripes_is_found_on_its_smoothed_colour():
     assert 5.5 < rec["area_m2"][0] < 11.0
     # Its observations are the 8 pairs that saw it, not a median over its unseen stripes.
     assert rec["n_obs"][0] == 8
-    # Per observed cell, unsmoothed (the rule until 2026-11-27): the stripes and the
+    # Per observed cell, unsmoothed (the rule until 2026-11-26, late): the stripes and the
     # scatter break the slab into pieces below the paper's 5.5 m^2.
     emap = ElevationMap(ElevationMapConfig(
         detect_every=2, outcrop_colour_sigma_m=0.0, outcrop_opening=2,
