@@ -80,54 +80,52 @@ def test_a_mismatch_of_one_view_is_no_rock():
     assert len(emap.rois) == 0
 
 
-def test_outcrop_from_pale_cells():
-    """A 3 x 3 m slab 0.1 m thick whose colour is far less saturated than the soil."""
+def _slab(stripes=False, scatter=0.0, seed=5):
+    """Points and colours of a 3 x 3 m grey slab 0.1 m thick at (10, -3), saturation 0.4
+    of the soil's. ``stripes``: seen in sparse stripes (every other 0.1 m band of cells
+    gets no point, as from afar); ``scatter``: each point's saturation scattered by this
+    much (1 sigma)."""
+    rng = np.random.default_rng(seed)
     pts = _scene(rock=False, swell=False)
     x, y = pts[:, 0, 0], pts[:, 0, 1]
     slab = (np.abs(x - 10.0) < 1.5) & (np.abs(y + 3.0) < 1.5)
     pts[slab, 0, 2] += 0.1
     app = np.ones((len(pts), 1, 2), np.float32)
-    app[slab, 0, 0] = 0.4
-    emap = ElevationMap(ElevationMapConfig(detect_every=2))
+    app[slab, 0, 0] = 0.4 + rng.normal(0.0, scatter, slab.sum())
+    keep = ~(slab & (np.floor(x / 0.1).astype(int) % 2 == 1)) if stripes else slice(None)
+    return pts[keep], app[keep]
+
+
+def _the_slab(emap, pts, app):
+    """Drive past the slab; its one outcrop record."""
     _drive(emap, pts, appearance=app)
     rec = emap.to_records()
     assert len(rec) == 1 and rec["label"][0] == OUTCROP
     assert np.hypot(rec["x"][0] - 10.0, rec["y"][0] + 3.0) < 0.3
+    return rec[0]
+
+
+def test_outcrop_from_pale_cells():
+    """A 3 x 3 m slab 0.1 m thick whose colour is far less saturated than the soil."""
+    pts, app = _slab()
+    rec = _the_slab(ElevationMap(ElevationMapConfig(detect_every=2)), pts, app)
     # The colour averaged over 0.2 m crosses the threshold about that far inside the
     # slab's edge: 2.6 m of its 3 m.
-    assert 6.0 < rec["area_m2"][0] < 11.0
+    assert 6.0 < rec["area_m2"] < 11.0
     # The same slab with the soil's colour: nothing (the paper's 5.5 m^2 is the size).
     emap = ElevationMap(ElevationMapConfig(detect_every=2))
     _drive(emap, pts, appearance=np.ones_like(app))
     assert len(emap.to_records()) == 0
 
 
-def _striped_slab(seed=5):
-    """A 3 x 3 m grey slab 0.1 m thick seen in sparse stripes (every other 0.1 m band of
-    cells gets no point, as from afar), its points' saturation scattered across the
-    threshold (0.4 +- 0.25 per point, the soil at 1)."""
-    rng = np.random.default_rng(seed)
-    pts = _scene(rock=False, swell=False)
-    x, y = pts[:, 0, 0], pts[:, 0, 1]
-    slab = (np.abs(x - 10.0) < 1.5) & (np.abs(y + 3.0) < 1.5)
-    gap = slab & (np.floor(x / 0.1).astype(int) % 2 == 1)
-    pts[slab, 0, 2] += 0.1
-    app = np.ones((len(pts), 1, 2), np.float32)
-    app[slab, 0, 0] = 0.4 + rng.normal(0.0, 0.25, slab.sum())
-    return pts[~gap], app[~gap]
-
-
 def test_outcrop_seen_in_sparse_stripes_is_found_on_its_smoothed_colour():
-    pts, app = _striped_slab()
-    emap = ElevationMap(ElevationMapConfig(detect_every=2))
-    _drive(emap, pts, appearance=app)
-    rec = emap.to_records()
-    assert len(rec) == 1 and rec["label"][0] == OUTCROP
-    assert np.hypot(rec["x"][0] - 10.0, rec["y"][0] + 3.0) < 0.3
-    # The soil blurred into its rim costs a band about one sigma wide (2.6 m of 3 m).
-    assert 5.5 < rec["area_m2"][0] < 11.0
+    """The slab seen in sparse stripes, its points' saturation scattered across the
+    threshold (0.4 +- 0.25)."""
+    pts, app = _slab(stripes=True, scatter=0.25)
+    rec = _the_slab(ElevationMap(ElevationMapConfig(detect_every=2)), pts, app)
+    assert 5.5 < rec["area_m2"] < 11.0
     # Its observations are the 8 pairs that saw it, not a median over its unseen stripes.
-    assert rec["n_obs"][0] == 8
+    assert rec["n_obs"] == 8
     # Per observed cell, unsmoothed (the rule until 2026-11-26, late): the stripes and the
     # scatter break the slab into pieces below the paper's 5.5 m^2.
     emap = ElevationMap(ElevationMapConfig(
