@@ -2,7 +2,12 @@
 
 import numpy as np
 
-from roi_detector.elevation_map import ElevationMap, ElevationMapConfig, ground_surface
+from roi_detector.elevation_map import (
+    AVERAGED_OUTCROPS,
+    ElevationMap,
+    ElevationMapConfig,
+    ground_surface,
+)
 from roi_network.records import OUTCROP, ROCK
 
 CAMERA = np.array([0.4, 0.1, 1.54])
@@ -109,8 +114,11 @@ def test_outcrop_from_pale_cells():
     """A 3 x 3 m slab 0.1 m thick whose colour is far less saturated than the soil."""
     pts, app = _slab()
     rec = _the_slab(ElevationMap(ElevationMapConfig(detect_every=2)), pts, app)
-    # The colour averaged over 0.2 m crosses the threshold about that far inside the
-    # slab's edge: 2.6 m of its 3 m.
+    assert 7.0 < rec["area_m2"] < 11.0
+    # On the averaged colour, which crosses the threshold about 0.2 m inside the slab's
+    # edge: 2.6 m of its 3 m.
+    rec = _the_slab(ElevationMap(ElevationMapConfig(detect_every=2, **AVERAGED_OUTCROPS)),
+                    pts, app)
     assert 6.0 < rec["area_m2"] < 11.0
     # The same slab with the soil's colour: nothing (the paper's 5.5 m^2 is the size).
     emap = ElevationMap(ElevationMapConfig(detect_every=2))
@@ -122,20 +130,19 @@ def test_outcrop_seen_in_sparse_stripes_is_found_on_its_smoothed_colour():
     """The slab seen in sparse stripes, its points' saturation scattered across the
     threshold (0.4 +- 0.25)."""
     pts, app = _slab(stripes=True, scatter=0.25)
-    rec = _the_slab(ElevationMap(ElevationMapConfig(detect_every=2)), pts, app)
+    rec = _the_slab(ElevationMap(ElevationMapConfig(detect_every=2, **AVERAGED_OUTCROPS)),
+                    pts, app)
     assert 5.5 < rec["area_m2"] < 11.0
     # Its observations are the 8 pairs that saw it, not a median over its unseen stripes.
     assert rec["n_obs"] == 8
-    # Per observed cell, unsmoothed (the rule until 2026-11-26, late): the stripes and the
-    # scatter break the slab into pieces below the paper's 5.5 m^2.
-    emap = ElevationMap(ElevationMapConfig(
-        detect_every=2, outcrop_colour_sigma_m=0.0, outcrop_opening=2,
-        outcrop_max_saturation=0.6, outcrop_min_value=0.8, outcrop_min_cells_fraction=1.0))
+    # Per observed cell (the default): the stripes and the scatter break the slab into
+    # pieces below the paper's 5.5 m^2.
+    emap = ElevationMap(ElevationMapConfig(detect_every=2))
     _drive(emap, pts, appearance=app)
     assert len(emap.to_records()) == 0
 
 
-def test_a_gravel_patch_is_no_outcrop():
+def test_a_gravel_patch_is_no_outcrop_on_the_averaged_colour():
     """A flat 4 x 4 m patch of gravel: greyer than the soil, but not an outcrop's grey
     (the simulator's gravel has 0.58 of the soil's saturation and 0.82 of its value,
     its outcrops 0.36 and 0.84-1.15)."""
@@ -144,11 +151,12 @@ def test_a_gravel_patch_is_no_outcrop():
     patch = (np.abs(x - 10.0) < 2.0) & (np.abs(y + 3.0) < 2.0)
     app = np.ones((len(pts), 1, 2), np.float32)
     app[patch, 0] = (0.58, 0.82)
-    emap = ElevationMap(ElevationMapConfig(detect_every=2))
+    averaged = ElevationMapConfig(detect_every=2, **AVERAGED_OUTCROPS)
+    emap = ElevationMap(averaged)
     _drive(emap, pts, appearance=app)
     assert len(emap.to_records()) == 0
     app[patch, 0] = (0.36, 0.95)  # the same patch in an outcrop's colour
-    emap = ElevationMap(ElevationMapConfig(detect_every=2))
+    emap = ElevationMap(averaged)
     _drive(emap, pts, appearance=app)
     rec = emap.to_records()
     assert len(rec) == 1 and rec["label"][0] == OUTCROP
