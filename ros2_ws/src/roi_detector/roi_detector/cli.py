@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from roi_detector.elevation_map import OUTCROP_RULES, outcrop_rule
 from roi_detector.far_rocks import FAR_KINDS, FAR_POPULATIONS, FarRockConfig
 from roi_detector.inputs import BadInput, load_rover_params, read_stereo_frames, read_tum
 from roi_detector.rover_pipeline import (
@@ -142,7 +143,8 @@ def _cmd_ln(args) -> int:
     cfg = RoverConfig(method=args.method, tracker=TrackerConfig(min_obs=args.min_obs),
                       ln=LnConfig(min_obs=args.min_obs), far_rocks=args.far_rocks,
                       classify_far_rocks=args.classify_far_rocks,
-                      far=FarRockConfig(classified=args.far_classified))
+                      far=FarRockConfig(classified=args.far_classified),
+                      elevation_map=outcrop_rule(args.outcrops))
     ln, stats = build_ln(args.bag, args.odometry, args.model, cfg, args.every, args.drift)
     meta = {"source_bag": str(Path(args.bag).resolve()), "odometry": str(args.odometry),
             "model": args.model or str(_installed_model()), **stats}
@@ -226,6 +228,10 @@ def main(argv: list[str] | None = None) -> int:
                    "that passes the geometric tests, in place of the size thresholds "
                    "(measured, default), or the candidates the rules pass (the paper's "
                    "order)")
+    p.add_argument("--outcrops", default="per_cell", choices=tuple(OUTCROP_RULES),
+                   help="elevation_map: the outcrop rule: per observed cell (default), or on "
+                   "the colour averaged over 0.2 m (finds more outcrops seen from afar, "
+                   "and more grey regions that are not: docs/roi_detector.md)")
     p.add_argument("--drift", type=float, default=0.01,
                    help="odometry 1-sigma error per metre travelled (TUM has no covariance)")
     p.set_defaults(func=_cmd_ln)

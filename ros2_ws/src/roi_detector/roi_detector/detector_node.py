@@ -26,6 +26,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, PointCloud2
 
+from roi_detector.elevation_map import OUTCROP_RULES, outcrop_rule
 from roi_detector.far_rocks import FAR_POPULATIONS, FarRockConfig
 from roi_detector.inputs import BadInput, OdometryBuffer, StereoFrame, decode_image
 from roi_detector.rover_pipeline import (
@@ -101,6 +102,12 @@ class RoiDetectorNode(Node):
               "place of the size thresholds (default), or the candidates the rules pass "
               "(the paper's order)"),
         ).value
+        outcrops = self.declare_parameter(
+            "outcrops", "per_cell",
+            d(description=f"one of {tuple(OUTCROP_RULES)}: elevation_map's outcrop rule, "
+              "per observed cell (default) or on the colour averaged over 0.2 m "
+              "(roi_detector.elevation_map.AVERAGED_OUTCROPS)"),
+        ).value
         if len(extrinsic) != 7 or not any(extrinsic):
             raise ValueError("parameter 'base_to_left_camera' is not set (pass the bag's "
                              "rover.yaml as a params file)")
@@ -111,9 +118,13 @@ class RoiDetectorNode(Node):
         if far_classified not in FAR_POPULATIONS:
             raise ValueError(f"parameter 'far_classified': unknown '{far_classified}' (one "
                              f"of {FAR_POPULATIONS})")
+        if outcrops not in OUTCROP_RULES:
+            raise ValueError(f"parameter 'outcrops': unknown '{outcrops}' (one of "
+                             f"{tuple(OUTCROP_RULES)})")
         cfg = RoverConfig(method=method, tracker=TrackerConfig(min_obs=int(min_obs)),
                           far_rocks=bool(far_rocks), classify_far_rocks=bool(classify_far),
-                          far=FarRockConfig(classified=str(far_classified)))
+                          far=FarRockConfig(classified=str(far_classified)),
+                          elevation_map=outcrop_rule(str(outcrops)))
         classifier = load_classifier(model or None, cfg)
         self.bad = BadInput(lambda m: self.get_logger().warning(m))
         self.detector = RoverDetector(extrinsic, classifier, cfg, self.bad)

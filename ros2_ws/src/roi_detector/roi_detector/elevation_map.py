@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -204,6 +204,17 @@ class ElevationMapConfig:
 AVERAGED_OUTCROPS: dict = dict(outcrop_colour_sigma_m=0.2, outcrop_max_saturation=0.5,
                                outcrop_min_value=0.55, outcrop_opening=1,
                                outcrop_min_cells_fraction=0.5)
+#: The outcrop rules by name (``roi_detector ln --outcrops``, the node's ``outcrops``
+#: parameter): ``per_cell``, the default; ``averaged``, :data:`AVERAGED_OUTCROPS`.
+OUTCROP_RULES: dict[str, dict] = {"per_cell": {}, "averaged": AVERAGED_OUTCROPS}
+
+
+def outcrop_rule(name: str, cfg: ElevationMapConfig | None = None) -> ElevationMapConfig:
+    """``cfg`` (default: the defaults) with the outcrop rule ``name`` of
+    :data:`OUTCROP_RULES`; ValueError naming the rules for any other name."""
+    if name not in OUTCROP_RULES:
+        raise ValueError(f"unknown outcrop rule '{name}' (one of {tuple(OUTCROP_RULES)})")
+    return replace(cfg or ElevationMapConfig(), **OUTCROP_RULES[name])
 
 
 @dataclass

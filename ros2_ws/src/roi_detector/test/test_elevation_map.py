@@ -327,3 +327,32 @@ def test_trace_reports_each_rock_region_and_the_test_that_rejected_it():
     _drive(emap, tiny, appearance=_dark_where_raised(tiny))
     assert events and {v for v, _, _ in events} == {"small"}, events
     assert all(m["n_cells"] < 15 for _, _, m in events)
+
+
+def test_outcrop_rules_by_name_in_the_library_and_the_cli(monkeypatch):
+    """``per_cell`` is the default configuration, ``averaged`` is AVERAGED_OUTCROPS, and
+    ``roi_detector ln --outcrops`` passes the rule to the detector; an unknown name is
+    refused with the names."""
+    import pytest
+
+    from roi_detector import cli
+    from roi_detector.elevation_map import OUTCROP_RULES, outcrop_rule
+
+    assert outcrop_rule("per_cell") == ElevationMapConfig()
+    averaged = outcrop_rule("averaged", ElevationMapConfig(detect_every=2))
+    assert averaged.detect_every == 2
+    assert all(getattr(averaged, k) == v for k, v in AVERAGED_OUTCROPS.items())
+    with pytest.raises(ValueError, match="per_cell"):
+        outcrop_rule("smoothed")
+    seen = []
+
+    def build_ln(bag, odometry, model, cfg, *args, **kwargs):
+        seen.append(cfg.elevation_map)
+        raise ValueError("stop here")  # the CLI reports it and exits 1
+
+    monkeypatch.setattr(cli, "build_ln", build_ln)
+    for flags, name in (([], "per_cell"), (["--outcrops", "averaged"], "averaged")):
+        assert cli.main(["ln", "BAG", "--odometry", "o.tum", "--out", "ln", *flags]) == 1
+        assert seen[-1] == outcrop_rule(name) and name in OUTCROP_RULES
+    with pytest.raises(SystemExit):  # argparse names the choices
+        cli.main(["ln", "BAG", "--odometry", "o.tum", "--out", "ln", "--outcrops", "x"])

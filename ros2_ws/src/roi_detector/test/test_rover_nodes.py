@@ -296,3 +296,18 @@ def test_ln_builder_corrupt_saved_ln(tmp_path):
         _stop(proc)
     log = (tmp_path / "ln_builder.log").read_text()
     assert "kept aside" in log and "Traceback" not in log
+
+
+def test_roi_detector_refuses_an_unknown_outcrop_rule(tiny_bag, tmp_path):
+    """A parameter value the node does not know stops it at start with a one-line error
+    that names the parameter and the values it takes."""
+    proc = _start(["roi_detector", "--ros-args", "-p", "model_path:=none",
+                   "-p", "outcrops:=smoothed", "--params-file", str(tiny_bag / "rover.yaml")],
+                  _domain() + 2, tmp_path / "roi_detector.log")
+    try:
+        proc.wait(timeout=60)
+    finally:
+        _stop(proc)
+    log = (tmp_path / "roi_detector.log").read_text()
+    assert proc.returncode != 0
+    assert "parameter 'outcrops'" in log and "averaged" in log and "Traceback" not in log
