@@ -118,13 +118,14 @@ class RoiDetectorNode(Node):
         if far_classified not in FAR_POPULATIONS:
             raise ValueError(f"parameter 'far_classified': unknown '{far_classified}' (one "
                              f"of {FAR_POPULATIONS})")
-        if outcrops not in OUTCROP_RULES:
-            raise ValueError(f"parameter 'outcrops': unknown '{outcrops}' (one of "
-                             f"{tuple(OUTCROP_RULES)})")
+        try:
+            emap_cfg = outcrop_rule(str(outcrops))
+        except ValueError as e:
+            raise ValueError(f"parameter 'outcrops': {e}") from None
         cfg = RoverConfig(method=method, tracker=TrackerConfig(min_obs=int(min_obs)),
                           far_rocks=bool(far_rocks), classify_far_rocks=bool(classify_far),
                           far=FarRockConfig(classified=str(far_classified)),
-                          elevation_map=outcrop_rule(str(outcrops)))
+                          elevation_map=emap_cfg)
         classifier = load_classifier(model or None, cfg)
         self.bad = BadInput(lambda m: self.get_logger().warning(m))
         self.detector = RoverDetector(extrinsic, classifier, cfg, self.bad)
