@@ -57,6 +57,7 @@ VARIANTS: dict[str, tuple[dict, bool]] = {
     "first_at_all": ({"first_fix_judged_at_newest": False}, True),
     "hard": ({"decide_on_ml": False}, True),
     "search_first": ({"localized_keep_likelier": False}, True),
+    "analytic_cov": ({"jackknife_covariance": False}, True),
 }
 #: variants that do not read the odometry covariance each node was observed with
 #: (darces_matcher.ln_drift): the records' covariance alone, as before 2026-11-26

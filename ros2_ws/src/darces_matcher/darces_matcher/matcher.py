@@ -33,6 +33,8 @@ from darces_matcher.ln_drift import turn_variance
 from darces_matcher.triplets import control_triplets
 from darces_matcher.vote import (
     associate,
+    covering_covariance,
+    jackknife_covariance,
     pose_covariance,
     predicted_variance,
     refine,
@@ -97,6 +99,18 @@ class MatchConfig:
             0.008), where tracking near the estimate fitted it right; replayed on the
             31 runs kept (bench/replay_matcher.py), nothing else changed by more than
             0.01 m (docs/e2e.md).
+        jackknife_covariance: once localized (:meth:`match_or_track` given a prior), a
+            fix's covariance, which the filter weighs it by, is widened to cover the
+            jackknife's of its inlier pairs
+            (:func:`~darces_matcher.vote.jackknife_covariance`). The node sigmas are
+            then relative to the newest node, which weighs most (0.2 m against metres for
+            the older ones): a fit whose position at the rover rests on that one pair is
+            as uncertain as the pair's pull. The decision (odds, ``imprecise``) stays on
+            the analytic covariance. False: the analytic covariance alone, which trusts
+            the weights (before 2026-11-26, night 2). On the held-out train_1km_s113, a
+            newest node with no GN counterpart paired with a GN rock 14.6 m off and
+            pulled the tracked fit there, claiming 0.3 m at the rover; the filter took
+            it and the run ended 16.6 m off.
         min_tol_m: smallest node tolerance in the edge tolerance d_D, metres.
         min_gate_m: smallest verification gate, metres: a node within this of a GN node
             of its class under a hypothesis votes for it. Too tight and the precise
@@ -229,6 +243,7 @@ class MatchConfig:
     ln_sigma_relative: bool = True
     localized_anchor_newest: bool = True
     localized_keep_likelier: bool = True
+    jackknife_covariance: bool = True
     first_fix_judged_at_newest: bool = True
     min_tol_m: float = 1.0
     min_gate_m: float = 2.5
@@ -625,8 +640,10 @@ class Matcher:
         ``"search"`` is the global search's share when tracking ran."""
         newest = prior is not None and self.config.localized_anchor_newest
         result = self.match(ln, ln_sigma, newest, odom_cov)
-        if prior is None or (result.is_fix and not self.config.localized_keep_likelier):
+        if prior is None:
             return result
+        if result.is_fix and not self.config.localized_keep_likelier:
+            return self._robust(result, ln, ln_sigma, odom_cov)
         searched_ms = result.timings_ms.get("total", 0.0)
         tracked = self.track(ln, prior, prior_covariance, ln_sigma, newest, odom_cov)
         likelier = tracked.is_fix and \
@@ -634,7 +651,27 @@ class Matcher:
         kept = result if result.is_fix and not likelier else tracked
         kept.timings_ms["total"] = searched_ms + tracked.timings_ms.get("total", 0.0)
         kept.timings_ms["search"] = searched_ms
-        return kept
+        return self._robust(kept, ln, ln_sigma, odom_cov)
+
+    def _robust(self, result: MatchResult, ln: np.ndarray | RoiNetwork,
+                ln_sigma: np.ndarray | None, odom_cov: np.ndarray | None) -> MatchResult:
+        """A localized fix with its covariance widened to cover the jackknife's of its
+        inlier pairs, each weighted by its node's variance relative to the newest node
+        (``MatchConfig.jackknife_covariance``); anything else as it is."""
+        if not (result.is_fix and self.config.jackknife_covariance):
+            return result
+        records = as_records(ln.records if isinstance(ln, RoiNetwork) else ln)
+        if odom_cov is not None:
+            odom_cov = np.asarray(odom_cov, dtype=float).reshape(len(records), 3, 3)
+        sigma = np.full(len(records), np.inf)
+        kept, sigma_kept, _, _ = self._finite_nodes(ln, ln_sigma, True, odom_cov)
+        sigma[kept] = sigma_kept
+        pairs = np.asarray(result.inliers, dtype=np.int64).reshape(-1, 2)
+        weights = 1.0 / (sigma[pairs[:, 0]] ** 2 + self.config.gn_sigma_m**2)
+        spread = jackknife_covariance(xy(records)[pairs[:, 0]], self.index.pts[pairs[:, 1]],
+                                      weights)
+        result.covariance = covering_covariance(result.covariance, spread)
+        return result
 
     @staticmethod
     def prior_search_size(pts: np.ndarray, var: np.ndarray, prior_covariance: np.ndarray,

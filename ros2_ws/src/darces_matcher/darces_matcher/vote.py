@@ -268,17 +268,21 @@ def fit_rigid(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> tuple[fl
     return yaw, cb - np.array([c * ca[0] - s * ca[1], s * ca[0] + c * ca[1]])
 
 
-def leave_one_out_residual(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Distance (m) between each destination point and its source point mapped by the
-    weighted fit of all the other pairs.
+def leave_one_out_fits(src: np.ndarray, dst: np.ndarray,
+                       weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The weighted rigid fit of all the pairs but one, for each pair left out.
 
     Args:
         src: (K, 2) ``odom`` points; dst: (K, 2) ``map`` points; weights: (K,).
+
+    Returns:
+        (K,) yaw (rad) and (K, 2) translation (m) of ``map_T_odom`` without pair i.
     """
     # Closed form: the weighted sums of the full fit minus each pair's own terms (the
     # same 2D Kabsch as :func:`fit_rigid` on the other K - 1 pairs), on centred points.
-    src = src - src.mean(axis=0)
-    dst = dst - dst.mean(axis=0)
+    mean_src, mean_dst = src.mean(axis=0), dst.mean(axis=0)
+    src = src - mean_src
+    dst = dst - mean_dst
     w = weights
     wa, wb = w[:, None] * src, w[:, None] * dst
     rest_w = w.sum() - w
@@ -292,11 +296,77 @@ def leave_one_out_residual(src: np.ndarray, dst: np.ndarray, weights: np.ndarray
     sin = (w @ crs - w * crs) - rest_w * (ca[:, 0] * cb[:, 1] - ca[:, 1] * cb[:, 0])
     yaw = np.arctan2(sin, cos)
     c, s = np.cos(yaw), np.sin(yaw)
-    # The prediction R (p - ca) + cb of each left-out point, against its destination.
-    dx, dy = src[:, 0] - ca[:, 0], src[:, 1] - ca[:, 1]
-    px = c * dx - s * dy + cb[:, 0]
-    py = s * dx + c * dy + cb[:, 1]
+    # t = (cb + mean_dst) - R (ca + mean_src): the fit maps the left-in centroid.
+    ax, ay = ca[:, 0] + mean_src[0], ca[:, 1] + mean_src[1]
+    t = np.column_stack([cb[:, 0] + mean_dst[0] - (c * ax - s * ay),
+                         cb[:, 1] + mean_dst[1] - (s * ax + c * ay)])
+    return yaw, t
+
+
+def leave_one_out_residual(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Distance (m) between each destination point and its source point mapped by the
+    weighted fit of all the other pairs (:func:`leave_one_out_fits`).
+
+    Args:
+        src: (K, 2) ``odom`` points; dst: (K, 2) ``map`` points; weights: (K,).
+    """
+    yaw, t = leave_one_out_fits(src, dst, weights)
+    c, s = np.cos(yaw), np.sin(yaw)
+    px = c * src[:, 0] - s * src[:, 1] + t[:, 0]
+    py = s * src[:, 0] + c * src[:, 1] + t[:, 1]
     return np.hypot(px - dst[:, 0], py - dst[:, 1])
+
+
+def jackknife_covariance(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Jackknife (x, y, yaw) covariance of the weighted rigid fit of K pairs.
+
+    ``(K - 1) / K * sum_i (theta_i - mean)(theta_i - mean)^T`` over the fits that leave
+    one pair out (:func:`leave_one_out_fits`; Efron and Stein 1981). Where the analytic
+    covariance (:func:`pose_covariance`) trusts the weights, this one sees what each pair
+    does to the fit: an alignment that rests on one pair (a single precise node far
+    from the others, which alone sets the translation there) moves by that pair's whole
+    pull when it is left out, however good the weights say the pair is.
+
+    Args:
+        src: (K, 2) ``odom`` points; dst: (K, 2) ``map`` points; weights: (K,).
+
+    Returns:
+        (3, 3) covariance; ``inf`` on the diagonal for fewer than 4 pairs (a fit of 2
+        pairs is no fit).
+    """
+    k = len(src)
+    if k < 4:
+        return np.diag([np.inf, np.inf, np.inf])
+    yaw, t = leave_one_out_fits(src, dst, weights)
+    theta = np.column_stack([t, yaw])
+    # Yaw about the first fit's, so that a fit near +-pi never averages across the cut.
+    theta[:, 2] = np.angle(np.exp(1j * (yaw - yaw[0])))
+    d = theta - theta.mean(axis=0)
+    return (k - 1) / k * (d.T @ d)
+
+
+def covering_covariance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The covariance that covers both ``a`` and ``b``: ``a`` widened along each
+    direction (in ``a``'s whitened space) where ``b`` is wider, unchanged elsewhere.
+
+    Args:
+        a: (3, 3) positive definite covariance (e.g. the analytic one).
+        b: (3, 3) positive semi-definite covariance (e.g. the jackknife's).
+
+    Returns:
+        (3, 3) covariance ``C >= a`` and ``C >= b``; ``a`` when either is not finite or
+        ``a`` is not positive definite.
+    """
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+        return a
+    try:
+        root = np.linalg.cholesky(0.5 * (a + a.T))
+    except np.linalg.LinAlgError:
+        return a
+    inv = np.linalg.inv(root)
+    w, v = np.linalg.eigh(inv @ (0.5 * (b + b.T)) @ inv.T)
+    c = root @ (v * np.maximum(w, 1.0)) @ v.T @ root.T
+    return 0.5 * (c + c.T)
 
 
 def predicted_variance(ln_pts: np.ndarray, yaw: float, cov: np.ndarray) -> np.ndarray:

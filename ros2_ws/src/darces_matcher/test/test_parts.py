@@ -22,9 +22,13 @@ from darces_matcher.simulate import (
 from darces_matcher.triplets import control_triplets
 from darces_matcher.vote import (
     _readmit,
+    covering_covariance,
     fit_rigid,
+    jackknife_covariance,
+    leave_one_out_fits,
     leave_one_out_residual,
     pose_covariance,
+    predicted_variance,
     transform_points,
 )
 from roi_network.network import RoiNetwork
@@ -213,6 +217,59 @@ def test_single_fit_and_leave_one_out_match_the_batched_fit(yaw: float, k: int,
         y_i, t_i = fit_rigid(src[rest], dst[rest], w[rest])
         expected = np.linalg.norm(transform_points(y_i, t_i, src[i:i + 1])[0] - dst[i])
         assert abs(miss[i] - expected) < 1e-6
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.floats(-math.pi, math.pi), st.integers(4, 25), st.integers(0, 10_000))
+def test_leave_one_out_fits_and_jackknife_covariance(yaw: float, k: int, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    src = rng.uniform(-400, 400, (k, 2))
+    dst = transform_points(yaw, np.array([1500.0, -300.0]), src) + rng.normal(0, 2, (k, 2))
+    w = rng.uniform(0.05, 5.0, k)
+    yaws, ts = leave_one_out_fits(src, dst, w)
+    theta = []
+    for i in range(k):
+        rest = np.arange(k) != i
+        y_i, t_i = fit_rigid(src[rest], dst[rest], w[rest])
+        assert abs(math.remainder(yaws[i] - y_i, 2 * math.pi)) < 1e-9
+        np.testing.assert_allclose(ts[i], t_i, atol=1e-6)
+        theta.append([t_i[0], t_i[1], math.remainder(y_i - yaws[0], 2 * math.pi)])
+    d = np.array(theta) - np.mean(theta, axis=0)
+    np.testing.assert_allclose(jackknife_covariance(src, dst, w), (k - 1) / k * d.T @ d,
+                               rtol=1e-6, atol=1e-12)
+
+
+def test_jackknife_agrees_with_the_weights_on_a_sound_fit_and_not_on_a_lone_pull() -> None:
+    """Many pairs of one precision: the jackknife's position variance is about the
+    analytic one. One precise pair far from the rest, displaced: the analytic covariance
+    says that pair's position is known to its own sigma; the jackknife's covers the
+    displacement. covering_covariance is at least both."""
+    rng = np.random.default_rng(3)
+    src = rng.uniform(-100, 100, (30, 2))
+    ratios = []
+    for _ in range(200):
+        dst = src + rng.normal(0.0, 1.0, src.shape)
+        w = np.ones(len(src))
+        yaw, _ = fit_rigid(src, dst, w)
+        a = pose_covariance(src, yaw, w)
+        b = jackknife_covariance(src, dst, w)
+        ratios.append(b[0, 0] / a[0, 0])
+    assert 0.8 < np.mean(ratios) < 1.3
+    src = np.vstack([rng.uniform(-50, 50, (12, 2)), [[400.0, 0.0]]])
+    dst = src.copy()
+    dst[-1] += [0.0, 12.0]  # the lone pair, 12 m off where the others put it
+    w = np.r_[np.full(12, 1.0 / 3.4**2), 1.0 / 0.3**2]
+    yaw, t = fit_rigid(src, dst, w)
+    a = pose_covariance(src, yaw, w)
+    c = covering_covariance(a, jackknife_covariance(src, dst, w))
+    for cov in (a, jackknife_covariance(src, dst, w)):
+        assert np.linalg.eigvalsh(c - cov).min() > -1e-9
+    lone = src[-1:]
+    pull = np.linalg.norm(transform_points(yaw, t, lone) - lone)  # vs the others' fit
+    assert pull > 8.0
+    assert np.sqrt(predicted_variance(lone, yaw, a)[0]) < 1.0
+    assert np.sqrt(predicted_variance(lone, yaw, c)[0]) > pull / 3.0
+    assert jackknife_covariance(src[:3], dst[:3], w[:3])[0, 0] == np.inf
 
 
 def _readmit_case() -> tuple[GnIndex, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

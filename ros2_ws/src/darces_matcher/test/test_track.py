@@ -7,8 +7,9 @@ import pytest
 
 from darces_matcher.matcher import MatchConfig, Matcher
 from darces_matcher.simulate import SimOptions, iter_lns, ln_prefix, transform_error
+from darces_matcher.vote import predicted_variance
 from roi_network.network import RoiNetwork
-from roi_network.records import xy
+from roi_network.records import ROCK, empty_records, xy
 from roi_network.transform import Rigid2D
 
 
@@ -133,9 +134,11 @@ def test_search_first_tracks_only_when_the_search_fails_and_a_prior_is_given(gn,
         short = ln_prefix(sim, 5)
         prior, cov = _prior(short.map_T_odom, xy(short.records).mean(axis=0), np.zeros(3),
                             0.5, np.radians(0.2))
-        searched = matcher.match(short.records)
+        alone = matcher.match(short.records)
         without = matcher.match_or_track(short.records)
-        assert without.status == searched.status and without.reason == searched.reason
+        assert without.status == alone.status and without.reason == alone.reason
+        # The search as match_or_track runs it once localized (anchor_newest).
+        searched = matcher.match(short.records, None, True)
         result = matcher.match_or_track(short.records, prior, cov)
         if searched.is_fix:
             assert result.reason == searched.reason
@@ -258,3 +261,53 @@ def test_first_fix_judged_at_newest_judges_precision_where_the_rover_is(gn: RoiN
         assert b.position_sigma_m <= a.position_sigma_m + 1e-9
         lower += b.position_sigma_m < a.position_sigma_m - 1e-6
     assert lower >= 1
+
+
+def _lone_newest_case(jackknife: bool) -> tuple:
+    """An LN like the held-out train_1km_s113's at 822 m: twelve rocks seen early (a
+    100 m cluster), then, 400 m on, one newest rock with no GN counterpart (a false
+    detection) 12 m from a GN rock. Relative to the newest node (``anchor_newest``) the
+    old nodes' sigma is 3.4 m and the newest's the 0.2 m floor; the prior's heading is
+    known to 2 deg."""
+    rng = np.random.default_rng(5)
+    cluster = rng.uniform(-50.0, 50.0, (12, 2))
+    background = rng.uniform(-600.0, 600.0, (150, 2))
+    background = background[np.linalg.norm(background, axis=1) > 80.0]
+    newest_truth = np.array([400.0, 30.0])
+    background = background[np.linalg.norm(background - newest_truth, axis=1) > 30.0]
+    decoy = newest_truth + np.array([3.0, 11.6])
+    gn_pts = np.vstack([cluster, background, decoy])
+    records = empty_records(len(gn_pts))
+    records["x"], records["y"], records["label"] = gn_pts[:, 0], gn_pts[:, 1], ROCK
+    gn = RoiNetwork(records, "map")
+    truth = Rigid2D(0.3, 120.0, -40.0)  # map_T_odom
+    odom = Rigid2D.fit(truth.apply(np.eye(2)), np.eye(2))  # odom_T_map
+    ln = empty_records(13)
+    ln_map = np.vstack([cluster + rng.normal(0.0, 0.4, cluster.shape), newest_truth])
+    ln_xy = odom.apply(ln_map)
+    ln["x"], ln["y"], ln["label"], ln["id"] = ln_xy[:, 0], ln_xy[:, 1], ROCK, np.arange(13)
+    ln["cov_xx"] = ln["cov_yy"] = np.r_[np.full(12, 0.05), 11.6]
+    matcher = Matcher(gn, MatchConfig(jackknife_covariance=jackknife))
+    prior, cov = _prior(truth, xy(ln)[:12].mean(axis=0), np.zeros(3), 3.0, np.radians(2.0))
+    result = matcher.match_or_track(ln, prior, cov)
+    return result, truth, xy(ln)[12]
+
+
+def test_a_localized_fix_that_rests_on_one_pair_is_no_more_precise_than_that_pair() -> None:
+    """The jackknife covariance (MatchConfig.jackknife_covariance): a lone precise node
+    paired with a decoy pulls the tracked fit 12 m off at the rover. The analytic
+    covariance claims that position to a few tenths of a metre; the covariance handed to
+    the filter covers the error. The decision itself is the same."""
+    outcome = {}
+    for jackknife in (False, True):
+        result, truth, newest = _lone_newest_case(jackknife)
+        assert result.reason == "ok_tracked"
+        error = np.linalg.norm(result.map_T_odom.apply(newest) - truth.apply(newest))
+        var = predicted_variance(newest[None], result.map_T_odom.yaw, result.covariance)
+        outcome[jackknife] = (error, float(np.sqrt(var[0])), result.position_sigma_m)
+    assert outcome[True][0] == pytest.approx(outcome[False][0])
+    assert outcome[True][2] == pytest.approx(outcome[False][2])
+    error, sigma, _ = outcome[False]
+    assert error > 8.0 and error > 3.0 * sigma, outcome
+    error, sigma, _ = outcome[True]
+    assert error <= 3.0 * sigma, outcome
