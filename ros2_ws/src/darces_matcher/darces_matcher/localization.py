@@ -43,7 +43,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from darces_matcher.ln_drift import PLANAR, planar_covariance
-from darces_matcher.matcher import MatchResult
+from darces_matcher.result import MatchResult
 from roi_network.transform import Rigid2D, wrap_angle
 
 Event = Literal["first_fix", "refined", "held", "switched", "kept", "none"]
