@@ -330,7 +330,7 @@ class Matcher:
         if prior is None:
             return result
         if result.is_fix and not self.config.localized_keep_likelier:
-            return self._robust(result, ln, ln_sigma, odom_cov)
+            return self._robust(result, ln, ln_sigma, newest, odom_cov)
         searched_ms = result.timings_ms.get("total", 0.0)
         tracked = self.track(ln, prior, prior_covariance, ln_sigma, newest, odom_cov)
         likelier = tracked.is_fix and \
@@ -338,25 +338,25 @@ class Matcher:
         kept = result if result.is_fix and not likelier else tracked
         kept.timings_ms["total"] = searched_ms + tracked.timings_ms.get("total", 0.0)
         kept.timings_ms["search"] = searched_ms
-        return self._robust(kept, ln, ln_sigma, odom_cov)
+        return self._robust(kept, ln, ln_sigma, newest, odom_cov)
 
     def _robust(self, result: MatchResult, ln: np.ndarray | RoiNetwork,
-                ln_sigma: np.ndarray | None, odom_cov: np.ndarray | None) -> MatchResult:
+                ln_sigma: np.ndarray | None, anchor_newest: bool,
+                odom_cov: np.ndarray | None) -> MatchResult:
         """A localized fix with its covariance widened to cover the jackknife's of its
-        inlier pairs, each weighted by its node's variance relative to the newest node
-        (``MatchConfig.jackknife_covariance``); anything else as it is."""
+        inlier pairs, each weighted by its node's variance as the fit took it (relative
+        to the newest node with ``anchor_newest``; ``MatchConfig.jackknife_covariance``);
+        anything else as it is."""
         if not (result.is_fix and self.config.jackknife_covariance):
             return result
-        records = as_records(ln.records if isinstance(ln, RoiNetwork) else ln)
-        if odom_cov is not None:
-            odom_cov = np.asarray(odom_cov, dtype=float).reshape(len(records), 3, 3)
-        sigma = np.full(len(records), np.inf)
-        kept, sigma_kept, _, _ = self._finite_nodes(ln, ln_sigma, True, odom_cov)
-        sigma[kept] = sigma_kept
+        kept, sigma_kept, pts, _ = self._finite_nodes(ln, ln_sigma, anchor_newest, odom_cov)
+        # Inlier LN indices are into the input; their rows among the finite nodes.
+        row = np.full(int(kept.max()) + 1 if len(kept) else 0, -1, dtype=np.int64)
+        row[kept] = np.arange(len(kept))
         pairs = np.asarray(result.inliers, dtype=np.int64).reshape(-1, 2)
-        weights = 1.0 / (sigma[pairs[:, 0]] ** 2 + self.config.gn_sigma_m**2)
-        spread = jackknife_covariance(xy(records)[pairs[:, 0]], self.index.pts[pairs[:, 1]],
-                                      weights)
+        at = row[pairs[:, 0]]
+        weights = 1.0 / (sigma_kept[at] ** 2 + self.config.gn_sigma_m**2)
+        spread = jackknife_covariance(pts[at], self.index.pts[pairs[:, 1]], weights)
         result.covariance = covering_covariance(result.covariance, spread)
         return result
 
