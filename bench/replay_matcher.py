@@ -58,6 +58,10 @@ VARIANTS: dict[str, tuple[dict, bool]] = {
     "hard": ({"decide_on_ml": False}, True),
     "search_first": ({"localized_keep_likelier": False}, True),
     "analytic_cov": ({"jackknife_covariance": False}, True),
+    "nodrift": ({"drift_fit": False}, True),
+    "drift_p1e-2": ({"drift_outlier_p": 1e-2}, True),
+    "drift_p1e-4": ({"drift_outlier_p": 1e-4}, True),
+    "drift_nojk": ({"jackknife_covariance": False}, True),
 }
 #: variants that do not read the odometry covariance each node was observed with
 #: (darces_matcher.ln_drift): the records' covariance alone, as before 2026-11-26
@@ -133,7 +137,8 @@ def replay(lns: list, odometry: list, gn, truth_xy: np.ndarray, dist: np.ndarray
             if event == "first_fix" and first is None:
                 first = float(dist[i])
             if events_out is not None:
-                line = f"{dist[i]:7.1f} m  {key:32s} LN {len(rec):3d} support {result.support:3d}"
+                line = (f"{dist[i]:7.1f} m  {key:32s} LN {len(rec):3d} support {result.support:3d}"
+                        f" dropped {result.drift_dropped}")
                 if result.map_T_odom is not None:
                     off = np.linalg.norm(result.map_T_odom.apply(here) - oracle.apply(here))
                     now = np.linalg.norm(result.map_T_odom.apply(here) - truth_xy[i])

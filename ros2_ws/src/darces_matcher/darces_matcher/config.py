@@ -71,6 +71,20 @@ class MatchConfig:
             newest node with no GN counterpart paired with a GN rock 14.6 m off and
             pulled the tracked fit there, claiming 0.3 m at the rover; the filter took
             it and the run ended 16.6 m off.
+        drift_fit: once localized, a fix's inlier pairs are fitted again under the LN's
+            correlated drift (:mod:`~darces_matcher.drift_fit`: generalized least
+            squares with the odometry chain's joint covariance relative to the newest
+            node, :func:`~darces_matcher.ln_drift.chain_covariance`), the pairs the
+            drift cannot explain dropped one by one (``drift_outlier_p``); the fix's
+            alignment, pairs and covariance become that fit's (its covariance widened
+            to cover its jackknife with ``jackknife_covariance``). The decision stands.
+            Only with the odometry covariance of each node (``odom_cov``, the
+            darces_matcher node's :class:`~darces_matcher.ln_drift.NodeOdometry`): the
+            records' covariance does not say whether the nodes' errors are a chain (the
+            paper protocol's LNs drift independently, node by node), and never with an
+            explicit ``ln_sigma``. False: the fix as the search or the EM gave it.
+        drift_outlier_p: per pair, the probability under the drift model of a deletion
+            statistic above the gate (chi-square 2: the gate is ``-2 ln p``).
         min_tol_m: smallest node tolerance in the edge tolerance d_D, metres.
         min_gate_m: smallest verification gate, metres: a node within this of a GN node
             of its class under a hypothesis votes for it. Too tight and the precise
@@ -204,6 +218,8 @@ class MatchConfig:
     localized_anchor_newest: bool = True
     localized_keep_likelier: bool = True
     jackknife_covariance: bool = True
+    drift_fit: bool = True
+    drift_outlier_p: float = 1e-3
     first_fix_judged_at_newest: bool = True
     min_tol_m: float = 1.0
     min_gate_m: float = 2.5

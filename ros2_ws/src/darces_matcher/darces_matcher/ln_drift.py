@@ -139,3 +139,79 @@ class NodeOdometry:
         if not out or any(c is None for c in out):
             return None
         return np.array([c[0] / c[1] for c in out])
+
+
+def _step(d: np.ndarray) -> np.ndarray:
+    """(3, 3) Jacobian of a pose error carried over a displacement ``d`` (x, y): the
+    heading error turns the displacement (``[I | perp(d)]``), the heading carries on."""
+    return np.array([[1.0, 0.0, -d[1]], [0.0, 1.0, d[0]], [0.0, 0.0, 1.0]])
+
+
+def chain_covariance(pts: np.ndarray, odom_cov: np.ndarray, own_var: np.ndarray,
+                     anchor: int) -> np.ndarray:
+    """Joint (2K, 2K) covariance of the LN nodes' position errors relative to an anchor
+    node, the odometry a chain.
+
+    The nodes are put in the order they were observed (their odometry position variance
+    grows along the drive). Between two consecutive nodes ``k``, ``k + 1`` the odometry
+    pose error (x, y, yaw) is carried over and grows by an independent step::
+
+        e_{k+1} = F_k e_k + w_k,   Cov(w_k) = P_{k+1} - F_k P_k F_k^T   (clipped >= 0),
+
+    ``F_k`` turning the displacement between the nodes by the heading error (module
+    doc). The anchor's pose error is what a rigid alignment absorbs, so it is set to
+    zero; a node observed before it is carried back (``e_k = F_k^-1 (e_{k+1} - w_k)``).
+    Two nodes then share the steps between the anchor and the nearer of them: the drift
+    of two old nodes relative to the rover is largely common, and their geometry
+    between them is as good as the odometry between them, however far back they lie.
+    An independent per-node model (:meth:`Matcher.node_sigma`) gives each old node its
+    whole drift on its own, which lets a fit turn the old nodes as a group.
+
+    Args:
+        pts: (K, 2) node positions, odom, m (the lever arms).
+        odom_cov: (K, 3, 3) (x, y, yaw) odometry covariance at each node's observations
+            (:class:`NodeOdometry`); with the yaw row and column zero, a chain of
+            position steps alone (an LN known by its records' covariance only).
+        own_var: (K,) per-axis variance of each node's own error (its detection, not the
+            odometry's), m^2, added on the diagonal.
+        anchor: index of the node the errors are relative to.
+
+    Returns:
+        (2K, 2K) covariance, rows (x_0, y_0, x_1, y_1, ...) in the input order.
+    """
+    pts = np.asarray(pts, dtype=float)
+    k = len(pts)
+    P = np.asarray(odom_cov, dtype=float).reshape(k, 3, 3)
+    order = np.argsort(P[:, 0, 0] + P[:, 1, 1], kind="stable")
+    a = int(np.flatnonzero(order == anchor)[0])
+    # Step noises between consecutive nodes in observation order.
+    steps = []
+    for j in range(k - 1):
+        lo, hi = order[j], order[j + 1]
+        F = _step(pts[hi] - pts[lo])
+        Q = P[hi] - F @ P[lo] @ F.T
+        w, v = np.linalg.eigh(0.5 * (Q + Q.T))
+        steps.append((F, (v * np.clip(w, 0.0, None)) @ v.T))
+    # Each node's pose error as a linear map of the steps' noises: G[j] (3, 3 (K - 1)).
+    m = 3 * max(k - 1, 1)
+    G = np.zeros((k, 3, m))
+    for j in range(a + 1, k):
+        F, _ = steps[j - 1]
+        G[j] = F @ G[j - 1]
+        G[j][:, 3 * (j - 1):3 * j] += np.eye(3)
+    for j in range(a - 1, -1, -1):
+        Finv = np.linalg.inv(steps[j][0])
+        G[j] = Finv @ G[j + 1]
+        G[j][:, 3 * j:3 * (j + 1)] -= Finv
+    noise = np.zeros((m, m))
+    for j, (_, Q) in enumerate(steps):
+        noise[3 * j:3 * (j + 1), 3 * j:3 * (j + 1)] = Q
+    pos = G[:, :2, :].reshape(2 * k, m)  # rows in observation order
+    cov_sorted = pos @ noise @ pos.T
+    # Back to the input order.
+    idx = np.empty(2 * k, dtype=np.int64)
+    idx[0::2], idx[1::2] = 2 * order, 2 * order + 1
+    cov = np.empty_like(cov_sorted)
+    cov[np.ix_(idx, idx)] = cov_sorted
+    cov[np.diag_indices(2 * k)] += np.repeat(np.asarray(own_var, dtype=float), 2)
+    return 0.5 * (cov + cov.T)

@@ -22,6 +22,7 @@ import numpy as np
 
 from darces_matcher.config import MatchConfig
 from darces_matcher.decision import SPENT_NODES, ChanceModel, Verdict, decide
+from darces_matcher.drift_fit import drift_consistent_fit
 from darces_matcher.em_refit import EmFit, EmModel, em_refit, gn_density
 from darces_matcher.gn_index import GnIndex
 from darces_matcher.hypotheses import (
@@ -30,7 +31,7 @@ from darces_matcher.hypotheses import (
     query_triangles,
     triangle_hypotheses,
 )
-from darces_matcher.ln_drift import turn_variance
+from darces_matcher.ln_drift import chain_covariance, turn_variance
 from darces_matcher.result import MatchResult, Status
 from darces_matcher.triplets import control_triplets
 from darces_matcher.vote import (
@@ -343,21 +344,67 @@ class Matcher:
     def _robust(self, result: MatchResult, ln: np.ndarray | RoiNetwork,
                 ln_sigma: np.ndarray | None, anchor_newest: bool,
                 odom_cov: np.ndarray | None) -> MatchResult:
-        """A localized fix with its covariance widened to cover the jackknife's of its
-        inlier pairs, each weighted by its node's variance as the fit took it (relative
-        to the newest node with ``anchor_newest``; ``MatchConfig.jackknife_covariance``);
-        anything else as it is."""
-        if not (result.is_fix and self.config.jackknife_covariance):
+        """A localized fix refitted under the LN's correlated drift
+        (``MatchConfig.drift_fit``, :meth:`_drift_fit`), or with its covariance widened
+        to cover the jackknife's of its inlier pairs, each weighted by its node's
+        variance as the fit took it (relative to the newest node with
+        ``anchor_newest``; ``MatchConfig.jackknife_covariance``); anything else as it
+        is."""
+        if not result.is_fix:
+            return result
+        if self.config.drift_fit and ln_sigma is None and odom_cov is not None:
+            return self._drift_fit(result, ln, odom_cov)
+        if not self.config.jackknife_covariance:
             return result
         kept, sigma_kept, pts, _ = self._finite_nodes(ln, ln_sigma, anchor_newest, odom_cov)
-        # Inlier LN indices are into the input; their rows among the finite nodes.
+        at, gn = self._pair_rows(result, kept)
+        weights = 1.0 / (sigma_kept[at] ** 2 + self.config.gn_sigma_m**2)
+        spread = jackknife_covariance(pts[at], self.index.pts[gn], weights)
+        result.covariance = covering_covariance(result.covariance, spread)
+        return result
+
+    @staticmethod
+    def _pair_rows(result: MatchResult, kept: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A fix's inlier pairs as (rows among the finite nodes ``kept``, GN indices)."""
         row = np.full(int(kept.max()) + 1 if len(kept) else 0, -1, dtype=np.int64)
         row[kept] = np.arange(len(kept))
         pairs = np.asarray(result.inliers, dtype=np.int64).reshape(-1, 2)
-        at = row[pairs[:, 0]]
-        weights = 1.0 / (sigma_kept[at] ** 2 + self.config.gn_sigma_m**2)
-        spread = jackknife_covariance(pts[at], self.index.pts[pairs[:, 1]], weights)
-        result.covariance = covering_covariance(result.covariance, spread)
+        return row[pairs[:, 0]], pairs[:, 1]
+
+    def _drift_fit(self, result: MatchResult, ln: np.ndarray | RoiNetwork,
+                   odom_cov: np.ndarray) -> MatchResult:
+        """A fix's inlier pairs refitted under the LN's correlated drift relative to its
+        newest node (:func:`~darces_matcher.drift_fit.drift_consistent_fit`,
+        ``MatchConfig.drift_fit``): alignment, pairs and covariance become that fit's."""
+        cfg = self.config
+        t0 = time.perf_counter()
+        records = as_records(ln.records if isinstance(ln, RoiNetwork) else ln)
+        kept = np.flatnonzero(np.isfinite(xy(records)).all(axis=1))
+        pts, var = xy(records)[kept], _records_var(records[kept])
+        at, gn = self._pair_rows(result, kept)
+        if len(at) < 3:
+            return result
+        P = np.asarray(odom_cov, dtype=float).reshape(len(records), 3, 3)[kept]
+        anchor = int(np.argmax(P[:, 0, 0] + P[:, 1, 1]))  # the newest node
+        own = np.maximum(var - 0.5 * (P[:, 0, 0] + P[:, 1, 1]), cfg.ln_sigma_floor_m**2)
+        cov = chain_covariance(pts, P, own, anchor)
+        idx = np.column_stack([2 * at, 2 * at + 1]).ravel()
+        T = result.map_T_odom
+        fitted = drift_consistent_fit(
+            pts[at], self.index.pts[gn], cov[np.ix_(idx, idx)], cfg.gn_sigma_m**2,
+            T.yaw, np.array([T.tx, T.ty]), gate=-2.0 * np.log(cfg.drift_outlier_p))
+        fit = fitted.fit
+        if not np.all(np.isfinite(fit.covariance)):
+            return result
+        result.map_T_odom = Rigid2D(fit.yaw, float(fit.t[0]), float(fit.t[1]))
+        result.covariance = (covering_covariance(fit.covariance, fitted.jackknife)
+                             if cfg.jackknife_covariance else fit.covariance)
+        pairs = np.asarray(result.inliers, dtype=np.int64).reshape(-1, 2)
+        result.inliers = pairs[fitted.kept]
+        result.support = len(fitted.kept)
+        result.drift_dropped = len(fitted.dropped)
+        _add(result.timings_ms, "drift_fit", t0)
+        result.timings_ms["total"] = result.timings_ms.get("total", 0.0) + _ms(t0)
         return result
 
     @staticmethod

@@ -44,6 +44,8 @@ class MatchResult:
         false_match_probability: probability that the winner is a chance or wrong
             alignment, given the alignments searched and the distinct alternatives;
             NaN when not computed (``decision="counts"``, or no candidate).
+        drift_dropped: inlier pairs a localized fix dropped as its LN's drift could not
+            explain them (``MatchConfig.drift_fit``).
     """
 
     status: Status
@@ -61,6 +63,7 @@ class MatchResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
     log_odds: float = float("nan")
     false_match_probability: float = float("nan")
+    drift_dropped: int = 0
 
     @property
     def is_fix(self) -> bool:
