@@ -62,6 +62,8 @@ VARIANTS: dict[str, tuple[dict, bool]] = {
     "drift_p1e-2": ({"drift_outlier_p": 1e-2}, True),
     "drift_p1e-4": ({"drift_outlier_p": 1e-4}, True),
     "drift_nojk": ({"jackknife_covariance": False}, True),
+    "drift_first": ({"drift_fit_first": True}, True),
+    "drift_screen": ({"drift_fit_mode": "screen"}, True),
 }
 #: variants that do not read the odometry covariance each node was observed with
 #: (darces_matcher.ln_drift): the records' covariance alone, as before 2026-11-26

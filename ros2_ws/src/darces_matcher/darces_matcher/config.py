@@ -83,6 +83,12 @@ class MatchConfig:
             records' covariance does not say whether the nodes' errors are a chain (the
             paper protocol's LNs drift independently, node by node), and never with an
             explicit ``ln_sigma``. False: the fix as the search or the EM gave it.
+        drift_fit_mode: ``"gls"``: the fix becomes the drift fit's, as above;
+            ``"screen"``: the drift fit only drops pairs, and a fix that lost some is
+            fitted again on the rest as the search fits (each node weighed by its own
+            sigma, :func:`~darces_matcher.vote.fit_rigid`).
+        drift_fit_first: the same refit for the first fix (no prior), its alignment then
+            that valid at the newest node.
         drift_outlier_p: per pair, the probability under the drift model of a deletion
             statistic above the gate (chi-square 2: the gate is ``-2 ln p``).
         min_tol_m: smallest node tolerance in the edge tolerance d_D, metres.
@@ -219,6 +225,8 @@ class MatchConfig:
     localized_keep_likelier: bool = True
     jackknife_covariance: bool = True
     drift_fit: bool = True
+    drift_fit_mode: str = "gls"
+    drift_fit_first: bool = False
     drift_outlier_p: float = 1e-3
     first_fix_judged_at_newest: bool = True
     min_tol_m: float = 1.0
@@ -275,6 +283,14 @@ class MatchConfig:
                            label_fallback_max_nodes=0, index_mean_density_side=False,
                            index_neighbours=14, first_fix_judged_at_newest=False),
                        **overrides)
+
+    def __post_init__(self) -> None:
+        if self.drift_fit_mode not in ("gls", "screen"):
+            raise ValueError("MatchConfig.drift_fit_mode must be 'gls' or 'screen', got "
+                             f"{self.drift_fit_mode!r}")
+        if not 0.0 < self.drift_outlier_p < 1.0:
+            raise ValueError("MatchConfig.drift_outlier_p must be in (0, 1), got "
+                             f"{self.drift_outlier_p!r}")
 
     @classmethod
     def original(cls, **overrides: object) -> MatchConfig:

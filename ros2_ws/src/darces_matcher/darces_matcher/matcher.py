@@ -37,6 +37,7 @@ from darces_matcher.triplets import control_triplets
 from darces_matcher.vote import (
     associate,
     covering_covariance,
+    fit_rigid,
     jackknife_covariance,
     pose_covariance,
     predicted_variance,
@@ -329,6 +330,9 @@ class Matcher:
         newest = prior is not None and self.config.localized_anchor_newest
         result = self.match(ln, ln_sigma, newest, odom_cov)
         if prior is None:
+            if (result.is_fix and self.config.drift_fit_first and ln_sigma is None
+                    and odom_cov is not None):
+                return self._drift_fit(result, ln, odom_cov)
             return result
         if result.is_fix and not self.config.localized_keep_likelier:
             return self._robust(result, ln, ln_sigma, newest, odom_cov)
@@ -352,15 +356,24 @@ class Matcher:
         is."""
         if not result.is_fix:
             return result
-        if self.config.drift_fit and ln_sigma is None and odom_cov is not None:
-            return self._drift_fit(result, ln, odom_cov)
-        if not self.config.jackknife_covariance:
+        cfg = self.config
+        if cfg.drift_fit and ln_sigma is None and odom_cov is not None:
+            result = self._drift_fit(result, ln, odom_cov)
+            if cfg.drift_fit_mode == "gls":
+                return result
+        if not (cfg.jackknife_covariance or result.drift_dropped):
             return result
         kept, sigma_kept, pts, _ = self._finite_nodes(ln, ln_sigma, anchor_newest, odom_cov)
         at, gn = self._pair_rows(result, kept)
-        weights = 1.0 / (sigma_kept[at] ** 2 + self.config.gn_sigma_m**2)
-        spread = jackknife_covariance(pts[at], self.index.pts[gn], weights)
-        result.covariance = covering_covariance(result.covariance, spread)
+        weights = 1.0 / (sigma_kept[at] ** 2 + cfg.gn_sigma_m**2)
+        if result.drift_dropped:
+            # ``"screen"``: the pairs the drift explains, fitted as the search fits them.
+            yaw, t = fit_rigid(pts[at], self.index.pts[gn], weights)
+            result.map_T_odom = Rigid2D(yaw, float(t[0]), float(t[1]))
+            result.covariance = pose_covariance(pts[at], yaw, weights)
+        if cfg.jackknife_covariance:
+            spread = jackknife_covariance(pts[at], self.index.pts[gn], weights)
+            result.covariance = covering_covariance(result.covariance, spread)
         return result
 
     @staticmethod
@@ -396,11 +409,12 @@ class Matcher:
         fit = fitted.fit
         if not np.all(np.isfinite(fit.covariance)):
             return result
-        result.map_T_odom = Rigid2D(fit.yaw, float(fit.t[0]), float(fit.t[1]))
-        result.covariance = (covering_covariance(fit.covariance, fitted.jackknife)
-                             if cfg.jackknife_covariance else fit.covariance)
-        pairs = np.asarray(result.inliers, dtype=np.int64).reshape(-1, 2)
-        result.inliers = pairs[fitted.kept]
+        if cfg.drift_fit_mode == "gls":
+            result.map_T_odom = Rigid2D(fit.yaw, float(fit.t[0]), float(fit.t[1]))
+            result.covariance = (covering_covariance(fit.covariance, fitted.jackknife)
+                                 if cfg.jackknife_covariance else fit.covariance)
+        # ``"screen"``: the pairs only (:meth:`_robust` fits them again).
+        result.inliers = np.asarray(result.inliers, dtype=np.int64).reshape(-1, 2)[fitted.kept]
         result.support = len(fitted.kept)
         result.drift_dropped = len(fitted.dropped)
         _add(result.timings_ms, "drift_fit", t0)

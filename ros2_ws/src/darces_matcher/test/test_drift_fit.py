@@ -156,7 +156,9 @@ def test_a_localized_fix_drops_an_old_pair_its_drift_cannot_explain() -> None:
     node's GN rock is missing and a decoy lies 5 m from it. Each old node's drift to the
     newest is metres on its own, so the search and the EM pair the decoy; relative to its
     neighbours the pair is off by far more than their drift, and the drift fit drops it
-    (MatchConfig.drift_fit) and places the rover as well as the other pairs allow."""
+    (MatchConfig.drift_fit), whether the fix then becomes the drift fit's (``"gls"``) or
+    is fitted again without the pair (``"screen"``), and places the rover as well as the
+    other pairs allow."""
     from darces_matcher.matcher import MatchConfig, Matcher
     from roi_network.network import RoiNetwork
     from roi_network.records import ROCK, empty_records
@@ -186,8 +188,8 @@ def test_a_localized_fix_drops_an_old_pair_its_drift_cannot_explain() -> None:
         lever = prior.apply(ln[-1:])[0] - np.array([prior.tx, prior.ty])
         G = np.array([[1.0, 0.0, -lever[1]], [0.0, 1.0, lever[0]], [0.0, 0.0, 1.0]])
         prior_cov = np.linalg.inv(G) @ prior_cov @ np.linalg.inv(G).T
-        for drift in (False, True):
-            m = Matcher(gn, MatchConfig(drift_fit=drift))
+        for drift in (False, "gls", "screen"):
+            m = Matcher(gn, MatchConfig(drift_fit=bool(drift), drift_fit_mode=drift or "gls"))
             r = m.match_or_track(rec, prior, prior_cov, odom_cov=P)
             assert r.is_fix, (seed, drift, r.reason)
             paired_decoy = bool(np.any((r.inliers[:, 0] == bad)
@@ -196,6 +198,7 @@ def test_a_localized_fix_drops_an_old_pair_its_drift_cannot_explain() -> None:
             outcome.setdefault(drift, []).append((paired_decoy, r.drift_dropped, err))
     # Without the drift fit the decoy is among the pairs of most fixes; with it, of none.
     assert sum(p for p, _, _ in outcome[False]) >= 4, outcome
-    assert not any(p for p, _, _ in outcome[True]), outcome
-    assert all(n >= 1 for _, n, _ in outcome[True]), outcome
-    assert np.median([e for _, _, e in outcome[True]]) < 1.5, outcome
+    for mode in ("gls", "screen"):
+        assert not any(p for p, _, _ in outcome[mode]), outcome
+        assert all(n >= 1 for _, n, _ in outcome[mode]), outcome
+        assert np.median([e for _, _, e in outcome[mode]]) < 1.5, outcome
