@@ -166,12 +166,9 @@ class Matcher:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The LN nodes with finite positions: (indices into the input, 1-sigma error per
         axis, (K, 2) positions, class labels)."""
-        records = as_records(ln.records if isinstance(ln, RoiNetwork) else ln)
-        kept = np.flatnonzero(np.isfinite(xy(records)).all(axis=1))
+        records, kept, odom_cov = self._finite(ln, odom_cov)
         if ln_sigma is not None:
             ln_sigma = np.asarray(ln_sigma, dtype=float).reshape(len(records))[kept]
-        if odom_cov is not None:
-            odom_cov = np.asarray(odom_cov, dtype=float).reshape(len(records), 3, 3)[kept]
         # The nodes the matcher uses only: an ignored node must not set the least
         # uncertain node of ``ln_sigma_relative``.
         records = records[kept]
@@ -182,6 +179,17 @@ class Matcher:
             raw = _records_var(records) if ln_sigma is None else np.nan_to_num(ln_sigma)
             self._judged = np.array([int(np.argmax(raw))])
         return kept, sigma, xy(records), records["label"].astype(np.int64)
+
+    @staticmethod
+    def _finite(ln: np.ndarray | RoiNetwork, odom_cov: np.ndarray | None,
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """An LN's records, the indices of its nodes with finite positions, and those
+        nodes' (K, 3, 3) odometry covariance (None when not given)."""
+        records = as_records(ln.records if isinstance(ln, RoiNetwork) else ln)
+        kept = np.flatnonzero(np.isfinite(xy(records)).all(axis=1))
+        if odom_cov is not None:
+            odom_cov = np.asarray(odom_cov, dtype=float).reshape(len(records), 3, 3)[kept]
+        return records, kept, odom_cov
 
     def _spread(self, pts: np.ndarray, yaw: float, covariance: np.ndarray) -> float:
         """Largest predicted 1-sigma error per axis of a node mapped by a fit, m, over
@@ -332,7 +340,7 @@ class Matcher:
         if prior is None:
             if (result.is_fix and self.config.drift_fit_first and ln_sigma is None
                     and odom_cov is not None):
-                return self._drift_fit(result, ln, odom_cov)
+                return self._drift_fit(result, ln, newest, odom_cov)
             return result
         if result.is_fix and not self.config.localized_keep_likelier:
             return self._robust(result, ln, ln_sigma, newest, odom_cov)
@@ -358,23 +366,26 @@ class Matcher:
             return result
         cfg = self.config
         if cfg.drift_fit and ln_sigma is None and odom_cov is not None:
-            result = self._drift_fit(result, ln, odom_cov)
+            result = self._drift_fit(result, ln, anchor_newest, odom_cov)
             if cfg.drift_fit_mode == "gls":
                 return result
-        if not (cfg.jackknife_covariance or result.drift_dropped):
+        if not cfg.jackknife_covariance:
             return result
+        at, gn, pts, weights = self._weighted_pairs(result, ln, ln_sigma, anchor_newest,
+                                                    odom_cov)
+        spread = jackknife_covariance(pts[at], self.index.pts[gn], weights)
+        result.covariance = covering_covariance(result.covariance, spread)
+        return result
+
+    def _weighted_pairs(self, result: MatchResult, ln: np.ndarray | RoiNetwork,
+                        ln_sigma: np.ndarray | None, anchor_newest: bool,
+                        odom_cov: np.ndarray | None):
+        """A fix's inlier pairs (rows among the finite nodes, GN indices), the finite
+        nodes' positions, and each pair's weight by its node's sigma as the search takes
+        it."""
         kept, sigma_kept, pts, _ = self._finite_nodes(ln, ln_sigma, anchor_newest, odom_cov)
         at, gn = self._pair_rows(result, kept)
-        weights = 1.0 / (sigma_kept[at] ** 2 + cfg.gn_sigma_m**2)
-        if result.drift_dropped:
-            # ``"screen"``: the pairs the drift explains, fitted as the search fits them.
-            yaw, t = fit_rigid(pts[at], self.index.pts[gn], weights)
-            result.map_T_odom = Rigid2D(yaw, float(t[0]), float(t[1]))
-            result.covariance = pose_covariance(pts[at], yaw, weights)
-        if cfg.jackknife_covariance:
-            spread = jackknife_covariance(pts[at], self.index.pts[gn], weights)
-            result.covariance = covering_covariance(result.covariance, spread)
-        return result
+        return at, gn, pts, 1.0 / (sigma_kept[at] ** 2 + self.config.gn_sigma_m**2)
 
     @staticmethod
     def _pair_rows(result: MatchResult, kept: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -385,19 +396,20 @@ class Matcher:
         return row[pairs[:, 0]], pairs[:, 1]
 
     def _drift_fit(self, result: MatchResult, ln: np.ndarray | RoiNetwork,
-                   odom_cov: np.ndarray) -> MatchResult:
+                   anchor_newest: bool, odom_cov: np.ndarray) -> MatchResult:
         """A fix's inlier pairs refitted under the LN's correlated drift relative to its
         newest node (:func:`~darces_matcher.drift_fit.drift_consistent_fit`,
-        ``MatchConfig.drift_fit``): alignment, pairs and covariance become that fit's."""
+        ``MatchConfig.drift_fit``): pairs, and with ``drift_fit_mode="gls"`` alignment
+        and covariance, become that fit's; with ``"screen"`` a fix that lost pairs is
+        fitted again on the rest as the search fits (node sigmas as ``anchor_newest``
+        anchors them)."""
         cfg = self.config
         t0 = time.perf_counter()
-        records = as_records(ln.records if isinstance(ln, RoiNetwork) else ln)
-        kept = np.flatnonzero(np.isfinite(xy(records)).all(axis=1))
+        records, kept, P = self._finite(ln, odom_cov)
         pts, var = xy(records)[kept], _records_var(records[kept])
         at, gn = self._pair_rows(result, kept)
         if len(at) < 3:
             return result
-        P = np.asarray(odom_cov, dtype=float).reshape(len(records), 3, 3)[kept]
         anchor = int(np.argmax(P[:, 0, 0] + P[:, 1, 1]))  # the newest node
         own = np.maximum(var - 0.5 * (P[:, 0, 0] + P[:, 1, 1]), cfg.ln_sigma_floor_m**2)
         cov = chain_covariance(pts, P, own, anchor)
@@ -413,10 +425,15 @@ class Matcher:
             result.map_T_odom = Rigid2D(fit.yaw, float(fit.t[0]), float(fit.t[1]))
             result.covariance = (covering_covariance(fit.covariance, fitted.jackknife)
                                  if cfg.jackknife_covariance else fit.covariance)
-        # ``"screen"``: the pairs only (:meth:`_robust` fits them again).
         result.inliers = np.asarray(result.inliers, dtype=np.int64).reshape(-1, 2)[fitted.kept]
         result.support = len(fitted.kept)
         result.drift_dropped = len(fitted.dropped)
+        if cfg.drift_fit_mode == "screen" and result.drift_dropped:
+            at, gn, pts, weights = self._weighted_pairs(result, ln, None, anchor_newest,
+                                                        odom_cov)
+            yaw, t = fit_rigid(pts[at], self.index.pts[gn], weights)
+            result.map_T_odom = Rigid2D(yaw, float(t[0]), float(t[1]))
+            result.covariance = pose_covariance(pts[at], yaw, weights)
         _add(result.timings_ms, "drift_fit", t0)
         result.timings_ms["total"] = result.timings_ms.get("total", 0.0) + _ms(t0)
         return result
