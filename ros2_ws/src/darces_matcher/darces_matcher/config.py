@@ -113,6 +113,12 @@ class MatchConfig:
             no candidate means a vertex has no counterpart). None: 3,000 with the
             automatic 40-neighbour index (up to 20,000 ROIs), else max(30000, 0.3 x GN
             size), i.e. the cap grows with the random candidates a precise triplet has.
+        dense_candidates_factor: control triplets dropped by ``max_candidates`` but
+            with at most this many times as many candidates are tried after the others,
+            fewest candidates first, when those gave no fix (their hypotheses thinned
+            out by the precise nodes' confirmation, ``prefilter_above``): in a dense
+            rock field under 30 % false detections the only triangles of three true
+            nodes may have 4,000-60,000 candidates (``matern_1000``); 0: never.
         prefilter_above: with more hypotheses than this in a round, only those confirmed
             by a precise LN node other than their own vertices are fully verified.
         prefilter_nodes: how many of the most precise LN nodes may confirm.
@@ -239,6 +245,7 @@ class MatchConfig:
     max_uses_per_node: int = 3
     max_hypotheses: int = 16000
     max_candidates: int | None = None
+    dense_candidates_factor: float = 30.0
     prefilter_above: int = 200
     prefilter_nodes: int = 8
     n_refine: int = 4

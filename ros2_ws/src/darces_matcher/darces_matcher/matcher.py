@@ -37,12 +37,14 @@ from darces_matcher.triplets import control_triplets
 from darces_matcher.vote import (
     associate,
     covering_covariance,
+    displacement,
     fit_rigid,
     jackknife_covariance,
     pose_covariance,
     predicted_variance,
     refine,
     transform_points,
+    triplet_votes,
     vote,
 )
 from roi_network.network import RoiNetwork
@@ -659,6 +661,7 @@ class Matcher:
             # still make a triangle whose orientation survives their tolerances.
             sides.append(cfg.min_side_floor_m)
         for min_side in sides:
+            dense: list[np.ndarray] = []
             triplets = control_triplets(
                 pts, node_tol, cfg.n_triplets,
                 min_side_m=min_side, max_side_m=self.index.max_side_m,
@@ -669,7 +672,15 @@ class Matcher:
                 cost=None if self.index.exhaustive else (
                     lambda trips: self._candidates(pts, labels, edge_tol, trips)),
                 max_cost=self.max_candidates,
+                max_dense_cost=cfg.dense_candidates_factor * self.max_candidates,
+                dense_out=dense,
             )
+            # The selective triplets first; those of a dense rock field, whose many
+            # congruent GN triangles only the precise nodes' confirmation thins out,
+            # only after every selective round has ended without a fix.
+            n_selective = len(triplets)
+            if dense and len(dense[0]):
+                triplets = np.vstack([triplets, dense[0]])
             if len(triplets):
                 break
         timings["triplets"] = _ms(t0)
@@ -716,10 +727,11 @@ class Matcher:
             # Decision: enough support AND a clear margin over the best distinct alternative.
             done = min(first + cfg.triplet_batch, len(triplets))
             # The alignments the whole search examines (the union bound of the odds),
-            # extrapolated from the rounds so far.
-            n_tested = tested * len(triplets) / done
+            # extrapolated from the rounds so far (over the selective triplets while
+            # only those have been tried).
+            n_tested = tested * (n_selective if done <= n_selective else len(triplets)) / done
             result = self._decide(candidates, leftover, pool, pts, labels, weights, kept,
-                                  n_tested)
+                                  n_tested, gate)
             result.n_triplets = done
             _add(timings, "refine", t0)
             if result.is_fix:
@@ -813,8 +825,10 @@ class Matcher:
         weights: np.ndarray,
         kept: np.ndarray,
         n_tested: float,
+        gate: np.ndarray,
     ) -> MatchResult:
-        """Fix or no fix from the refined candidates (best first)."""
+        """Fix or no fix from the refined candidates (best first); ``gate``: the nodes'
+        verification gates, metres."""
         cfg = self.config
         best = candidates[0]
         best_T = Rigid2D(best.yaw, best.t[0], best.t[1])
@@ -824,12 +838,11 @@ class Matcher:
                         default=0)
         runner_up = max(runner_up, leftover)
         support = len(best.ln)
-        # A triplet votes for the fix when one of its triangle hypotheses is made of three
-        # of the fix's inlier correspondences.
-        partner = np.full(len(pts), -1, dtype=np.int64)
-        partner[best.ln] = best.gn
-        agreeing = (partner[pool.ln_idx] == pool.gn_idx).all(axis=1)
-        votes = len(np.unique(pool.source[agreeing]))
+        # The triplets whose hypotheses are this fix: its pairs, or its alignment within
+        # ``distinct_ratio`` gates (as the refinement's suppression judges sameness).
+        votes = triplet_votes(pool.ln_idx, pool.gn_idx, pool.source, pool.mapped, best.ln,
+                              best.gn, transform_points(best.yaw, best.t, pts), gate,
+                              cfg.distinct_ratio)
         covariance = pose_covariance(pts[best.ln], best.yaw, weights[best.ln])
         spread = self._spread(pts, best.yaw, covariance)
         status: Status = "fix"
@@ -912,7 +925,7 @@ class Matcher:
                 refined.append(_Refined(yaw, t, ln, gn, cost))
                 if cache is not None:
                     cache[pick] = refined[-1]
-            alive &= _displacement(pool.mapped, pool.mapped[pick], node_tol) > cfg.distinct_ratio
+            alive &= displacement(pool.mapped, pool.mapped[pick], node_tol) > cfg.distinct_ratio
         leftover = int(pool.support[alive].max(initial=0))
         return sorted(refined, key=lambda r: (-len(r.ln), r.cost)), leftover
 
@@ -961,17 +974,6 @@ def _same_fix(a: _Refined, b: _Refined) -> bool:
     pairs_a = set(zip(a.ln.tolist(), a.gn.tolist(), strict=True))
     shared = sum((p in pairs_a) for p in zip(b.ln.tolist(), b.gn.tolist(), strict=True))
     return shared >= 0.5 * max(1, min(len(a.ln), len(b.ln)))
-
-
-def _displacement(mapped: np.ndarray, ref: np.ndarray, node_tol: np.ndarray) -> np.ndarray:
-    """Largest displacement of LN nodes between transforms, in node tolerances.
-
-    Args:
-        mapped: (H, N, 2) or (N, 2) LN nodes mapped by the hypotheses, metres.
-        ref: (N, 2) LN nodes mapped by the reference transform, metres.
-        node_tol: (N,) node tolerances, metres.
-    """
-    return np.max(np.linalg.norm(mapped - ref, axis=-1) / node_tol, axis=-1)
 
 
 def _records_var(records: np.ndarray) -> np.ndarray:

@@ -48,6 +48,8 @@ def control_triplets(
     cost: Callable[[np.ndarray], np.ndarray] | None = None,
     spare_factor: int = 3,
     max_cost: float = np.inf,
+    max_dense_cost: float = 0.0,
+    dense_out: list[np.ndarray] | None = None,
 ) -> np.ndarray:
     """Choose control triplets (primary, secondary, auxiliary), counter-clockwise.
 
@@ -68,6 +70,12 @@ def control_triplets(
             the cost filter.
         max_cost: triplets with more candidates than this are dropped (too costly to
             verify, and too unselective to win a margin).
+        max_dense_cost: with ``cost`` and ``dense_out``, the triplets dropped for having
+            more than ``max_cost`` candidates but at most this many are kept aside.
+        dense_out: if given, receives one (D, 3) array: those dense triplets, fewest
+            candidates first, at most ``n_triplets`` (the matcher tries them after the
+            others: in a dense rock field a triangle of three true nodes may have tens of
+            thousands of congruent GN triangles).
 
     Returns:
         (K, 3) int64 LN indices, K <= n_triplets, each row counter-clockwise; empty when
@@ -138,7 +146,14 @@ def control_triplets(
         # verify. The order stays by precision: ranking by fewest candidates would
         # favour triplets holding an outlier.
         count = cost(combos[chosen])
+        if dense_out is not None:
+            dense = [(k, c) for c, k in zip(chosen, count, strict=True)
+                     if max_cost < k <= max_dense_cost]
+            rows = [c for _, c in sorted(dense)[:n_triplets]]
+            dense_out.append(combos[rows].reshape(-1, 3))
         chosen = [c for c, k in zip(chosen, count, strict=True) if 0 < k <= max_cost]
         chosen = chosen[:n_triplets]
+    elif dense_out is not None:
+        dense_out.append(np.zeros((0, 3), dtype=np.int64))
     out = combos[chosen]
     return out

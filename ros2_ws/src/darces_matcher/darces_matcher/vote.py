@@ -41,6 +41,54 @@ def vote(
     return (dist <= node_tol[None, :]).sum(axis=1)
 
 
+def displacement(mapped: np.ndarray, ref: np.ndarray, node_tol: np.ndarray) -> np.ndarray:
+    """Largest displacement of LN nodes between transforms, in node tolerances.
+
+    Args:
+        mapped: (H, N, 2) or (N, 2) LN nodes mapped by the hypotheses, metres.
+        ref: (N, 2) LN nodes mapped by the reference transform, metres.
+        node_tol: (N,) node tolerances, metres.
+    """
+    return np.max(np.linalg.norm(mapped - ref, axis=-1) / node_tol, axis=-1)
+
+
+def triplet_votes(
+    ln_idx: np.ndarray,
+    gn_idx: np.ndarray,
+    source: np.ndarray,
+    mapped: np.ndarray,
+    fix_ln: np.ndarray,
+    fix_gn: np.ndarray,
+    fix_mapped: np.ndarray,
+    gate: np.ndarray,
+    same_ratio: float,
+) -> int:
+    """Control triplets that vote for a refined fix.
+
+    A triplet votes when one of its triangle hypotheses is made of three of the fix's
+    inlier pairs, or is the same alignment: every LN node within ``same_ratio`` gates of
+    where the fix maps it. In a rock cluster a right hypothesis may hold a vertex on the
+    neighbouring rock, which the refit exchanges for the right one: the alignment is the
+    triangle's, its pairs are not.
+
+    Args:
+        ln_idx, gn_idx: (H, 3) LN and GN vertices of each hypothesis.
+        source: (H,) control triplet of each hypothesis.
+        mapped: (H, N, 2) the LN mapped by each hypothesis, metres.
+        fix_ln, fix_gn: the fix's inlier pairs (LN, GN indices).
+        fix_mapped: (N, 2) the LN mapped by the fix, metres.
+        gate: (N,) verification gate of each LN node, metres.
+        same_ratio: largest displacement of a node, in gates, of the same alignment.
+    """
+    if not len(source):
+        return 0
+    partner = np.full(len(fix_mapped), -1, dtype=np.int64)
+    partner[fix_ln] = fix_gn
+    agreeing = (partner[ln_idx] == gn_idx).all(axis=1)
+    agreeing |= displacement(mapped, fix_mapped, gate) <= same_ratio
+    return len(np.unique(source[agreeing]))
+
+
 def associate(
     index: GnIndex,
     mapped: np.ndarray,

@@ -242,3 +242,18 @@ def test_large_gn_uses_local_triangles() -> None:
         result = matcher.match(sim.records)
         assert result.status == "fix"
         assert transform_error(result.map_T_odom, sim, xy(gn.records)) < _EXACT_EM_M
+
+
+def test_dense_triplets_are_tried_after_the_selective_ones() -> None:
+    # A local-index GN with a candidate cap so low that every control triplet is
+    # "dense": only the second tier of triplets can fix.
+    gn = generate_gn(GnSpec(n_rois=800), seed=4)
+    sims = list(iter_lns(gn, SimOptions(), seed=2, max_lns=3))
+    capped = Matcher(gn, MatchConfig(max_candidates=1, dense_candidates_factor=0.0))
+    tiered = Matcher(gn, MatchConfig(max_candidates=1, dense_candidates_factor=1e9))
+    assert not capped.index.exhaustive
+    for sim in sims:
+        assert capped.match(sim.records).reason == "no_control_triplet"
+        result = tiered.match(sim.records)
+        assert result.status == "fix"
+        assert transform_error(result.map_T_odom, sim, xy(gn.records)) < 2.0

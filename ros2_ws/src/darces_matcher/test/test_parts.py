@@ -30,6 +30,7 @@ from darces_matcher.vote import (
     pose_covariance,
     predicted_variance,
     transform_points,
+    triplet_votes,
 )
 from roi_network.network import RoiNetwork
 from roi_network.records import ROCK, empty_records, xy
@@ -118,6 +119,59 @@ def test_control_triplets_none_for_collinear() -> None:
     trip = control_triplets(pts, np.ones(8), 5, min_side_m=10.0, max_side_m=np.inf,
                             min_height_ratio=1.0, max_uses_per_node=3)
     assert trip.shape == (0, 3)
+
+
+def test_control_triplets_keep_the_dense_ones_aside() -> None:
+    rng = np.random.default_rng(4)
+    pts = rng.uniform(0, 300, (20, 2))
+    tol = np.ones(20)
+    counts: dict[tuple[int, ...], float] = {}
+
+    def cost(trips: np.ndarray) -> np.ndarray:
+        # A made-up count per triplet: 0 (a vertex without counterpart), selective
+        # (<= 100), dense (<= 3,000) or beyond even the dense cap.
+        out = np.array([[0, 50, 400, 2000, 9000][int(t.sum()) % 5] for t in trips], float)
+        counts.update({tuple(t): c for t, c in zip(trips.tolist(), out, strict=True)})
+        return out
+
+    dense: list[np.ndarray] = []
+    trip = control_triplets(pts, tol, 6, min_side_m=10.0, max_side_m=np.inf,
+                            min_height_ratio=1.0, max_uses_per_node=3, cost=cost,
+                            max_cost=100, max_dense_cost=3000, dense_out=dense)
+    assert len(dense) == 1
+    assert 0 < len(trip) <= 6 and 0 < len(dense[0]) <= 6
+    assert all(counts[tuple(t)] == 50 for t in trip.tolist())
+    kept = [counts[tuple(t)] for t in dense[0].tolist()]
+    assert all(100 < k <= 3000 for k in kept)
+    assert kept == sorted(kept)
+    # Without dense_out nothing changes.
+    assert np.array_equal(trip, control_triplets(
+        pts, tol, 6, min_side_m=10.0, max_side_m=np.inf, min_height_ratio=1.0,
+        max_uses_per_node=3, cost=cost, max_cost=100))
+
+
+def test_a_hypothesis_on_the_neighbouring_rock_votes_for_its_alignment() -> None:
+    rng = np.random.default_rng(5)
+    ln = rng.uniform(0, 200, (10, 2))
+    gate = np.full(10, 2.5)
+    fix_mapped = ln + np.array([1000.0, 500.0])
+    fix_ln, fix_gn = np.arange(10), np.arange(10) + 100
+    # Hypothesis 0 (triplet 0): the fix's own pairs. 1 (triplet 1): same alignment to
+    # within 1 m, one vertex on another GN node (the neighbouring rock). 2 (triplet 2):
+    # one vertex on another node and the alignment 20 m off at some node.
+    ln_idx = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8]])
+    gn_idx = np.array([[100, 101, 102], [103, 104, 999], [106, 107, 998]])
+    source = np.array([0, 1, 2])
+    mapped = np.stack([fix_mapped, fix_mapped + 1.0, fix_mapped.copy()])
+    mapped[2, 9] += 20.0
+    votes = triplet_votes(ln_idx, gn_idx, source, mapped, fix_ln, fix_gn, fix_mapped,
+                          gate, same_ratio=2.0)
+    assert votes == 2
+    # By pairs alone (no alignment tolerance), only the first votes.
+    assert triplet_votes(ln_idx, gn_idx, source, mapped, fix_ln, fix_gn, fix_mapped,
+                         gate, same_ratio=0.0) == 1
+    assert triplet_votes(ln_idx[:0], gn_idx[:0], source[:0], mapped[:0], fix_ln, fix_gn,
+                         fix_mapped, gate, same_ratio=2.0) == 0
 
 
 def test_simulation_follows_the_protocol() -> None:
