@@ -257,8 +257,8 @@ def merge_generality() -> dict[str, Any]:
                         for n, m, seed in counts)
     command += "; python bench/darces_bench.py generality --merge"
     report = {"mode": "generality", "gn_seed": 1, "rows": rows, "command": command,
-              "timing": "wall time of match() per LN on a 2-core machine shared with other "
-                        "jobs (two family parts ran at once)"}
+              "timing": "wall time of match() per LN on a 2-core machine, other jobs "
+                        "beside it (docs/matcher.md says which, per run)"}
     _write_json_atomic(RESULTS / "darces_generality.json", report)
     _write_generality_md(report)
     return report
@@ -283,7 +283,9 @@ def _write_generality_md(report: dict[str, Any]) -> None:
         ">= 200 ROIs/km^2, else 16 and fewer nodes, see `family_options`); "
         "stress: 30 % outliers + 10 % label flips. `darces`: the odds decision, chance "
         "alignments bounded by Chernoff's inequality and Markov's, decided again on the "
-        "EM's maximum-likelihood alignment when the hard refit falls short; `hard`: the "
+        "EM's maximum-likelihood alignment when the hard refit falls short, control "
+        "triplets over the candidate cap tried last and votes by alignment (since "
+        "2026-11-27); `hard`: the "
         "decision on the hard refit alone (before 2026-11-26); `counts`: the fixed "
         "support/margin counts (the matcher before issue 13). "
         "no fix | oracle: abstentions among the LNs the oracle fits within 2 m. "

@@ -1,0 +1,39 @@
+"""bench/darces_why.py's classification of an unfixed LN: search or decision."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+
+@pytest.fixture(scope="module")
+def why(bench_script):
+    return bench_script("darces_why")
+
+
+def _search(pts, mapped, candidates):
+    return {"labels": True, "rounds": [{"pts": pts, "gate": np.full(len(pts), 2.5),
+                                        "mapped": mapped, "candidates": candidates}]}
+
+
+def test_search_or_decision(why):
+    from roi_network.transform import Rigid2D
+
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(0, 300, (12, 2))
+    truth = Rigid2D(0.4, 100.0, -50.0)
+    right = truth.apply(pts)
+    wrong = Rigid2D(0.9, 20.0, 10.0).apply(pts)
+    right_cand = (truth.yaw, np.array([truth.tx, truth.ty]))
+    wrong_cand = (0.9, np.array([20.0, 10.0]))
+    best_right = _search(pts, np.stack([wrong, right + 0.5]), [right_cand, wrong_cand])
+    best_wrong = _search(pts, np.stack([wrong, right + 0.5]), [wrong_cand, right_cand])
+    none_right = _search(pts, np.stack([wrong]), [wrong_cand])
+    empty = {"labels": False, "rounds": []}
+    assert why.classify("insufficient_support", [none_right, best_right], truth) == \
+        "right alignment best, odds short"
+    assert why.classify("insufficient_support", [best_wrong, empty], truth) == \
+        "right hypothesis, not the best"
+    assert why.classify("insufficient_support", [none_right, empty], truth) == \
+        "no right hypothesis"
+    assert why.classify("unsupported_refit", [best_right], truth) == "unsupported_refit"
