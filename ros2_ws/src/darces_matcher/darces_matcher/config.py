@@ -176,6 +176,10 @@ class MatchConfig:
             decision): the alignment a fix would get, whose odds the hard pairs
             understate where far nodes stand among clustered GN ROIs. Same search size,
             alternatives and threshold (docs/matcher.md, 2026-11-26).
+        fallback_after_withheld: with ``probabilistic_refit`` and ``label_fallback``, a
+            labelled fix whose EM alignment the decision withholds falls back to the
+            label-blind search as a labelled no-fix does. False: it stays withheld
+            (before 2026-11-27).
         probabilistic_refit: refit every fix by EM over soft associations with an
             outlier class (:mod:`~darces_matcher.em_refit`): false detections and
             ambiguous far nodes pull the fit by how likely they are, not fully. The
@@ -198,6 +202,11 @@ class MatchConfig:
             before issue 13, kept as the baseline ``darces_counts``).
         false_match_rate: the accepted share of wrong fixes, the one threshold of the
             odds decision.
+        chance_scale_sigmas: the odds weigh a node against the GN's density around where
+            it lands at its own scale, radius max(r_8, this many node sigmas)
+            (:mod:`~darces_matcher.decision`): a drifted node on its rock in a boulder
+            field is then evidence against the field's surroundings, not against the
+            field's core; 0: the 8-nearest-neighbour density alone (before 2026-11-27).
         track_spent_nodes: in :meth:`track`, the largest node terms left out of the
             odds. 0: the EM moves the alignment continuously inside the prior, it is not
             fitted to three nodes as a control triangle's is, and the count of
@@ -267,6 +276,7 @@ class MatchConfig:
     min_label_agreement: float = 0.75
     polish_label_blind: bool = True
     probabilistic_refit: bool = True
+    fallback_after_withheld: bool = True
     decide_on_ml: bool = True
     outlier_prior: float = 0.3
     marginal_outliers: bool = False
@@ -275,6 +285,7 @@ class MatchConfig:
     em_iterations: int = 4
     decision: Literal["odds", "counts"] = "odds"
     false_match_rate: float = 1e-2
+    chance_scale_sigmas: float = 3.0
     chernoff_orders: tuple[float, ...] = (0.5, 0.75)
     track_spent_nodes: int = 0
     track_cell_fraction: float = 0.25

@@ -9,7 +9,7 @@ GN, node i's likelihood ratio is::
     LR_i = w + (1 - w) sum_j N(T x_i; g_j, s_i^2 I) P(c_i | c_j) / (lambda_j f(c_i))
 
 with s_i^2 its position variance (LN drift + GN error), lambda_j the GN's *local*
-density around GN node j (ROIs/m^2, k-nearest-neighbour estimate), f(c) the share of
+density around GN node j (ROIs/m^2) at the node's own scale (below), f(c) the share of
 class c in the GN and P(c_i | c_j) = 1 - label_confusion when the classes agree,
 label_confusion otherwise. The sum N / lambda is how much denser the GN is right where
 the node lands, at the node's own precision, than around there: a precise node on an
@@ -17,6 +17,18 @@ isolated rare-class ROI of a sparse GN is worth ~10 nats, a far, drifted node in
 dense rock field next to nothing, and a node that lands on nothing costs log(w).
 So a few distinctive nodes suffice in a sparse GN and a dense GN demands more, with no
 fixed node count.
+
+"Around there" is measured at the node's own scale: lambda_j is the count of the other GN
+nodes within R = max(r_k, c s_i) of GN node j over pi R^2, r_k the distance to its k-th
+(8th) neighbour and c ``scale_sigmas`` (3), so that it is the k-nearest-neighbour
+estimate for a precise node and, for a node whose sigma exceeds the spacing inside a
+rock cluster, the density of the cluster's surroundings at the node's precision. Measured
+at r_k alone (``scale_sigmas`` 0, before 2026-11-27), a drifted node (sigma ~4 m) landing
+on its own rock in a 5 m boulder field scored log LR -0.8..0 (its peak spread over the
+cluster against the density of the cluster's core, and only the 6 nearest GN nodes
+summed): a right alignment of 20 such nodes had odds of ~1 nat. The chance model follows
+the same density (each GN node owns 1 / lambda_j of its variance's area), so the bounds
+below hold unchanged.
 
 The log-odds of the alignment is the sum over the LN of log LR_i, less the three
 largest terms: T was fitted to the nodes, three of them (a triangle) fix it, and their
@@ -80,8 +92,9 @@ from scipy.spatial import cKDTree
 
 from darces_matcher.vote import transform_points
 
-#: GN candidates per LN node in the likelihood ratio (beyond them the Gaussian is ~0).
-_K = 6
+#: GN candidates per LN node in the likelihood ratio: every GN node within reach in a
+#: boulder field, where a drifted node's Gaussian spans a dozen (6 summed half of them).
+_K = 32
 #: Candidate reach, in standard deviations of the node's position error.
 _REACH = 4.0
 #: Neighbours of the local density estimate lambda_j = k / (pi r_k^2): enough that the
@@ -155,23 +168,56 @@ class ChanceModel:
 
     def __init__(self, tree: cKDTree, gn_labels: np.ndarray, *, use_labels: bool,
                  outlier_prior: float, label_confusion: float,
-                 marginal: bool = False) -> None:
+                 marginal: bool = False, scale_sigmas: float = 3.0) -> None:
         self.tree = tree
         self.gn_labels = np.asarray(gn_labels, dtype=np.int64)
-        self.density = local_density(np.asarray(tree.data), tree)
+        pts = np.asarray(tree.data)
+        self.density = local_density(pts, tree)
+        #: Radius of each GN node's k-nearest-neighbour density estimate, m.
+        self.radius = np.sqrt(min(DENSITY_NEIGHBOURS, max(1, len(pts) - 1))
+                              / (math.pi * self.density))
         self.use_labels = use_labels
         self.outlier_prior = outlier_prior
         self.label_confusion = label_confusion
         self.marginal = marginal
+        self.scale_sigmas = scale_sigmas
         self.frequency = class_frequencies(self.gn_labels)
         #: The area the GN covers by its own density estimate, m^2 (E[LR_i] = 1 on it).
         self.area = float(np.sum(1.0 / self.density))
         self._moments: dict[tuple[int, int, float], float] = {}
+        self._scaled: dict[int, tuple[np.ndarray, float]] = {}
 
-    def _ratio(self, labels: np.ndarray, j: np.ndarray) -> np.ndarray:
+    @staticmethod
+    def variance_bin(v: float) -> int:
+        """The bin of a node variance (m^2): eight per e-fold; the bin stands for its
+        largest variance, ``exp(bin / 8)``."""
+        return math.ceil(8.0 * math.log(max(v, 1e-6)))
+
+    def density_at(self, vbin: int) -> tuple[np.ndarray, float]:
+        """Each GN node's density at the scale of a node of variance bin ``vbin``
+        (module docstring), ROIs/m^2, and the area they cover, sum 1 / lambda_j, m^2."""
+        if self.scale_sigmas <= 0.0:
+            return self.density, self.area
+        if vbin not in self._scaled:
+            sigma = math.sqrt(math.exp(vbin / 8.0))
+            r = np.maximum(self.radius, self.scale_sigmas * sigma)
+            if np.all(r <= self.radius):
+                self._scaled[vbin] = (self.density, self.area)
+            else:
+                others = self.tree.query_ball_point(np.asarray(self.tree.data), r,
+                                                    return_length=True) - 1
+                lam = np.where(r <= self.radius, self.density,
+                               np.maximum(others, 1) / (math.pi * r**2))
+                self._scaled[vbin] = (lam, float(np.sum(1.0 / lam)))
+        return self._scaled[vbin]
+
+    def _ratio(self, labels: np.ndarray, j: np.ndarray,
+               density: np.ndarray | None = None) -> np.ndarray:
         """a_ij: the class ratio over GN node j's local density, for LN labels (N,) and
-        GN indices j (N, k)."""
-        ratio = 1.0 / self.density[j]
+        GN indices j (N, k); ``density``: (M,) by GN node, or (N, k) already gathered
+        for each pair; default the k-nearest-neighbour one."""
+        density = self.density if density is None else density
+        ratio = 1.0 / (density if density.shape == j.shape else density[j])
         if self.use_labels:
             freq = np.maximum(self.frequency[np.minimum(labels, len(self.frequency) - 1)],
                               1e-3)
@@ -190,12 +236,14 @@ class ChanceModel:
         logs = []
         for label, v in zip(np.asarray(labels, dtype=np.int64), np.asarray(var, float),
                             strict=True):
-            key = (int(label), math.ceil(8.0 * math.log(max(v, 1e-6))), order)
+            key = (int(label), self.variance_bin(v), order)
             if key not in self._moments:
                 vb = math.exp(key[1] / 8.0)
-                a = self._ratio(np.array([label]), np.arange(len(self.gn_labels))[None])[0]
+                density, area = self.density_at(key[1])
+                a = self._ratio(np.array([label]), np.arange(len(self.gn_labels))[None],
+                                density)[0]
                 b = (1.0 - w) * a / (2.0 * math.pi * vb)
-                m = w**order + 2.0 * math.pi * vb / self.area * float(
+                m = w**order + 2.0 * math.pi * vb / area * float(
                     _peak_integral(b, w, order).sum())
                 self._moments[key] = math.log(min(m, 1.0))
             logs.append(self._moments[key])
@@ -223,7 +271,13 @@ class ChanceModel:
         near = dist <= reach[:, None]
         j = np.where(near, idx, 0)
         gauss = np.exp(-0.5 * dist**2 / var[:, None]) / (2.0 * math.pi * var[:, None])
-        ratio = gauss * self._ratio(labels, j)
+        # Each node against the GN's density at its own scale (one density per bin).
+        bins = np.ceil(8.0 * np.log(np.maximum(var, 1e-6))).astype(np.int64)
+        density = np.empty_like(gauss)
+        for vbin in np.unique(bins):
+            rows = bins == vbin
+            density[rows] = self.density_at(int(vbin))[0][j[rows]]
+        ratio = gauss * self._ratio(labels, j, density)
         evidence = np.where(near, ratio, 0.0).sum(axis=1)
         if not self.marginal:
             w = self.outlier_prior

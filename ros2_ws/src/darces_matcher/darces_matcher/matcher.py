@@ -110,7 +110,8 @@ class Matcher:
                                   use_labels=self.config.use_labels,
                                   outlier_prior=self.config.outlier_prior,
                                   label_confusion=self.config.label_confusion,
-                                  marginal=self.config.marginal_outliers)
+                                  marginal=self.config.marginal_outliers,
+                                  scale_sigmas=self.config.chance_scale_sigmas)
         if self.config.use_labels and self.config.label_fallback and self._fallback_ok:
             # The label-blind fallback's index, built now rather than at the first
             # fallback: a running matcher never stalls for it.
@@ -237,10 +238,7 @@ class Matcher:
         5. the probabilistic refit of a fix (:func:`~darces_matcher.em_refit.em_refit`)
            and the decision again on its alignment (:meth:`_em_refit`).
         """
-        result = self._match_semantic(ln, ln_sigma, anchor_newest, odom_cov)
-        if result.is_fix and self.config.probabilistic_refit:
-            result = self._em_refit(result)
-        return result
+        return self._match_semantic(ln, ln_sigma, anchor_newest, odom_cov)
 
     def track(
         self,
@@ -539,6 +537,12 @@ class Matcher:
             # (The EM refit's class prior lets misclassified nodes join the fix: with it
             # the polish is redundant.)
             return self._polish(result)
+        if result.is_fix and cfg.probabilistic_refit:
+            result = self._em_refit(result)
+            if not cfg.fallback_after_withheld:
+                return result
+            # A labelled fix whose EM alignment is withheld falls back to the
+            # label-blind search as a labelled no-fix does.
         if result.is_fix or not (cfg.use_labels and cfg.label_fallback) or result.reason in (
             "too_few_nodes", "no_control_triplet"
         ) or not self._fallback_ok:
@@ -563,7 +567,7 @@ class Matcher:
         second.timings_ms = result.timings_ms
         second.n_triplets += result.n_triplets
         second.n_hypotheses += result.n_hypotheses
-        return second
+        return self._em_refit(second) if cfg.probabilistic_refit else second
 
     def _polish(self, result: MatchResult) -> MatchResult:
         """Refit a labelled fix with label-blind association (misclassified nodes join).

@@ -74,6 +74,45 @@ def test_odds_grow_with_sparsity_and_rarity_and_fall_for_a_wrong_alignment() -> 
     assert odds(sparse, 7.0) < 0.0 and odds(dense, 7.0) < odds(dense, 0.0)
 
 
+def test_a_drifted_node_on_its_rock_in_a_boulder_field_is_evidence() -> None:
+    # Boulder fields (20 ROIs within ~5 m) among sparse ROIs: a node of sigma 4 m on its
+    # own rock is judged against the density around the field at its own scale (three
+    # sigmas), not against the field's core, where its spread peak is worth nothing.
+    rng = np.random.default_rng(2)
+    centres = rng.uniform(0, 2000, (15, 2))
+    fields = (centres[:, None] + rng.normal(0, 5.0, (15, 20, 2))).reshape(-1, 2)
+    pts = np.vstack([fields, rng.uniform(0, 2000, (200, 2))])
+    labels = np.full(len(pts), ROCK, dtype=np.int64)
+    tree = cKDTree(pts)
+    scaled = ChanceModel(tree, labels, use_labels=True, outlier_prior=0.3,
+                         label_confusion=0.1)
+    core = ChanceModel(tree, labels, use_labels=True, outlier_prior=0.3,
+                       label_confusion=0.1, scale_sigmas=0.0)
+    nodes = np.arange(0, 300, 20)  # one rock of each field
+    var = np.full(len(nodes), 4.0**2)
+
+    def node_lr(model: ChanceModel) -> np.ndarray:
+        return model.odds(0.0, np.zeros(2), pts[nodes], labels[nodes], var,
+                          spent=0).node_log_lr
+
+    assert np.median(node_lr(core)) < 0.1
+    assert np.median(node_lr(scaled)) > 0.3
+    assert np.all(node_lr(scaled) >= node_lr(core) - 0.01)
+    # Precise nodes keep the k-nearest-neighbour density: the same evidence either way.
+    precise = np.full(len(nodes), 0.3**2)
+    assert np.allclose(
+        scaled.odds(0.0, np.zeros(2), pts[nodes], labels[nodes], precise).node_log_lr,
+        core.odds(0.0, np.zeros(2), pts[nodes], labels[nodes], precise).node_log_lr)
+    # Each GN node owns 1 / lambda_j of its scale's area; at the wider scale the fields'
+    # ROIs own more of it.
+    vbin = ChanceModel.variance_bin(4.0**2)
+    lam, area = scaled.density_at(vbin)
+    assert area == pytest.approx(np.sum(1.0 / lam))
+    assert np.median(lam[:300]) < 0.75 * np.median(scaled.density[:300])
+    assert area > scaled.area
+    assert core.density_at(vbin)[1] == core.area
+
+
 def test_family_members_generate_as_specified() -> None:
     assert {"poisson_50", "poisson_1000", "thomas_strong", "rocks95", "hole"} <= set(FAMILY)
     rocks = family_gn("rocks95", seed=1)

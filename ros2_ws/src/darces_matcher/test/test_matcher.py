@@ -257,3 +257,29 @@ def test_dense_triplets_are_tried_after_the_selective_ones() -> None:
         result = tiered.match(sim.records)
         assert result.status == "fix"
         assert transform_error(result.map_T_odom, sim, xy(gn.records)) < 2.0
+
+
+class _WithholdLabelled(Matcher):
+    """A matcher whose EM refit withholds every labelled fix (as the odds may withhold
+    the EM's alignment of a right labelled fix)."""
+
+    def _em_refit(self, result):
+        result = super()._em_refit(result)
+        if result.reason == "ok":
+            result.status, result.reason = "no_fix", "insufficient_support"
+        return result
+
+
+@pytest.mark.parametrize("fallback", [True, False])
+def test_a_withheld_labelled_fix_falls_back_to_the_label_blind_search(
+        gn: RoiNetwork, fallback: bool) -> None:
+    matcher = _WithholdLabelled(gn, MatchConfig(fallback_after_withheld=fallback))
+    gn_pts = xy(gn.records)
+    for sim in _lns(gn, 3, noise_fraction=0.0):
+        flipped, _ = _flip_fifth(sim.records)
+        result = matcher.match(flipped)
+        if fallback:
+            assert result.status == "fix" and result.reason == "ok_label_blind"
+            assert transform_error(result.map_T_odom, sim, gn_pts) < _EXACT_EM_M
+        else:
+            assert result.status == "no_fix" and result.reason == "insufficient_support"

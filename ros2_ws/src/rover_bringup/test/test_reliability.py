@@ -193,6 +193,10 @@ def test_ctrl_c_leaves_a_readable_outputs_bag(
     try:
         _wait_for(lambda: 'bag time 2.' in _read(player_log) or proc.poll() is not None, 60,
                   'two seconds of playback')
+        if proc.poll() is not None:  # ended before it could be interrupted: say how
+            _, err = proc.communicate()
+            pytest.fail(f'globloc run exited ({proc.returncode}) before two seconds of '
+                        f'playback:\n{err[-3000:]}\nplayer log:\n{_read(player_log)[-2000:]}')
         os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in the terminal does
         _, err = proc.communicate(timeout=60)
     finally:
