@@ -29,6 +29,7 @@ import argparse
 import json
 import sys
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -59,7 +60,6 @@ class _Recorder(Matcher):
 
     def _blind_matcher(self) -> Matcher:
         if self._blind is None:
-            from dataclasses import replace
             self._blind = _Recorder(self._gn, replace(self.config, use_labels=False,
                                                       label_fallback=False), self.log)
         return self._blind

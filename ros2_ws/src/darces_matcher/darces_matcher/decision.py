@@ -104,6 +104,8 @@ DENSITY_NEIGHBOURS = 8
 #: Terms left out of the log-odds: the degrees of freedom of a 2D rigid fit are fixed by
 #: three nodes (a control triangle).
 SPENT_NODES = 3
+#: Variance bins per e-fold of the chance model's caches (moments, scaled densities).
+_BINS_PER_E = 8.0
 #: Midpoints of 64 equal cells of (0, 1): the outlier shares of the marginal odds.
 _W_GRID = (np.arange(64) + 0.5) / 64
 
@@ -188,10 +190,15 @@ class ChanceModel:
         self._scaled: dict[int, tuple[np.ndarray, float]] = {}
 
     @staticmethod
-    def variance_bin(v: float) -> int:
-        """The bin of a node variance (m^2): eight per e-fold; the bin stands for its
-        largest variance, ``exp(bin / 8)``."""
-        return math.ceil(8.0 * math.log(max(v, 1e-6)))
+    def variance_bins(var: np.ndarray) -> np.ndarray:
+        """The bins of node variances (m^2): eight per e-fold; a bin stands for its
+        largest variance (:meth:`bin_variance`)."""
+        return np.ceil(_BINS_PER_E * np.log(np.maximum(var, 1e-6))).astype(np.int64)
+
+    @staticmethod
+    def bin_variance(vbin: int) -> float:
+        """The variance a bin of :meth:`variance_bins` stands for, m^2."""
+        return math.exp(vbin / _BINS_PER_E)
 
     def density_at(self, vbin: int) -> tuple[np.ndarray, float]:
         """Each GN node's density at the scale of a node of variance bin ``vbin``
@@ -199,7 +206,7 @@ class ChanceModel:
         if self.scale_sigmas <= 0.0:
             return self.density, self.area
         if vbin not in self._scaled:
-            sigma = math.sqrt(math.exp(vbin / 8.0))
+            sigma = math.sqrt(self.bin_variance(vbin))
             r = np.maximum(self.radius, self.scale_sigmas * sigma)
             if np.all(r <= self.radius):
                 self._scaled[vbin] = (self.density, self.area)
@@ -211,13 +218,10 @@ class ChanceModel:
                 self._scaled[vbin] = (lam, float(np.sum(1.0 / lam)))
         return self._scaled[vbin]
 
-    def _ratio(self, labels: np.ndarray, j: np.ndarray,
-               density: np.ndarray | None = None) -> np.ndarray:
-        """a_ij: the class ratio over GN node j's local density, for LN labels (N,) and
-        GN indices j (N, k); ``density``: (M,) by GN node, or (N, k) already gathered
-        for each pair; default the k-nearest-neighbour one."""
-        density = self.density if density is None else density
-        ratio = 1.0 / (density if density.shape == j.shape else density[j])
+    def _ratio(self, labels: np.ndarray, j: np.ndarray, density: np.ndarray) -> np.ndarray:
+        """a_ij: the class ratio over GN node j's local density, for LN labels (N,), GN
+        indices j (N, k) and the density of each pair's GN node (N, k), ROIs/m^2."""
+        ratio = 1.0 / density
         if self.use_labels:
             freq = np.maximum(self.frequency[np.minimum(labels, len(self.frequency) - 1)],
                               1e-3)
@@ -234,14 +238,14 @@ class ChanceModel:
         with v)."""
         w = self.outlier_prior
         logs = []
-        for label, v in zip(np.asarray(labels, dtype=np.int64), np.asarray(var, float),
-                            strict=True):
-            key = (int(label), self.variance_bin(v), order)
+        for label, vbin in zip(np.asarray(labels, dtype=np.int64),
+                               self.variance_bins(np.asarray(var, float)), strict=True):
+            key = (int(label), int(vbin), order)
             if key not in self._moments:
-                vb = math.exp(key[1] / 8.0)
+                vb = self.bin_variance(key[1])
                 density, area = self.density_at(key[1])
                 a = self._ratio(np.array([label]), np.arange(len(self.gn_labels))[None],
-                                density)[0]
+                                density[None])[0]
                 b = (1.0 - w) * a / (2.0 * math.pi * vb)
                 m = w**order + 2.0 * math.pi * vb / area * float(
                     _peak_integral(b, w, order).sum())
@@ -272,7 +276,7 @@ class ChanceModel:
         j = np.where(near, idx, 0)
         gauss = np.exp(-0.5 * dist**2 / var[:, None]) / (2.0 * math.pi * var[:, None])
         # Each node against the GN's density at its own scale (one density per bin).
-        bins = np.ceil(8.0 * np.log(np.maximum(var, 1e-6))).astype(np.int64)
+        bins = self.variance_bins(var)
         density = np.empty_like(gauss)
         for vbin in np.unique(bins):
             rows = bins == vbin

@@ -379,7 +379,8 @@ class Matcher:
 
     def _weighted_pairs(self, result: MatchResult, ln: np.ndarray | RoiNetwork,
                         ln_sigma: np.ndarray | None, anchor_newest: bool,
-                        odom_cov: np.ndarray | None):
+                        odom_cov: np.ndarray | None,
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """A fix's inlier pairs (rows among the finite nodes, GN indices), the finite
         nodes' positions, and each pair's weight by its node's sigma as the search takes
         it."""
@@ -683,8 +684,7 @@ class Matcher:
             # congruent GN triangles only the precise nodes' confirmation thins out,
             # only after every selective round has ended without a fix.
             n_selective = len(triplets)
-            if dense and len(dense[0]):
-                triplets = np.vstack([triplets, dense[0]])
+            triplets = np.vstack([triplets, dense[0]])
             if len(triplets):
                 break
         timings["triplets"] = _ms(t0)

@@ -83,6 +83,8 @@ def control_triplets(
     """
     n = len(pts)
     if n < 3 or n_triplets <= 0:
+        if dense_out is not None:
+            dense_out.append(np.zeros((0, 3), dtype=np.int64))
         return np.zeros((0, 3), dtype=np.int64)
     candidates = np.sort(np.argsort(tol, kind="stable")[:max_nodes])
     m = len(candidates)

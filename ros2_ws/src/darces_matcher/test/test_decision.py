@@ -105,7 +105,7 @@ def test_a_drifted_node_on_its_rock_in_a_boulder_field_is_evidence() -> None:
         core.odds(0.0, np.zeros(2), pts[nodes], labels[nodes], precise).node_log_lr)
     # Each GN node owns 1 / lambda_j of its scale's area; at the wider scale the fields'
     # ROIs own more of it.
-    vbin = ChanceModel.variance_bin(4.0**2)
+    vbin = int(ChanceModel.variance_bins(np.array([4.0**2]))[0])
     lam, area = scaled.density_at(vbin)
     assert area == pytest.approx(np.sum(1.0 / lam))
     assert np.median(lam[:300]) < 0.75 * np.median(scaled.density[:300])
