@@ -842,11 +842,12 @@ class Matcher:
                         default=0)
         runner_up = max(runner_up, leftover)
         support = len(best.ln)
-        # The triplets whose hypotheses are this fix: its pairs, or its alignment within
-        # ``distinct_ratio`` gates (as the refinement's suppression judges sameness).
+        # The triplets whose hypotheses are this fix: its pairs, or its alignment, every
+        # node within its own gate of where the fix maps it. (Within ``distinct_ratio``
+        # gates, the refinement's suppression radius, it also voted for a refit that had
+        # moved 2 gates from its triangle: on thomas_strong, GN seed 3, a fix 75 m off.)
         votes = triplet_votes(pool.ln_idx, pool.gn_idx, pool.source, pool.mapped, best.ln,
-                              best.gn, transform_points(best.yaw, best.t, pts), gate,
-                              cfg.distinct_ratio)
+                              best.gn, transform_points(best.yaw, best.t, pts), gate, 1.0)
         covariance = pose_covariance(pts[best.ln], best.yaw, weights[best.ln])
         spread = self._spread(pts, best.yaw, covariance)
         status: Status = "fix"
