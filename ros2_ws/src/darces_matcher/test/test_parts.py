@@ -165,13 +165,18 @@ def test_a_hypothesis_on_the_neighbouring_rock_votes_for_its_alignment() -> None
     mapped = np.stack([fix_mapped, fix_mapped + 1.0, fix_mapped.copy()])
     mapped[2, 9] += 20.0
     votes = triplet_votes(ln_idx, gn_idx, source, mapped, fix_ln, fix_gn, fix_mapped,
-                          gate, same_ratio=2.0)
+                          gate, same_ratio=1.0)  # every node within its gate: the matcher's
     assert votes == 2
+    # (1 m, 1 m) is 0.57 gates at every node: the same alignment at 0.6 gates, not at 0.5.
+    assert triplet_votes(ln_idx, gn_idx, source, mapped, fix_ln, fix_gn, fix_mapped,
+                         gate, same_ratio=0.6) == 2
+    assert triplet_votes(ln_idx, gn_idx, source, mapped, fix_ln, fix_gn, fix_mapped,
+                         gate, same_ratio=0.5) == 1
     # By pairs alone (no alignment tolerance), only the first votes.
     assert triplet_votes(ln_idx, gn_idx, source, mapped, fix_ln, fix_gn, fix_mapped,
                          gate, same_ratio=0.0) == 1
     assert triplet_votes(ln_idx[:0], gn_idx[:0], source[:0], mapped[:0], fix_ln, fix_gn,
-                         fix_mapped, gate, same_ratio=2.0) == 0
+                         fix_mapped, gate, same_ratio=1.0) == 0
 
 
 def test_simulation_follows_the_protocol() -> None:
