@@ -157,6 +157,16 @@ class ElevationMapConfig:
             precision 91 % from 57 % on quick and atacama_1km s1-s3 (truth odometry,
             docs/roi_detector.md), the same at 0.65. 0 turns the test off (rocks as
             bright as the ground).
+        rock_pale_seed_height_m: > 0: cells of any brightness whose height above the
+            ground less their spread across views exceeds this seed a rock too, and a
+            region without a dark seed must measure this high above the plane of its
+            ring (the tests above use ``rock_min_height_m``). Pale rocks, and sunlit
+            faces, are as bright as the soil or brighter: on the held-out bag
+            train_1km_s113, two counted rocks of 1.0 and 1.9 m^2, 0.64-0.67 m tall,
+            3-10 m from the route, measured 1.16-1.28 of the soil's brightness and stood
+            0.45-0.8 m in the map, and no region was grown on them. The soil-coloured
+            bumps that ``rock_dark_value`` keeps out measure 0.26-0.36 m. 0: dark seeds
+            only.
     """
 
     cell_m: float = 0.1
@@ -194,6 +204,7 @@ class ElevationMapConfig:
     rock_peak_merge_m: float = 0.3
     rock_dark_value: float = 0.55
     rock_footprint_fraction: float = 0.35
+    rock_pale_seed_height_m: float = 0.45
 
 
 #: The outcrop rule on the colour averaged over 0.2 m (``replace(cfg, **AVERAGED_OUTCROPS)``;
@@ -441,13 +452,27 @@ class ElevationMap:
         grow = rel > c.rock_grow_height_m
         if val is not None:
             dark = val < c.rock_dark_value
-            seeds &= dark
             grow &= dark | (rel > c.rock_seed_height_m)
+            pale_seeds = seeds & (rel_low > c.rock_pale_seed_height_m) \
+                if c.rock_pale_seed_height_m > 0 else np.zeros_like(seeds)
+            seeds &= dark
+        else:
+            pale_seeds = np.zeros_like(seeds)
         lab, n = ndimage.label(grow)
         keep = np.zeros(n + 1, bool)
         keep[np.unique(lab[seeds & grow])] = True
         keep[0] = False
+        # A region of cells of any brightness that stands rock_pale_seed_height_m is a
+        # rock candidate too (pale rocks, and sunlit faces, are as bright as the soil or
+        # brighter), when it holds no dark seed: the dark regions are left as they are.
+        pale = np.zeros(n + 1, bool)
+        pale[np.unique(lab[pale_seeds & grow])] = True
+        pale &= ~keep
+        pale[0] = False
+        seeds = (seeds & keep[lab]) | (pale_seeds & pale[lab])
+        keep |= pale
         mask = keep[lab]
+        pale_cells = pale[lab]
         if c.rock_split_peaks:
             lab, n = self._split_peaks(rel, seeds & mask, mask)
         else:
@@ -456,6 +481,10 @@ class ElevationMap:
         if n == 0:
             return out
         ring_all = ndimage.binary_dilation(mask, iterations=5) & ~mask
+        # A pale region stands on its height alone: it must measure
+        # rock_pale_seed_height_m, as its seeds do.
+        is_pale = np.asarray(ndimage.maximum(pale_cells.astype(np.uint8), lab,
+                                             np.arange(n + 1))) > 0
         for k, sl in enumerate(ndimage.find_objects(lab), start=1):
             if sl is None:
                 continue
@@ -480,7 +509,9 @@ class ElevationMap:
                 continue
             above = z[pad][reg] - (plane[0] * cells[:, 0] + plane[1] * cells[:, 1] + plane[2])
             height = float(np.percentile(above, 95))
-            if height <= c.rock_min_height_m:
+            min_height = max(c.rock_min_height_m, c.rock_pale_seed_height_m) if is_pale[k] \
+                else c.rock_min_height_m
+            if height <= min_height:
                 trace("low", height_m=height)
                 continue
             r = self._measure(ROCK, cells + corner, off, float(np.median(z[pad][ring_seen])),

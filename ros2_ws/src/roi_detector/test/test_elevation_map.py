@@ -23,19 +23,19 @@ def _terrain(x, y, swell=True):
     return z
 
 
-def _scene(rock=True, swell=True, spacing=0.05, noise=0.01):
-    """Points of the ground in front of the rover, and of a 1 x 1.2 m rock 0.5 m tall at
-    (9, 2) (top and the flank facing the rover; its far side hidden)."""
+def _scene(rock=True, swell=True, spacing=0.05, noise=0.01, rock_h=0.5):
+    """Points of the ground in front of the rover, and of a 1 x 1.2 m rock ``rock_h`` tall
+    at (9, 2) (top and the flank facing the rover; its far side hidden)."""
     x, y = np.meshgrid(np.arange(2.0, 16.0, spacing), np.arange(-8.0, 8.0, spacing))
     x, y = x.ravel(), y.ravel()
     z = _terrain(x, y, swell)
     if rock:
         inside = (np.abs(x - 9.0) < 0.5) & (np.abs(y - 2.0) < 0.6)
         behind = (x > 9.5) & (x < 10.3) & (np.abs(y - 2.0) < 0.6)  # occluded by the rock
-        z = np.where(inside, _terrain(9.0, 2.0, swell) + 0.5, z)
+        z = np.where(inside, _terrain(9.0, 2.0, swell) + rock_h, z)
         keep = ~behind
         x, y, z = x[keep], y[keep], z[keep]
-        fy, fz = np.meshgrid(np.arange(1.4, 2.6, spacing), np.arange(0.0, 0.5, spacing))
+        fy, fz = np.meshgrid(np.arange(1.4, 2.6, spacing), np.arange(0.0, rock_h, spacing))
         x = np.r_[x, np.full(fy.size, 8.5)]
         y = np.r_[y, fy.ravel()]
         z = np.r_[z, _terrain(8.5, 2.0, swell) + fz.ravel()]
@@ -264,13 +264,45 @@ def test_a_rock_is_darker_than_the_soil():
     rec = emap.to_records()
     assert len(rec) == 1 and rec["label"][0] == ROCK
     assert np.hypot(rec["x"][0] - 9.0, rec["y"][0] - 2.0) < 0.3
-    # The same block with the soil's brightness is a bump of soil, unless the test is off.
-    emap = ElevationMap(ElevationMapConfig(detect_every=2))
-    _drive(emap, pts, appearance=_dark_where_raised(pts, value=1.0))
+    # The same block with the soil's brightness is a bump of soil at the pale height
+    # (``rock_pale_seed_height_m``) or below, unless the test is off.
+    low = _scene(rock_h=0.35)
+    emap = ElevationMap(ElevationMapConfig(detect_every=2, rock_pale_seed_height_m=0.4))
+    _drive(emap, low, appearance=_dark_where_raised(low, value=1.0))
     assert len(emap.to_records()) == 0
     emap = ElevationMap(ElevationMapConfig(detect_every=2, rock_dark_value=0.0))
-    _drive(emap, pts, appearance=_dark_where_raised(pts, value=1.0))
+    _drive(emap, low, appearance=_dark_where_raised(low, value=1.0))
     assert len(emap.to_records()) == 1
+
+
+def test_a_pale_rock_stands_on_its_height_alone():
+    """A block as bright as the soil (or brighter: a sunlit pale rock) is a rock when its
+    cells stand rock_pale_seed_height_m above the ground and the region measures as much;
+    without pale seeds it is not; a dark block of the same size is either way."""
+    pts = _scene(rock_h=0.7)
+    for value in (1.0, 1.3):
+        app = _dark_where_raised(pts, value=value)
+        emap = ElevationMap(ElevationMapConfig(detect_every=2, rock_pale_seed_height_m=0.4))
+        _drive(emap, pts, appearance=app)
+        rec = emap.to_records()
+        assert len(rec) == 1 and rec["label"][0] == ROCK, rec
+        assert np.hypot(rec["x"][0] - 9.0, rec["y"][0] - 2.0) < 0.3
+        assert rec["height_m"][0] > 0.6
+        emap = ElevationMap(ElevationMapConfig(detect_every=2, rock_pale_seed_height_m=0.0))
+        _drive(emap, pts, appearance=app)
+        assert len(emap.to_records()) == 0
+    # A pale seed inside a region that measures lower than the pale height is no rock:
+    # the seed cells of a 0.5 m block stand 0.5 m, the region's 95th percentile too.
+    mid = _scene(rock_h=0.5)
+    emap = ElevationMap(ElevationMapConfig(detect_every=2, rock_pale_seed_height_m=0.45))
+    _drive(emap, mid, appearance=_dark_where_raised(mid, value=1.0))
+    assert len(emap.to_records()) == 1
+    emap = ElevationMap(ElevationMapConfig(detect_every=2, rock_pale_seed_height_m=0.55))
+    _drive(emap, mid, appearance=_dark_where_raised(mid, value=1.0))
+    assert len(emap.to_records()) == 0
+    dark = ElevationMap(ElevationMapConfig(detect_every=2, rock_pale_seed_height_m=0.55))
+    _drive(dark, mid, appearance=_dark_where_raised(mid))
+    assert len(dark.to_records()) == 1
 
 
 def test_two_rocks_joined_by_low_cells_are_two_regions():
