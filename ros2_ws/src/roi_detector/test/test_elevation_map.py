@@ -257,52 +257,41 @@ def _dark_where_raised(pts, swell=True, value=0.35):
     return app
 
 
+def _found(pts, value=0.35, **cfg):
+    """The map ROIs of a drive past ``pts``, the raised points at brightness ``value``."""
+    emap = ElevationMap(ElevationMapConfig(detect_every=2, **cfg))
+    _drive(emap, pts, appearance=_dark_where_raised(pts, value=value))
+    return emap.to_records()
+
+
 def test_a_rock_is_darker_than_the_soil():
-    pts = _scene()
-    emap = ElevationMap(ElevationMapConfig(detect_every=2))
-    _drive(emap, pts, appearance=_dark_where_raised(pts))
-    rec = emap.to_records()
+    rec = _found(_scene())
     assert len(rec) == 1 and rec["label"][0] == ROCK
     assert np.hypot(rec["x"][0] - 9.0, rec["y"][0] - 2.0) < 0.3
-    # The same block with the soil's brightness is a bump of soil at the pale height
-    # (``rock_pale_seed_height_m``) or below, unless the test is off.
+    # A block 0.35 m tall with the soil's brightness is a bump of soil (below the pale
+    # height, ``rock_pale_seed_height_m``), unless the dark test is off.
     low = _scene(rock_h=0.35)
-    emap = ElevationMap(ElevationMapConfig(detect_every=2, rock_pale_seed_height_m=0.4))
-    _drive(emap, low, appearance=_dark_where_raised(low, value=1.0))
-    assert len(emap.to_records()) == 0
-    emap = ElevationMap(ElevationMapConfig(detect_every=2, rock_dark_value=0.0))
-    _drive(emap, low, appearance=_dark_where_raised(low, value=1.0))
-    assert len(emap.to_records()) == 1
+    assert len(_found(low, 1.0, rock_pale_seed_height_m=0.4)) == 0
+    assert len(_found(low, 1.0, rock_dark_value=0.0)) == 1
 
 
 def test_a_pale_rock_stands_on_its_height_alone():
     """A block as bright as the soil (or brighter: a sunlit pale rock) is a rock when its
     cells stand rock_pale_seed_height_m above the ground and the region measures as much;
     without pale seeds it is not; a dark block of the same size is either way."""
-    pts = _scene(rock_h=0.7)
+    tall = _scene(rock_h=0.7)
     for value in (1.0, 1.3):
-        app = _dark_where_raised(pts, value=value)
-        emap = ElevationMap(ElevationMapConfig(detect_every=2, rock_pale_seed_height_m=0.4))
-        _drive(emap, pts, appearance=app)
-        rec = emap.to_records()
+        rec = _found(tall, value, rock_pale_seed_height_m=0.4)
         assert len(rec) == 1 and rec["label"][0] == ROCK, rec
         assert np.hypot(rec["x"][0] - 9.0, rec["y"][0] - 2.0) < 0.3
         assert rec["height_m"][0] > 0.6
-        emap = ElevationMap(ElevationMapConfig(detect_every=2, rock_pale_seed_height_m=0.0))
-        _drive(emap, pts, appearance=app)
-        assert len(emap.to_records()) == 0
-    # A pale seed inside a region that measures lower than the pale height is no rock:
-    # the seed cells of a 0.5 m block stand 0.5 m, the region's 95th percentile too.
+        assert len(_found(tall, value, rock_pale_seed_height_m=0.0)) == 0
+    # A 0.5 m block: a pale rock under a 0.45 m pale height, none under 0.55 m; dark, a
+    # rock under either.
     mid = _scene(rock_h=0.5)
-    emap = ElevationMap(ElevationMapConfig(detect_every=2, rock_pale_seed_height_m=0.45))
-    _drive(emap, mid, appearance=_dark_where_raised(mid, value=1.0))
-    assert len(emap.to_records()) == 1
-    emap = ElevationMap(ElevationMapConfig(detect_every=2, rock_pale_seed_height_m=0.55))
-    _drive(emap, mid, appearance=_dark_where_raised(mid, value=1.0))
-    assert len(emap.to_records()) == 0
-    dark = ElevationMap(ElevationMapConfig(detect_every=2, rock_pale_seed_height_m=0.55))
-    _drive(dark, mid, appearance=_dark_where_raised(mid))
-    assert len(dark.to_records()) == 1
+    assert len(_found(mid, 1.0, rock_pale_seed_height_m=0.45)) == 1
+    assert len(_found(mid, 1.0, rock_pale_seed_height_m=0.55)) == 0
+    assert len(_found(mid, rock_pale_seed_height_m=0.55)) == 1
 
 
 def test_two_rocks_joined_by_low_cells_are_two_regions():
