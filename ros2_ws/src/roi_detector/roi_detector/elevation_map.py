@@ -157,14 +157,15 @@ class ElevationMapConfig:
             precision 91 % from 57 % on quick and atacama_1km s1-s3 (truth odometry,
             docs/roi_detector.md), the same at 0.65. 0 turns the test off (rocks as
             bright as the ground).
-        rock_pale_seed_height_m: > 0: cells of any brightness whose height above the
-            ground less their spread across views exceeds this seed a rock too, and a
-            region without a dark seed must measure this high above the plane of its
-            ring (the tests above use ``rock_min_height_m``). Pale rocks, and sunlit
+        rock_pale_seed_height_m: > 0: a connected region that holds no dark seed is a
+            rock candidate too when one of its cells, of any brightness, stands this
+            high above the ground less its spread across views; it must then measure
+            this high above the plane of its ring (``rock_min_height_m`` otherwise).
+            Regions with a dark seed are left as they are. Pale rocks, and sunlit
             faces, are as bright as the soil or brighter: on the held-out bag
             train_1km_s113, two counted rocks of 1.0 and 1.9 m^2, 0.64-0.67 m tall,
-            3-10 m from the route, measured 1.16-1.28 of the soil's brightness and stood
-            0.45-0.8 m in the map, and no region was grown on them. The soil-coloured
+            6.6 and 8.4 m from the route, measured 1.16-1.28 of the soil's brightness
+            and stood 0.45-0.8 m in the map, and no region was grown on them. The soil-coloured
             bumps that ``rock_dark_value`` keeps out measure 0.26-0.36 m. 0: dark seeds
             only.
     """
