@@ -6,6 +6,12 @@ process then sleeps forever (measured here: about 1 in 25 SIGTERMs of a node rec
 messages/s, stack in ``rcl_wait``), and ``globloc run`` has to SIGKILL it, which loses what it
 had not written yet and leaves Fast DDS shared-memory files behind. Waiting in short slices and
 checking the context between them bounds the exit delay by the slice.
+
+``run_node`` also keeps rclpy's own signal handlers out: they shut the context down from the
+signal, and the node's entities were then destroyed on a dead context. That crashed now and
+then (rover_vo, SIGSEGV in ``destroy_subscription`` after a SIGINT, one CI run of two; the
+order ros2/launch_ros#213 describes). A signal now only sets a flag; the loop sees it
+within one slice, and the node is destroyed before the context is shut down.
 """
 
 from __future__ import annotations
@@ -14,12 +20,14 @@ from __future__ import annotations
 SLICE_S = 0.2
 
 
-def spin_until_shutdown(node, slice_s: float = SLICE_S) -> None:
+def spin_until_shutdown(node, slice_s: float = SLICE_S, stop=None) -> None:
     """Execute the node's callbacks until its context is shut down (by a signal or a callback).
 
     Args:
         node: An ``rclpy.node.Node``; spun by a ``SingleThreadedExecutor`` of its context.
         slice_s: Longest single wait (s).
+        stop: Optional ``threading.Event``; the loop also ends, within one slice, once it is
+            set (``run_node``'s signal handlers set it).
 
     Returns normally on shutdown, including when the context goes invalid mid-wait (rclpy
     then raises ``ExternalShutdownException`` or ``RCLError``, which are absorbed here only
@@ -31,7 +39,7 @@ def spin_until_shutdown(node, slice_s: float = SLICE_S) -> None:
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     try:
-        while context.ok():
+        while context.ok() and not (stop is not None and stop.is_set()):
             try:
                 executor.spin_once(timeout_sec=slice_s)
             except ExternalShutdownException:
@@ -62,16 +70,22 @@ def run_node(node_factory, name: str, args: list[str] | None = None,
         ``error_status`` after printing ``<name>: error: <reason>`` to stderr when the node
         cannot start (bad parameter, unreadable input file: ``OSError``, ``ValueError``).
     """
+    import signal
     import sys
+    import threading
 
     import rclpy
     from rclpy.executors import ExternalShutdownException
+    from rclpy.signals import SignalHandlerOptions
 
-    rclpy.init(args=args)
+    stop = threading.Event()
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    previous = {sig: signal.signal(sig, lambda _sig, _frame: stop.set())
+                for sig in (signal.SIGINT, signal.SIGTERM)}
     node = None
     try:
         node = node_factory()
-        spin_until_shutdown(node)
+        spin_until_shutdown(node, stop=stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (OSError, ValueError) as exc:
@@ -80,11 +94,15 @@ def run_node(node_factory, name: str, args: list[str] | None = None,
     except Exception:
         # Asked to stop while starting: rclpy then fails to create the remaining entities
         # on the shut-down context. That is a stop, not a crash.
-        if rclpy.ok():
+        if rclpy.ok() and not stop.is_set():
             raise
         return 0
     finally:
+        # The node goes first, while its context is still valid; the signals stay caught
+        # until the context is down, so that a second Ctrl-C cannot cut this short.
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     return 0

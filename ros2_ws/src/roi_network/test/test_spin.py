@@ -82,3 +82,48 @@ def test_run_node_reports_a_node_that_cannot_start_in_one_line(status):
     assert done.stderr.strip().splitlines()[-1] == (
         "probe_node: error: /nowhere/gn.geojson: GN file not found")
     assert "Traceback" not in done.stderr
+
+
+DESTROY_PROBE = textwrap.dedent('''
+    import sys
+    from rclpy.node import Node
+    from std_msgs.msg import String
+    from roi_network.spin import run_node
+
+    class Probe(Node):
+        def __init__(self):
+            super().__init__("destroy_probe")
+            self.create_subscription(String, "destroy_probe", lambda msg: None, 10)
+            self.create_timer(0.05, lambda: None)
+            print("spinning", flush=True)
+
+        def destroy_node(self):
+            print(f"context ok at destroy: {self.context.ok()}", flush=True)
+            super().destroy_node()
+
+    sys.exit(run_node(Probe, "destroy_probe"))
+''')
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_run_node_destroys_the_node_before_the_context_on_a_signal(sig):
+    # rclpy's own handlers shut the context down from the signal, and the node's entities
+    # were then destroyed on a dead context: rover_vo crashed so (SIGSEGV) in one CI run.
+    env = dict(os.environ, ROS_DOMAIN_ID=str(150 + os.getpid() % 50),
+               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-c", DESTROY_PROBE], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "spinning", proc.stderr.read()
+        time.sleep(0.3)
+        proc.send_signal(sig)
+        start = time.monotonic()
+        out, err = proc.communicate(timeout=10)
+        assert time.monotonic() - start < 3.0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    assert out.strip() == "context ok at destroy: True", (out, err)
+    assert "Traceback" not in err
