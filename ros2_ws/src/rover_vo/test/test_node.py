@@ -111,3 +111,65 @@ def test_cli_errors_name_the_file(tmp_path):
     res = subprocess.run([_exe("rover_vo"), "eval", str(bad), str(bad)], capture_output=True,
                          text=True, check=False)
     assert res.returncode == 1 and "bad.tum" in res.stderr and "Traceback" not in res.stderr
+
+
+def test_one_imu_callback_takes_every_queued_imu_message(tiny_bag, tiny_messages, ros_env,
+                                                         monkeypatch):
+    # rclpy's executor takes one message per subscription per wait (about a millisecond of
+    # Python each): at 250 IMU messages/s on a loaded machine the node fell behind, its
+    # queue overflowed and pairs were processed without their gyro (docs/rover_vo.md).
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Imu
+
+    from rover_vo.vo_node import VoNode
+
+    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
+        monkeypatch.setenv(key, ros_env[key])
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, args=["--ros-args", "--params-file", str(tiny_bag / "rover.yaml")])
+    try:
+        monkeypatch.setattr(rclpy.node.Node, "__init__", _in_context(ctx))
+        node = VoNode()
+        fed: list[str] = []
+        feed = node.on_message
+        node.on_message = lambda topic, msg: (fed.append(topic), feed(topic, msg))
+        source = rclpy.create_node("imu_flood", context=ctx)
+        qos = QoSProfile(depth=500, reliability=qos_profile_sensor_data.reliability)
+        pub = source.create_publisher(Imu, m.TOPIC_IMU, qos)
+        deadline = time.monotonic() + 20
+        while pub.get_subscription_count() < 1 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        imus = [msg for topic, msg in tiny_messages if topic == m.TOPIC_IMU][:300]
+        for src in imus:
+            msg = Imu()
+            msg.header.stamp.sec, msg.header.stamp.nanosec = (src.header.stamp.sec,
+                                                              src.header.stamp.nanosec)
+            msg.header.frame_id = src.header.frame_id
+            for part in ("angular_velocity", "linear_acceleration"):
+                for axis in "xyz":
+                    setattr(getattr(msg, part), axis, float(getattr(getattr(src, part), axis)))
+            pub.publish(msg)
+        time.sleep(1.0)  # delivered into the node's queue
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        executor.spin_once(timeout_sec=5.0)
+        # One callback: the message it was given and every other one queued behind it.
+        assert len(fed) > 250, len(fed)
+        assert set(fed) == {m.TOPIC_IMU}
+        assert node.drain_imu() == 0
+        executor.shutdown(timeout_sec=0)
+        node.destroy_node()
+        source.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
+
+
+def _in_context(ctx):
+    """``Node.__init__`` that puts every node in ``ctx`` (VoNode takes no context)."""
+    init = rclpy.node.Node.__init__
+
+    def patched(self, *args, **kwargs):
+        kwargs.setdefault("context", ctx)
+        init(self, *args, **kwargs)
+    return patched
