@@ -92,9 +92,10 @@ def run_node(node_factory, name: str, args: list[str] | None = None,
         print(f"{name}: error: {exc}", file=sys.stderr)
         return error_status
     except Exception:
-        # Asked to stop while starting: rclpy then fails to create the remaining entities
-        # on the shut-down context. That is a stop, not a crash.
-        if rclpy.ok() and not stop.is_set():
+        # The context shut down while the node was starting (by a callback or another
+        # thread; a signal only sets ``stop``): rclpy then fails to create the remaining
+        # entities. That is a stop, not a crash.
+        if rclpy.ok():
             raise
         return 0
     finally:

@@ -69,8 +69,9 @@ def odometry_message(out: VoOutput, odom_frame: str, base_frame: str) -> Odometr
 class VoNode(Node):
     """Subscribes the stereo pair, camera infos and IMU; publishes /vo/odometry, /vo/status."""
 
-    def __init__(self) -> None:
-        super().__init__("rover_vo")
+    def __init__(self, **node_kwargs: Any) -> None:
+        """``node_kwargs`` go to ``rclpy.node.Node`` (e.g. ``context``)."""
+        super().__init__("rover_vo", **node_kwargs)
         defaults = flat_parameters(VoConfig())
         values = {}
         for name, default in defaults.items():

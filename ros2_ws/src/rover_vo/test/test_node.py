@@ -129,8 +129,7 @@ def test_one_imu_callback_takes_every_queued_imu_message(tiny_bag, tiny_messages
     ctx = rclpy.Context()
     rclpy.init(context=ctx, args=["--ros-args", "--params-file", str(tiny_bag / "rover.yaml")])
     try:
-        monkeypatch.setattr(rclpy.node.Node, "__init__", _in_context(ctx))
-        node = VoNode()
+        node = VoNode(context=ctx)
         fed: list[str] = []
         feed = node.on_message
         node.on_message = lambda topic, msg: (fed.append(topic), feed(topic, msg))
@@ -164,12 +163,3 @@ def test_one_imu_callback_takes_every_queued_imu_message(tiny_bag, tiny_messages
     finally:
         rclpy.try_shutdown(context=ctx)
 
-
-def _in_context(ctx):
-    """``Node.__init__`` that puts every node in ``ctx`` (VoNode takes no context)."""
-    init = rclpy.node.Node.__init__
-
-    def patched(self, *args, **kwargs):
-        kwargs.setdefault("context", ctx)
-        init(self, *args, **kwargs)
-    return patched
