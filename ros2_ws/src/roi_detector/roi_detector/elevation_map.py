@@ -630,15 +630,19 @@ class ElevationMap:
         best.rounds, best.examined = r.rounds, r.examined
         return best.id
 
+    def consistent(self) -> list[MapRoi]:
+        """The ROIs the map reports: found in at least ``min_rounds`` rounds and
+        ``min_hit_ratio`` of the rounds that examined their cells."""
+        return [r for r in self.rois if r.rounds >= self.cfg.min_rounds
+                and r.rounds >= self.cfg.min_hit_ratio * r.examined]
+
     def to_records(self, rois: list[MapRoi] | None = None) -> np.ndarray:
-        """ROI records (odom) of ``rois`` (default: the consistent ones, found in at
-        least ``min_rounds`` rounds and ``min_hit_ratio`` of the rounds that examined
-        their cells) with covariance: centre error plus odometry at the latest round that
-        measured each ROI; ``n_obs`` is the number of stereo pairs that saw its cells
-        (at least: the most that saw one of them)."""
+        """ROI records (odom) of ``rois`` (default: :meth:`consistent`) with covariance:
+        centre error plus odometry at the latest round that measured each ROI; ``n_obs``
+        is the number of stereo pairs that saw its cells (at least: the most that saw
+        one of them)."""
         if rois is None:
-            rois = [r for r in self.rois if r.rounds >= self.cfg.min_rounds
-                    and r.rounds >= self.cfg.min_hit_ratio * r.examined]
+            rois = self.consistent()
         rec = empty_records(len(rois))
         for i, r in enumerate(rois):
             s2 = self.cfg.centre_sigma_m**2 + (0.1 * r.major_m) ** 2

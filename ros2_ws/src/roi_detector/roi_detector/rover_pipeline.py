@@ -398,13 +398,16 @@ class DriveMapper:
         return self.current_tracks()
 
     def _map_and_far_records(self, far_rocks: list[FarRock] | None = None) -> np.ndarray:
-        """The map's ROI records, and the far rocks (default: the tracker's) that no map
-        rock stands near (within ``far.merge_m`` or half its major axis: the map measures
-        what it reaches better than a far view does; a rock beside an outcrop is a rock)."""
-        rec = self.map.to_records()
+        """The map's ROI records, and the far rocks (default: the tracker's) that no
+        reported map rock stands near (within ``far.merge_m`` or half its major axis: the
+        map measures what it reaches better than a far view does; a rock beside an
+        outcrop is a rock). A map rock the map does not report (found in too few of its
+        rounds) does not hide a far rock."""
+        reported = self.map.consistent()
+        rec = self.map.to_records(reported)
         if not self.cfg.far_rocks:
             return rec
-        near = [(r.xy, max(self.cfg.far.merge_m, 0.5 * r.major_m)) for r in self.map.rois
+        near = [(r.xy, max(self.cfg.far.merge_m, 0.5 * r.major_m)) for r in reported
                 if r.label == ROCK]
         far = [r for r in (self.far.rocks() if far_rocks is None else far_rocks)
                if all(np.linalg.norm(r.xy - xy) > d for xy, d in near)]

@@ -163,6 +163,27 @@ def test_the_ln_gets_the_far_rocks_no_map_roi_stands_near():
     assert len(off._map_and_far_records()) == 0
 
 
+def test_a_map_rock_the_map_does_not_report_does_not_hide_a_far_rock():
+    """A map rock found in too few of its rounds is not in the LN: the far rock seen at its
+    place is (on the held-out s113 one rock was lost between the two, 2026-11-27)."""
+    from roi_detector.elevation_map import MapRoi
+    from roi_detector.far_rocks import FarRock
+    from roi_detector.rover_pipeline import DriveMapper, RoverConfig
+
+    far = FarRock(1, np.array([10.5, 5.2]), 0.3, np.eye(2) * 0.04, 1.2, 0.5, 1.13, 20,
+                  10.0, 0.5, 15.0, True, True)
+    mapper = DriveMapper(RoverConfig(far_rocks=True))
+    flicker = MapRoi(7, ROCK, np.array([10.0, 5.0]), 0.2, 1.5, 0.6, 1.6, 1.2, 0.0,
+                     rounds=1, examined=4, n_pairs=12)
+    mapper.map.rois = [flicker]
+    mapper.far.measured = [far]
+    assert mapper.map.consistent() == []
+    assert sorted(mapper._map_and_far_records()["id"]) == [FAR_ROCK_ID_BASE + 1]
+    # Once the map reports its rock, the rock is the map's alone.
+    flicker.rounds = 3
+    assert sorted(mapper._map_and_far_records()["id"]) == [7]
+
+
 def test_dark_blob_reads_the_disparity_of_its_own_rows():
     """A thin blob starting on an odd image row (off the half-resolution disparity grid)
     takes its depth from the grid rows inside it, not from the row above."""
