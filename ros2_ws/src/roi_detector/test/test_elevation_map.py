@@ -275,6 +275,34 @@ def test_a_rock_is_darker_than_the_soil():
     assert len(_found(low, 1.0, rock_dark_value=0.0)) == 1
 
 
+def _ridge(length, width=1.0, height=0.8):
+    """Ground points with a dark ridge ``length`` m long (across the view, along y),
+    ``width`` m wide and ``height`` m tall, centred at (9, 0), its far side hidden."""
+    x, y = np.meshgrid(np.arange(2.0, 16.0, 0.05), np.arange(-8.0, 8.0, 0.05))
+    x, y = x.ravel(), y.ravel()
+    z = _terrain(x, y, swell=False)
+    along = np.abs(y) < 0.5 * length
+    inside = (np.abs(x - 9.0) < 0.5 * width) & along
+    behind = (x >= 9.0 + 0.5 * width) & (x < 9.8 + 0.5 * width) & along
+    z = np.where(inside, z + height, z)
+    keep = ~behind
+    pts = np.column_stack([x[keep], y[keep], z[keep] + RNG.normal(0, 0.01, keep.sum())])
+    return pts[:, None, :]
+
+
+def test_a_ridge_longer_than_the_ground_window_is_no_rock():
+    """A dark ridge 0.8 m tall, 1 m wide: 2.5 m long it is a rock; 6 m long (area 6 m^2,
+    under the largest rock's, and steep enough for the relief test) it is terrain,
+    longer than 1.5 ground windows (4.8 m); without that limit it was taken for a rock."""
+    short = _found(_ridge(2.5))
+    assert len(short) == 1 and short["label"][0] == ROCK, short
+    assert short["major_m"][0] < 4.8
+    assert len(_found(_ridge(6.0))) == 0
+    long_ = _found(_ridge(6.0), rock_max_length_windows=0.0)
+    assert len(long_) == 1 and long_["label"][0] == ROCK, long_
+    assert long_["major_m"][0] > 4.8 and long_["area_m2"][0] < 9.0
+
+
 def test_a_pale_rock_stands_on_its_height_alone():
     """A block as bright as the soil (or brighter: a sunlit pale rock) is a rock when its
     cells stand rock_pale_seed_height_m above the ground and the region measures as much;
