@@ -98,7 +98,7 @@ class ElevationMapConfig:
             ``ground_window_m``. The ground's opening assumes every rock narrower than
             its window, and finds the ground under it; a region much longer than the
             window is a ridge or a crest of the terrain, which the opening keeps in its
-            narrow direction only. 1.5 (4.8 m): the counted rocks of five bags measure
+            narrow direction only. 1.5 (4.8 m): the catalogued rocks of five bags measure
             up to 3.6 m (truth) and their map nodes up to 3.6 m; the map rocks above
             4.8 m on the held-out bags s113 and s114 (4.9-8.2 m long, 2.8-4.8:1) were
             all false (docs/roi_detector.md, 2026-11-27, sixth session). 0: no limit.
