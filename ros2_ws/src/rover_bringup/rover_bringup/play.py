@@ -7,7 +7,9 @@ leaves nothing behind.
 
 from __future__ import annotations
 
+import os
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +25,33 @@ if TYPE_CHECKING:
 
 #: Exit status when playback is interrupted (SIGINT/SIGTERM), as a shell reports SIGINT.
 EXIT_INTERRUPTED = 130
+
+#: Wall seconds the middleware gets to tear down (node, context) once playback has ended.
+TEARDOWN_TIMEOUT_S = 15.0
+
+
+def _exit_if_teardown_hangs(status: int, timeout_s: float) -> threading.Timer:
+    """Arm a watchdog: exit the process with ``status`` if teardown takes > ``timeout_s``.
+
+    Playback's outcome is decided (every message sent, acknowledgements counted) before the
+    node and the rclpy context are destroyed. A DDS participant's teardown has been seen to
+    block indefinitely (once in CI: Fast DDS, after the subscriber's process had ended); the
+    bag was played, so the caller must get its exit status, not a hang.
+    """
+
+    def fire() -> None:
+        print(
+            f'globloc: play: middleware teardown still running after {timeout_s:g} s; '
+            f'exiting with status {status}',
+            file=sys.stderr, flush=True,
+        )
+        sys.stdout.flush()
+        os._exit(status)
+
+    timer = threading.Timer(timeout_s, fire)
+    timer.daemon = True
+    timer.start()
+    return timer
 
 
 @dataclass
@@ -45,6 +74,9 @@ class PlayOptions:
         clock_hz: /clock ticks per wall second while waiting between messages.
         progress_s: Wall seconds between progress lines.
         ros_args: Arguments for rclpy after ``--ros-args``.
+        teardown_timeout_s: Once playback has ended, wall seconds the node and rclpy get to
+            shut down before the process exits with playback's status anyway (the process
+            is ``globloc play``'s own); 0: wait for the teardown however long it takes.
     """
 
     bag: Path
@@ -60,6 +92,7 @@ class PlayOptions:
     clock_hz: float = 100.0
     progress_s: float = 2.0
     ros_args: list[str] = field(default_factory=list)
+    teardown_timeout_s: float = TEARDOWN_TIMEOUT_S
 
 
 def play(options: PlayOptions) -> int:
@@ -108,7 +141,13 @@ def play(options: PlayOptions) -> int:
             with ros_session(ros_args('globloc_play', options.ros_args)):
                 player = BagPlayer(selected, classes)
                 try:
-                    return _play(player, bag, options, names, wait_topics, start_ns)
+                    status = _play(player, bag, options, names, wait_topics, start_ns)
+                    # Armed for the rest of the process: destroy_node, rclpy shutdown and
+                    # the interpreter's exit handlers; a daemon thread, so a normal exit
+                    # does not wait for it.
+                    if options.teardown_timeout_s > 0:
+                        _exit_if_teardown_hangs(status, options.teardown_timeout_s)
+                    return status
                 except RuntimeError:
                     # A signal shuts the context down between two rcl calls (publish, the
                     # acknowledgement wait, a subscription count): rclpy raises RCLError

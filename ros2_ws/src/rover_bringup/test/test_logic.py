@@ -264,3 +264,35 @@ def test_output_bag_holds_messages_until_clock_runs(tmp_path: Path, bagfactory: 
         reader = make_reader(fh, decoder_factories=[DecoderFactory()])
         decoded = [m.header.frame_id for _, _, _, m in reader.iter_decoded_messages()]
     assert decoded == ['map', 'map']
+
+
+def _run_watchdog(tmp_path: Path, then: str) -> tuple[int, str, float]:
+    """A child process arms the teardown watchdog (status 3, 0.3 s), then runs ``then``."""
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / 'child.py'
+    script.write_text(
+        'import time\n'
+        'from rover_bringup.play import _exit_if_teardown_hangs\n'
+        '_exit_if_teardown_hangs(3, 0.3)\n'
+        f'{then}\n'
+    )
+    t0 = time.monotonic()
+    done = subprocess.run(
+        [sys.executable, str(script)], capture_output=True, text=True, timeout=30, check=False
+    )
+    return done.returncode, done.stderr, time.monotonic() - t0
+
+
+def test_play_teardown_watchdog_exits_with_the_playback_status(tmp_path: Path):
+    # A teardown that blocks (here: a 20 s sleep) ends at the watchdog, with the status
+    # playback decided and a line that says so.
+    code, stderr, wall = _run_watchdog(tmp_path, 'time.sleep(20)')
+    assert code == 3, stderr
+    assert 'teardown still running after 0.3 s; exiting with status 3' in stderr
+    assert wall < 15
+    # A teardown that finishes is not held up by the armed watchdog, nor its status changed.
+    code, stderr, wall = _run_watchdog(tmp_path, 'raise SystemExit(0)')
+    assert code == 0 and 'teardown' not in stderr, stderr
