@@ -346,6 +346,38 @@ def test_two_rocks_joined_by_low_cells_are_two_regions():
     assert len(found[False]) <= 1
 
 
+def _dome_with_smear(height=0.8, radius=0.6, smear=0.45):
+    """Ground points with a dark dome ``height`` m tall, ``radius`` m around (9, 2), and
+    behind it (away from the camera) the streak of stereo smear a tall rock leaves: a
+    wedge from ``smear`` m at the dome's edge down to the ground 1.2 m further."""
+    x, y = np.meshgrid(np.arange(2.0, 16.0, 0.05), np.arange(-8.0, 8.0, 0.05))
+    x, y = x.ravel(), y.ravel()
+    z = _terrain(x, y, swell=False)
+    d = np.hypot(x - 9.0, y - 2.0)
+    dome = height * np.sqrt(np.clip(1 - (d / radius) ** 2, 0, None))
+    behind = (x > 9.0) & (x < 9.0 + radius + 1.2) & (np.abs(y - 2.0) < 0.5 * radius) & \
+        (d >= radius)
+    wedge = np.where(behind, smear * (1 - (x - 9.0 - radius) / 1.2), 0.0)
+    z = z + np.maximum(dome, wedge)
+    pts = np.column_stack([x, y, z + RNG.normal(0, 0.01, len(x))])
+    return pts[:, None, :]
+
+
+def test_a_rock_is_placed_on_its_upper_part_not_on_its_smear():
+    """The rock's centre is that of its cells above half its height: the smear behind a
+    tall rock, lower than the rock, widens its footprint away from the camera and had
+    moved the footprint's hull centroid off the rock (``rock_centre="hull"``)."""
+    pts = _dome_with_smear()
+    upper = _found(pts)
+    assert len(upper) == 1 and upper["label"][0] == ROCK, upper
+    assert np.hypot(upper["x"][0] - 9.0, upper["y"][0] - 2.0) < 0.08
+    hull = _found(pts, rock_centre="hull")
+    assert len(hull) == 1
+    assert hull["x"][0] - 9.0 > 0.12  # pulled behind the rock, along the smear
+    # The footprint (and so the area) is the same either way: only the centre moves.
+    assert abs(hull["area_m2"][0] - upper["area_m2"][0]) < 1e-6
+
+
 def test_trace_reports_each_rock_region_and_the_test_that_rejected_it():
     events = []
     emap = ElevationMap(ElevationMapConfig(detect_every=2))
