@@ -54,6 +54,9 @@ from scipy import ndimage
 
 from roi_network.records import OUTCROP, ROCK, empty_records
 
+#: Where a rock region's node is placed (``ElevationMapConfig.rock_centre``).
+ROCK_CENTRES = ("upper", "hull")
+
 
 @dataclass(frozen=True)
 class ElevationMapConfig:
@@ -226,6 +229,11 @@ class ElevationMapConfig:
     rock_footprint_fraction: float = 0.35
     rock_pale_seed_height_m: float = 0.45
     rock_centre: str = "upper"
+
+    def __post_init__(self) -> None:
+        if self.rock_centre not in ROCK_CENTRES:
+            raise ValueError(f"unknown rock_centre '{self.rock_centre}' (one of "
+                             f"{ROCK_CENTRES})")
 
 
 #: The outcrop rule on the colour averaged over 0.2 m (``replace(cfg, **AVERAGED_OUTCROPS)``;
@@ -442,10 +450,14 @@ class ElevationMap:
             return z, seen, np.sqrt(np.clip(var, 0.0, None))
         return z, seen
 
+    def _cell_xy(self, ij: np.ndarray) -> np.ndarray:
+        """Odom x, y of the centres of cells ``ij`` (indices in the whole map)."""
+        return (ij + 0.5) * self.cfg.cell_m + self.origin
+
     def _measure(self, label: int, cells: np.ndarray, off: np.ndarray, z_ground: float,
                  height: float) -> MapRoi | None:
         c = self.cfg
-        xy = (cells + off + 0.5) * c.cell_m + self.origin
+        xy = self._cell_xy(cells + off)
         if len(xy) < 3:
             return None
         hull = cv2.convexHull(xy.astype(np.float32))
@@ -554,8 +566,7 @@ class ElevationMap:
                 # footprint at half height, as the relief test below measures it). The
                 # smear a tall rock leaves behind it, along the rays and lower than the
                 # rock, widens the footprint and had moved the hull's centroid off it.
-                r.xy = ((cells[upper] + corner + off + 0.5) * c.cell_m + self.origin) \
-                    .mean(axis=0)
+                r.xy = self._cell_xy(cells[upper] + corner + off).mean(axis=0)
             half = max(int(np.count_nonzero(upper)), 1) * c.cell_m**2
             relief = height / np.sqrt(4 * half / np.pi)
             if relief >= c.rock_min_relief_ratio:
@@ -567,8 +578,7 @@ class ElevationMap:
     def _trace_region(self, cells: np.ndarray, verdict: str, /, **measured) -> None:
         """Report a rock region (cell indices in the window) to :attr:`trace`, if set."""
         if self.trace is not None:
-            xy = (cells.mean(axis=0) + 0.5) * self.cfg.cell_m + self.origin
-            self.trace(verdict, xy, measured)
+            self.trace(verdict, self._cell_xy(cells.mean(axis=0)), measured)
 
     def _split_peaks(self, rel: np.ndarray, seeds: np.ndarray, mask: np.ndarray):
         """Label ``mask`` with one region per peak: seed cells within

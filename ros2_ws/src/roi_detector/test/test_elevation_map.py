@@ -1,6 +1,7 @@
 """The drive's elevation map and the ROIs found in it (pure library, synthetic scenes)."""
 
 import numpy as np
+import pytest
 
 from roi_detector.elevation_map import (
     AVERAGED_OUTCROPS,
@@ -376,6 +377,8 @@ def test_a_rock_is_placed_on_its_upper_part_not_on_its_smear():
     assert hull["x"][0] - 9.0 > 0.12  # pulled behind the rock, along the smear
     # The footprint (and so the area) is the same either way: only the centre moves.
     assert abs(hull["area_m2"][0] - upper["area_m2"][0]) < 1e-6
+    with pytest.raises(ValueError, match="rock_centre 'uper'"):
+        ElevationMapConfig(rock_centre="uper")
 
 
 def test_trace_reports_each_rock_region_and_the_test_that_rejected_it():
@@ -414,8 +417,6 @@ def test_outcrop_rules_by_name_in_the_library_and_the_cli(monkeypatch):
     """``per_cell`` is the default configuration, ``averaged`` is AVERAGED_OUTCROPS, and
     ``roi_detector ln --outcrops`` passes the rule to the detector; an unknown name is
     refused with the names."""
-    import pytest
-
     from roi_detector import cli
     from roi_detector.elevation_map import OUTCROP_RULES, outcrop_rule
 
