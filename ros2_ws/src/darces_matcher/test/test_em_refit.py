@@ -103,7 +103,7 @@ def test_a_fix_whose_likeliest_refit_explains_too_few_nodes_is_withheld(monkeypa
     # The EM's fit must pass the decision again. Counts: its hard pairs must pass the
     # support test (here the mixture believes only 3 pairs). Odds: its alignment must
     # beat chance (here it moved 40 m: every node lands on nothing).
-    import darces_matcher.matcher as matcher_module
+    import darces_matcher.refit as refit_module
     from darces_matcher.em_refit import EmFit
     from darces_matcher.simulate import SimOptions, iter_lns
 
@@ -122,10 +122,10 @@ def test_a_fix_whose_likeliest_refit_explains_too_few_nodes_is_withheld(monkeypa
         return EmFit(yaw, np.asarray(t) + 40.0, np.arange(3), sim.truth_gn[:3], 0.0,
                      np.full(n, 3 / n))
 
-    monkeypatch.setattr(matcher_module, "em_refit", believes_three)
+    monkeypatch.setattr(refit_module, "em_refit", believes_three)
     result = counts.match(sim.records)
     assert (result.status, result.reason) == ("no_fix", "insufficient_support")
-    monkeypatch.setattr(matcher_module, "em_refit", moved_away)
+    monkeypatch.setattr(refit_module, "em_refit", moved_away)
     result = odds.match(sim.records)
     assert (result.status, result.reason) == ("no_fix", "insufficient_support")
     assert result.false_match_probability > 0.5
