@@ -84,6 +84,7 @@ odds are weak, which is where Markov's bound withheld fixes the oracle makes
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -106,6 +107,9 @@ DENSITY_NEIGHBOURS = 8
 SPENT_NODES = 3
 #: Variance bins per e-fold of the chance model's caches (moments, scaled densities).
 _BINS_PER_E = 8.0
+#: Grid of log y of the tabulated peak integral F_s (:func:`_peak_table`): lowest,
+#: highest, points.
+_PEAK_LOG_Y = (-30.0, 60.0, 4001)
 #: Midpoints of 64 equal cells of (0, 1): the outlier shares of the marginal odds.
 _W_GRID = (np.arange(64) + 0.5) / 64
 
@@ -302,13 +306,38 @@ class ChanceModel:
 
 def _peak_integral(b: np.ndarray, w: float, s: float) -> np.ndarray:
     """J_s(b) = int_0^inf ((w + b e^-u)^s - w^s) du for each b (a GN node's peak over the
-    outlier floor), by the trapezoid rule on u up to where b e^-u is 1e-4 of w."""
+    outlier floor).
+
+    With x = (b / w) e^-u it is w^s F_s(b / w), F_s(y) = int_0^y ((1 + x)^s - 1) / x dx,
+    a function of one variable: tabulated once per (w, s) (:func:`_peak_table`) and
+    interpolated, ~50x cheaper than integrating every GN node's peak at every cache miss
+    of :meth:`ChanceModel.log_moment` (its cost had been a sixth of the matcher's time on
+    a 400 ROIs/km^2 GN). Outside the table F_s is its series: s y below, and
+    F_s(Y) + (y^s - Y^s) / s above (the integrand is x^(s-1) there, to 1e-15).
+    """
     b = np.asarray(b, float)
-    top = np.log(np.maximum(b, 1e-12) / w) + math.log(1e4)
-    t = np.linspace(0.0, 1.0, 97)
-    u = np.maximum(top, 1e-6)[:, None] * t[None, :]
-    f = (w + b[:, None] * np.exp(-u)) ** s - w**s
-    return np.trapezoid(f, u, axis=1)
+    log_y, table = _peak_table(float(w), float(s))
+    ly = np.log(np.maximum(b, 1e-300) / w)
+    f = np.interp(ly, log_y, table)
+    low, high = ly < log_y[0], ly > log_y[-1]
+    f[low] = s * np.exp(ly[low])
+    f[high] = table[-1] + (np.exp(s * ly[high]) - math.exp(s * log_y[-1])) / s
+    return w**s * f
+
+
+@functools.lru_cache(maxsize=16)
+def _peak_table(w: float, s: float) -> tuple[np.ndarray, np.ndarray]:
+    """F_s(y) of :func:`_peak_integral` on a grid of log y (``_PEAK_LOG_Y``), by the
+    trapezoid rule in t = log x (dx / x = dt) on a grid 8x finer. The integrand is
+    increasing in t, so the rule, and the linear interpolation of F_s between grid
+    points, err high by ~1e-5 of F: the bound stays conservative. ``w`` is unused by F_s;
+    it keys the cache with ``s`` because the callers pass both."""
+    lo, hi, n, fine = *_PEAK_LOG_Y, 8
+    t = np.linspace(lo, hi, (n - 1) * fine + 1)
+    g = np.expm1(s * np.log1p(np.exp(t)))
+    cum = np.concatenate([[0.0], np.cumsum((g[:-1] + g[1:]) * (0.5 * (t[1] - t[0])))])
+    # int_0^(e^lo) ((1 + x)^s - 1) / x dx = s e^lo to first order (e^lo ~ 1e-13).
+    return t[::fine], s * math.exp(lo) + cum[::fine]
 
 
 def false_match_probability(log_odds: float, n_tested: float,
