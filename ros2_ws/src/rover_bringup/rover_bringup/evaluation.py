@@ -10,8 +10,11 @@ associated with the truth pose of the nearest stamp (evo's ``associate_trajector
   the route was left after it);
 - ``rmse_after_first_fix_m``: RMSE over every /global_pose (they start at the first fix);
 - ``false_fixes``: fixes (first fix, refinement, switch on /matcher/status) after which the
-  published pose is more than 10 m off; without matcher events, the number of episodes
-  of /global_pose more than 10 m off;
+  published pose is more than 10 m off, "after" counted from when the fix reached the
+  graph (the status's receive time; its LN's stamp in runs recorded before that was
+  kept, which charged a detector's lag behind a fast replay to the fix); without matcher
+  events, the number of episodes of /global_pose more than 10 m off. ``fix_lag_s``: how
+  long after their LN's stamp the fixes arrived (median, max; bag seconds);
 - ``consistency_3sigma``: fraction of poses whose truth lies inside the published 3-sigma
   ellipse (horizontal covariance, squared Mahalanobis distance <= 9). A Gaussian that is
   exactly right gives 98.9 % (chi-square, 2 degrees of freedom); the target >= 99 % asks
@@ -96,19 +99,31 @@ def _read_table(path: Path, columns: int) -> np.ndarray:
 
 
 def read_events(path: Path) -> list[tuple[float, str]]:
-    """``matcher_events.tsv`` as (stamp s, event) pairs; [] when the file is absent."""
+    """``matcher_events.tsv`` as (time s, event) pairs; [] when the file is absent.
+
+    The time is when the recorder received the status (its ``received`` column), so that
+    the poses after it are the ones the fix produced; files without the column (runs
+    before 2026-11-27, ninth session) give the status's header stamp, its LN's.
+    """
+    return [(received if received is not None else stamp, event)
+            for stamp, event, received in read_event_rows(path)]
+
+
+def read_event_rows(path: Path) -> list[tuple[float, str, float | None]]:
+    """``matcher_events.tsv`` as (stamp s, event, received s or None) rows."""
     if not path.is_file():
         return []
-    events = []
+    rows = []
     for line in path.read_text().splitlines():
         if line.startswith('#') or not line.strip():
             continue
         parts = line.split('\t')
         try:
-            events.append((float(parts[0]), parts[1] if len(parts) > 1 else ''))
+            received = float(parts[5]) if len(parts) > 5 and parts[5].strip() else None
+            rows.append((float(parts[0]), parts[1] if len(parts) > 1 else '', received))
         except ValueError:
             continue  # one bad row does not hide the others
-    return events
+    return rows
 
 
 @dataclass
@@ -122,7 +137,7 @@ class RunData:
         covariance: (N, 2, 2) horizontal covariance per pose, or None (not recorded).
         truth: (M, 8) ground-truth base_link poses, TUM rows (map).
         vo: (K, 8) /vo/odometry, TUM rows (odom), or None.
-        events: (stamp s, event) from /matcher/status.
+        events: (time s, event) from /matcher/status (:func:`read_events`).
         alignment: (J, 4) /global_alignment rows t tx ty yaw (map -> odom).
         not_run: nodes of the graph that did not run, with why (from run.yaml).
     """
@@ -278,6 +293,10 @@ def evaluate(data: RunData) -> Evaluation:
     counts: dict[str, int] = {}
     for _, event in data.events:
         counts[event] = counts.get(event, 0) + 1
+    # How long after their LN's stamp the fixes reached the graph (bag seconds).
+    lags = [received - stamp for stamp, event, received
+            in read_event_rows(data.run_dir / EVENTS)
+            if event in FIX_EVENTS and received is not None]
     summary: dict[str, Any] = {
         'run_dir': str(data.run_dir),
         'bag_dir': str(data.bag_dir),
@@ -285,6 +304,8 @@ def evaluate(data: RunData) -> Evaluation:
         'route_duration_s': float(truth[-1, 0] - truth[0, 0]),
         'global_poses': len(data.estimate),
         'matcher_events': counts,
+        'fix_lag_s': ({'median': float(np.median(lags)), 'max': float(np.max(lags))}
+                      if lags else None),
         'paper_final_error_m': PAPER_FINAL_ERROR_M,
         'targets': TARGETS,
         'vo': _vo_summary(data.vo, truth),
@@ -437,6 +458,9 @@ def report_markdown(s: dict[str, Any], plots: list[str]) -> str:
     if s.get('matcher_events'):
         out += ['', 'Matcher events: ' + ', '.join(f'{k} {v}' for k, v in
                                                    sorted(s['matcher_events'].items()))]
+    if s.get('fix_lag_s'):
+        out += ['', f"Fixes reached the graph {s['fix_lag_s']['median']:.1f} s (median) and at "
+                    f"most {s['fix_lag_s']['max']:.1f} s (bag time) after their LN's stamp."]
     if s.get('vo') and 'ape_aligned_rmse_m' in s['vo']:
         out += ['', f"Visual odometry: {s['vo']['poses']} poses, evo SE(3)-aligned APE RMSE "
                 f"{_fmt(s['vo']['ape_aligned_rmse_m'], ' m')}."]

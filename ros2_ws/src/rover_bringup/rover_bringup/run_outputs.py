@@ -8,12 +8,15 @@
 ``global_pose_cov.tsv``    its horizontal covariance per pose: t cov_xx cov_xy cov_yy (m^2)
 ``vo.tum``                 /vo/odometry, TUM (base_link in ``odom``)
 ``alignment.tsv``          /global_alignment: t tx ty yaw (map -> odom; m, rad)
-``matcher_events.tsv``     /matcher/status: t event reason ln_size inliers
+``matcher_events.tsv``     /matcher/status: t event reason ln_size inliers received
 ``local_network.csv``      the last /local_network (``odom`` frame): one ROI record a row
 =========================  ================================================================
 
-Times are the messages' header stamps (bag time, seconds). Every file is written
-atomically (a temporary file renamed), so a reader never sees half a file.
+Times are the messages' header stamps (bag time, seconds). A /matcher/status carries
+its LN's stamp, which can be well before the fix reached the graph (a detector behind
+a fast replay), so ``matcher_events.tsv`` also has ``received``: when the recorder got
+the message (its receive time, the bag's clock). Every file is written atomically (a
+temporary file renamed), so a reader never sees half a file.
 """
 
 from __future__ import annotations
@@ -122,7 +125,7 @@ def export_outputs(run_dir: Path) -> dict[str, int]:
     try:
         with Reader(bag) as reader:
             conns = [c for c in reader.connections if c.topic in _TOPICS]
-            for conn, _, raw in reader.messages(connections=conns):
+            for conn, received_ns, raw in reader.messages(connections=conns):
                 try:
                     msg = typestore.deserialize_cdr(raw, conn.msgtype)
                 except Exception:  # a corrupt message must not lose the others
@@ -147,7 +150,7 @@ def export_outputs(run_dir: Path) -> dict[str, int]:
                         events.append(
                             f'{_stamp(msg.header):.9f}\t{kv.get("event", "")}\t'
                             f'{kv.get("reason", "")}\t{kv.get("ln_size", "")}\t'
-                            f'{kv.get("inliers", "")}\n')
+                            f'{kv.get("inliers", "")}\t{received_ns * 1e-9:.9f}\n')
                 elif conn.topic == '/local_network':
                     last_ln = msg
     except GloblocError:
@@ -165,7 +168,8 @@ def export_outputs(run_dir: Path) -> dict[str, int]:
     write_atomic(run_dir / ALIGNMENT,
                  _lines('# t tx ty yaw (/global_alignment, map -> odom; m, rad)\n', alignment))
     write_atomic(run_dir / EVENTS,
-                 _lines('# t\tevent\treason\tln_size\tinliers (/matcher/status)\n', events))
+                 _lines('# t\tevent\treason\tln_size\tinliers\treceived (/matcher/status; '
+                        't: its LN\'s stamp, received: when the recorder got it)\n', events))
     written = {GLOBAL_POSE_TUM: len(poses), GLOBAL_POSE_COV: len(covs), VO_TUM: len(vo),
                ALIGNMENT: len(alignment), EVENTS: len(events), 'undecodable': undecodable}
     if last_ln is not None:

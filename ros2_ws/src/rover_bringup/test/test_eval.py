@@ -111,6 +111,32 @@ def test_metrics_of_a_run_with_known_errors(tmp_path: Path):
         assert (run / png).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
 
 
+def test_a_fix_is_judged_by_the_poses_after_it_reached_the_graph(tmp_path: Path):
+    bag, t, xy = _bag(tmp_path)
+    run = _run_dir(tmp_path, bag)
+    # Localized at 50 s, then the pose drifts to 12 m off by 200 s. A right fix of an LN
+    # stamped 200 s reaches the graph at 260 s (a detector behind a fast replay): the
+    # poses between are the drifted ones, those after it 0.2 m off.
+    k = t >= T0 + 50.0
+    te, est = t[k], xy[k].copy()
+    drift = np.clip((te - (T0 + 50.0)) / 150.0, 0.0, 1.0) * 12.0
+    est[:, 1] += np.where(te < T0 + 260.0, drift, 0.2)
+    _write_estimate(run, te, est, np.full(len(te), 5.0))
+    rows = [f'{T0 + 50.0:.9f}\tfirst_fix\tok\t6\t5', f'{T0 + 200.0:.9f}\trefined\tok\t9\t7']
+    events = run / 'matcher_events.tsv'
+    # As recorded since the receive time is kept: the fix counts from 260 s.
+    events.write_text('# t\tevent\treason\tln_size\tinliers\treceived\n'
+                      f'{rows[0]}\t{T0 + 51.0:.9f}\n{rows[1]}\t{T0 + 260.0:.9f}\n')
+    s = evaluate(load_run(run)).summary
+    assert s['false_fixes'] == 0 and s['poses_over_10m'] > 0
+    assert s['fix_lag_s'] == pytest.approx({'median': 30.5, 'max': 60.0})
+    # An older file without the column: the fix counts from its LN's stamp, and the
+    # drifted poses after 200 s make it a false fix.
+    events.write_text('# t\tevent\treason\tln_size\tinliers\n' + '\n'.join(rows) + '\n')
+    s = evaluate(load_run(run)).summary
+    assert s['false_fixes'] == 1 and s['fix_lag_s'] is None
+
+
 def test_vo_drift_is_measured_with_evo_alignment():
     from rover_bringup.evaluation import _vo_summary
 
@@ -210,7 +236,9 @@ def _write_outputs_bag(run: Path, t: np.ndarray, xy: np.ndarray, corrupt_one: bo
             values=[kv(key='event', value='first_fix'), kv(key='reason', value='ok'),
                     kv(key='ln_size', value='12'), kv(key='inliers', value='9')])
         arr = m['diagnostic_msgs/msg/DiagnosticArray'](header=header(t[0]), status=[status])
-        w.write(cs, int(t[0] * 1e9), ts.serialize_cdr(arr, 'diagnostic_msgs/msg/DiagnosticArray'))
+        # Received 2.5 s after its LN's stamp, as a matcher behind the replay sends it.
+        w.write(cs, int((t[0] + 2.5) * 1e9),
+                ts.serialize_cdr(arr, 'diagnostic_msgs/msg/DiagnosticArray'))
 
 
 def test_run_outputs_bag_is_exported_and_evaluated(tmp_path: Path):
@@ -225,6 +253,7 @@ def test_run_outputs_bag_is_exported_and_evaluated(tmp_path: Path):
     assert s['final_error_m'] == pytest.approx(0.3, abs=1e-5)
     assert s['distance_before_first_fix_m'] == pytest.approx(60.0, abs=0.11)
     assert s['matcher_events'] == {'first_fix': 1}
+    assert s['fix_lag_s'] == pytest.approx({'median': 2.5, 'max': 2.5})
     cov = load_run(run).covariance
     np.testing.assert_allclose(cov[0], [[0.04, 0.01], [0.01, 0.09]])
     written = export_outputs(run)
