@@ -332,6 +332,12 @@ def markdown(report: dict[str, Any]) -> str:
             f"| {_fmt(c.get('final_error_m'))} | {_fmt(c.get('rmse_after_first_fix_m'))} "
             f"| {_fmt(c.get('false_fixes'))} "
             f"| {_fmt(None if cons is None else 100 * cons, 1)} % | {paper} | {ran} |")
+    for e in report["bags"]:
+        lag = e.get("continuous", {}).get("fix_lag_s")
+        if lag:
+            lines.append(f"\n{Path(e['bag']).name}: fixes reached the graph {lag['median']:.1f} s "
+                         f"(median), at most {lag['max']:.1f} s (bag time) after their LN's "
+                         "stamp; false fixes are judged from then (`globloc eval`).")
     marks = " / ".join(str(m) for m in PASSED_MARKS_M)
     lines += ["", f"ROIs the recall counts (above the rover thresholds, within 15 m of the "
               f"route) that the route has passed by {marks} m: what bounds the first fix:", ""]
