@@ -9,6 +9,7 @@ encodes the sequence number, or the image's SHA-256), and every /clock value.
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import hashlib
 import json
 import sys
@@ -90,6 +91,10 @@ def main() -> int:
     parser.add_argument('--timeout', type=float, default=60.0)
     args = parser.parse_args()
     expect = {k: int(v) for k, v in (e.split('=') for e in args.expect)}
+    # A capture still alive 5 s past its own deadline is hung (seen in 3 of ~24 CI runs,
+    # after the player had finished): print every thread's stack to stderr, where pytest
+    # shows it, so that the next failure says where.
+    faulthandler.dump_traceback_later(args.timeout + 5.0, exit=False)
     rclpy.init()
     node = Capture(expect, args.clock_until)
     executor = SingleThreadedExecutor()
