@@ -309,14 +309,14 @@ def _peak_integral(b: np.ndarray, w: float, s: float) -> np.ndarray:
     outlier floor).
 
     With x = (b / w) e^-u it is w^s F_s(b / w), F_s(y) = int_0^y ((1 + x)^s - 1) / x dx,
-    a function of one variable: tabulated once per (w, s) (:func:`_peak_table`) and
+    a function of one variable: tabulated once per order s (:func:`_peak_table`) and
     interpolated, ~50x cheaper than integrating every GN node's peak at every cache miss
     of :meth:`ChanceModel.log_moment` (its cost had been a sixth of the matcher's time on
     a 400 ROIs/km^2 GN). Outside the table F_s is its series: s y below, and
     F_s(Y) + (y^s - Y^s) / s above (the integrand is x^(s-1) there, to 1e-15).
     """
     b = np.asarray(b, float)
-    log_y, table = _peak_table(float(w), float(s))
+    log_y, table = _peak_table(float(s))
     ly = np.log(np.maximum(b, 1e-300) / w)
     f = np.interp(ly, log_y, table)
     low, high = ly < log_y[0], ly > log_y[-1]
@@ -326,12 +326,11 @@ def _peak_integral(b: np.ndarray, w: float, s: float) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=16)
-def _peak_table(w: float, s: float) -> tuple[np.ndarray, np.ndarray]:
+def _peak_table(s: float) -> tuple[np.ndarray, np.ndarray]:
     """F_s(y) of :func:`_peak_integral` on a grid of log y (``_PEAK_LOG_Y``), by the
     trapezoid rule in t = log x (dx / x = dt) on a grid 8x finer. The integrand is
     increasing in t, so the rule, and the linear interpolation of F_s between grid
-    points, err high by ~1e-5 of F: the bound stays conservative. ``w`` is unused by F_s;
-    it keys the cache with ``s`` because the callers pass both."""
+    points, err high by ~1e-5 of F: the bound stays conservative."""
     lo, hi, n, fine = *_PEAK_LOG_Y, 8
     t = np.linspace(lo, hi, (n - 1) * fine + 1)
     g = np.expm1(s * np.log1p(np.exp(t)))

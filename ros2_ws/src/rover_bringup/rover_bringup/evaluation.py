@@ -98,19 +98,10 @@ def _read_table(path: Path, columns: int) -> np.ndarray:
     return np.array(rows, dtype=float).reshape(-1, columns)
 
 
-def read_events(path: Path) -> list[tuple[float, str]]:
-    """``matcher_events.tsv`` as (time s, event) pairs; [] when the file is absent.
-
-    The time is when the recorder received the status (its ``received`` column), so that
-    the poses after it are the ones the fix produced; files without the column (runs
-    before 2026-11-27, ninth session) give the status's header stamp, its LN's.
-    """
-    return [(received if received is not None else stamp, event)
-            for stamp, event, received in read_event_rows(path)]
-
-
-def read_event_rows(path: Path) -> list[tuple[float, str, float | None]]:
-    """``matcher_events.tsv`` as (stamp s, event, received s or None) rows."""
+def read_events(path: Path) -> list[tuple[float, str, float | None]]:
+    """``matcher_events.tsv`` as (stamp s, event, received s or None) rows; [] when the
+    file is absent. ``received`` is when the recorder got the status; files without the
+    column (runs before 2026-11-27, ninth session) give None."""
     if not path.is_file():
         return []
     rows = []
@@ -137,7 +128,8 @@ class RunData:
         covariance: (N, 2, 2) horizontal covariance per pose, or None (not recorded).
         truth: (M, 8) ground-truth base_link poses, TUM rows (map).
         vo: (K, 8) /vo/odometry, TUM rows (odom), or None.
-        events: (time s, event) from /matcher/status (:func:`read_events`).
+        events: (stamp s, event, received s or None) from /matcher/status
+            (:func:`read_events`).
         alignment: (J, 4) /global_alignment rows t tx ty yaw (map -> odom).
         not_run: nodes of the graph that did not run, with why (from run.yaml).
     """
@@ -148,7 +140,7 @@ class RunData:
     covariance: np.ndarray | None
     truth: np.ndarray
     vo: np.ndarray | None = None
-    events: list[tuple[float, str]] = field(default_factory=list)
+    events: list[tuple[float, str, float | None]] = field(default_factory=list)
     alignment: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     not_run: list[str] = field(default_factory=list)
 
@@ -291,11 +283,10 @@ def evaluate(data: RunData) -> Evaluation:
     route_xy = truth[:, 1:3]
     route_d = _cumulative_distance(route_xy)
     counts: dict[str, int] = {}
-    for _, event in data.events:
+    for _, event, _ in data.events:
         counts[event] = counts.get(event, 0) + 1
     # How long after their LN's stamp the fixes reached the graph (bag seconds).
-    lags = [received - stamp for stamp, event, received
-            in read_event_rows(data.run_dir / EVENTS)
+    lags = [received - stamp for stamp, event, received in data.events
             if event in FIX_EVENTS and received is not None]
     summary: dict[str, Any] = {
         'run_dir': str(data.run_dir),
@@ -359,7 +350,10 @@ def evaluate(data: RunData) -> Evaluation:
 
     fixes: list[tuple[float, float, str]] = []
     false_fixes = 0
-    for te, event in data.events:
+    for stamp, event, received in data.events:
+        # A fix is judged by the poses after it reached the graph (its LN's stamp in files
+        # recorded without the receive time).
+        te = received if received is not None else stamp
         if event not in FIX_EVENTS:
             continue
         k = int(np.searchsorted(t, te))
