@@ -222,8 +222,10 @@ class MatchConfig:
         chernoff_orders: the odds decision bounds the count of chance alignments as good
             as the winner by Chernoff's inequality at these orders s (E[LR^s] from the
             GN's densities) beside Markov's (s = 1), the smallest of them
-            (:mod:`~darces_matcher.decision`); (): Markov's alone (the odds decision's
-            first pass, ``darces_markov``).
+            (:mod:`~darces_matcher.decision`; a grid over which the bound is minimised,
+            not a union of tests: more orders only tighten it, at one cached moment per
+            order, GN class and variance bin); (): Markov's alone (the odds decision's
+            first pass, ``darces_markov``). Until 2026-11-28 (0.5, 0.75), times 3.
         min_side_floor_m: when no control triangle has sides of ``min_side_m``, the
             triplets are chosen again with this shortest side (a rock cluster's close
             nodes; their orientation is still checked against their tolerances by
@@ -286,7 +288,7 @@ class MatchConfig:
     decision: Literal["odds", "counts"] = "odds"
     false_match_rate: float = 1e-2
     chance_scale_sigmas: float = 3.0
-    chernoff_orders: tuple[float, ...] = (0.5, 0.75)
+    chernoff_orders: tuple[float, ...] = (0.2, 0.3, 0.4, 0.5, 0.6, 0.75, 0.9)
     track_spent_nodes: int = 0
     track_cell_fraction: float = 0.25
     min_side_floor_m: float | None = 3.0

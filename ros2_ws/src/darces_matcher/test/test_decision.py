@@ -174,7 +174,10 @@ def test_lns_of_another_gn_give_no_fix(sparse_gn) -> None:
     for sim in iter_lns(sparse_gn, options, seed=3, max_lns=5):
         result = matcher.match(sim.records)
         assert not result.is_fix
-        assert np.isnan(result.false_match_probability) or result.false_match_probability > 0.5
+        # The best chance alignment is about as good as the chance alignments the
+        # search expects (p_false near 1/2, here 0.49-1), far from the accepted rate.
+        assert np.isnan(result.false_match_probability) or \
+            result.false_match_probability > 0.4 > 10 * MatchConfig().false_match_rate
 
 
 def test_prefix_keeps_the_least_travelled_nodes(sparse_gn) -> None:
@@ -289,14 +292,19 @@ def test_chernoff_moment_bounds_a_chance_nodes_lr_and_shrinks_the_chance_count()
     # The count of chance alignments shrinks where the moments are small and the odds
     # weak; where they are not, Markov's bound stands.
     log_m = {0.5: model.log_moment(lab, np.full(12, 1.0), 0.5)}
-    n_eff = 1000.0 * min(1.0, 2.0 * math.exp(log_m[0.5] + 0.5 * 6.0))
-    assert n_eff < 500.0
+    n_eff = 1000.0 * min(1.0, math.exp(log_m[0.5] + 0.5 * 6.0))
+    assert n_eff < 250.0
     assert false_match_probability(6.0, 1000.0, (), log_m) == pytest.approx(
         n_eff / (n_eff + math.exp(6.0)))
     assert false_match_probability(40.0, 1000.0, (), log_m) == pytest.approx(
         false_match_probability(40.0, 1000.0))
     assert false_match_probability(10.0, 1000.0, (), {0.5: 0.0}) == pytest.approx(
         false_match_probability(10.0, 1000.0))
+    # The orders are a grid over which one bound is minimised, not tests of the data:
+    # several give the smallest of their single bounds, with no union factor.
+    both = {0.5: log_m[0.5], 0.75: model.log_moment(lab, np.full(12, 1.0), 0.75)}
+    single = [false_match_probability(6.0, 1000.0, (), {s: m}) for s, m in both.items()]
+    assert false_match_probability(6.0, 1000.0, (), both) == pytest.approx(min(single))
 
 
 def test_decision_on_the_ml_alignment_rescues_right_fixes_only() -> None:
@@ -314,7 +322,11 @@ def test_decision_on_the_ml_alignment_rescues_right_fixes_only() -> None:
     for sim in iter_lns(gn, options, seed=7, max_lns=25):
         a, b = ml.match(sim.records), hard.match(sim.records)
         if b.is_fix:
-            assert a.is_fix and a.map_T_odom == b.map_T_odom
+            assert a.is_fix
+            # The same alignment (to rounding: the two searches' float sums differ).
+            assert np.allclose((a.map_T_odom.yaw, a.map_T_odom.tx, a.map_T_odom.ty),
+                               (b.map_T_odom.yaw, b.map_T_odom.tx, b.map_T_odom.ty),
+                               rtol=0.0, atol=1e-9)
             continue
         if not a.is_fix:
             assert a.reason == b.reason
