@@ -13,6 +13,14 @@ map), ``small``, ``ring_unseen`` (the ground around it unobserved), ``low``
 every test; if the LN still misses it, its centre fell outside the matching radius or the
 ROI flickered across rounds).
 
+And the far rocks' verdict (:mod:`roi_detector.far_rocks`, the rocks the map cannot
+reach), from the closed far tracks whose triangulated rock lies within the matching
+radius plus 1 m: ``none`` (no such track: no dark blob followed in enough pairs),
+``geometry`` (the best of them failed the bearing spread, ray residual or nearest-range
+test), ``refused`` (the Rock Rover, or without one the size thresholds, refused it),
+``kept`` (a far rock; if the LN still misses it, it lay outside the matching radius or a
+map rock hid it), with that track's measurement.
+
 Evaluation code: reads truth/. Usage (from the repository root, after ``source env.sh``)::
 
     python bench/roi_diag.py bags/quick [--json OUT.json]
@@ -44,19 +52,26 @@ def furthest(verdicts: list[tuple[str, dict]]) -> tuple[str, dict]:
 
 def diagnose(bag: str) -> list[dict]:
     """One row per counted truth rock (see the module)."""
-    from roi_detector.cli import build_ln
+    from roi_detector.cli import build_ln, load_classifier
     from roi_detector.evaluation import match_nodes, true_nodes
     from roi_detector.inputs import load_rover_params
+    from roi_detector.rover_pipeline import DriveMapper, RoverConfig
     from roi_detector.truth import Truth
     from roi_network.records import ROCK, xy
 
     truth = Truth.load(bag)
     events: list[tuple[str, np.ndarray, dict]] = []
+    cfg = RoverConfig()
+    mapper = DriveMapper(cfg, classifier=load_classifier(None, cfg))
     with tempfile.TemporaryDirectory() as tmp:
         odom = Path(tmp) / "truth_odom.tum"
         truth.write_odom_tum(odom)
-        ln, _ = build_ln(bag, str(odom), None, log=lambda m: None,
+        ln, _ = build_ln(bag, str(odom), None, cfg, log=lambda m: None, mapper=mapper,
                          trace=lambda v, p, m: events.append((v, np.array(p), m)))
+    far = mapper.far.measured
+    far_map = (truth.odom_to_map(np.column_stack([np.array([f.xy for f in far]),
+                                                  np.zeros(len(far))]))[:, :2]
+               if far else np.zeros((0, 2)))
     r = truth.rois
     counted = np.flatnonzero(truth.counted(15.0) & (r["label"] == ROCK))
     nodes = ln.network().records
@@ -72,30 +87,64 @@ def diagnose(bag: str) -> list[dict]:
         gate = max(1.0, 0.5 * r["major_m"][i]) + 0.5
         near = np.linalg.norm(ev_map - xy(r[i:i + 1]), axis=1) < gate
         stage, measured = furthest([(events[k][0], events[k][2]) for k in np.flatnonzero(near)])
+        d_far = np.linalg.norm(far_map - xy(r[i:i + 1]), axis=1)
+        far_stage, far_measured = far_verdict(
+            [far[k] for k in np.flatnonzero(d_far < gate + 0.5)], mapper.far.cfg,
+            d_far[d_far < gate + 0.5])
         rows.append({"id": int(r["id"][i]), "area_m2": float(r["area_m2"][i]),
                      "height_m": float(r["height_m"][i]),
                      "route_distance_m": float(np.min(np.linalg.norm(route - xy(r[i:i + 1]),
                                                                      axis=1))),
                      "views": int(views[i]), "in_ln": bool(i in found), "stage": stage,
                      "measured": {k: (None if v is None else round(float(v), 3))
-                                  for k, v in measured.items()}})
+                                  for k, v in measured.items()},
+                     "far_stage": far_stage, "far_measured": far_measured})
     return rows
+
+
+#: Far-track verdicts, in order (see the module).
+FAR_STAGES = ("none", "geometry", "refused", "kept")
+
+
+def far_verdict(tracks: list, cfg, dist: np.ndarray) -> tuple[str, dict]:
+    """The furthest far-rock verdict among the closed far tracks near one rock, and that
+    track's measurement (the nearest one among equals)."""
+    if not tracks:
+        return "none", {}
+
+    def stage(f) -> int:
+        if f.passed:
+            return 3
+        decidable = bool(cfg.passes_geometry(f.parallax_deg, f.residual_px, f.nearest_m,
+                                             classified=True))
+        return 2 if decidable else 1
+
+    order = sorted(range(len(tracks)), key=lambda k: (-stage(tracks[k]), dist[k]))
+    f, d = tracks[order[0]], float(dist[order[0]])
+    return FAR_STAGES[stage(f)], {
+        "off_m": round(d, 2), "views": f.n_views, "spread_deg": round(f.parallax_deg, 1),
+        "residual_px": round(f.residual_px, 2), "nearest_m": round(f.nearest_m, 1),
+        "height_m": round(f.height_m, 2), "area_m2": round(f.area_m2, 2),
+        "score": None if not np.isfinite(f.score) else round(f.score, 2)}
 
 
 def markdown(bag: str, rows: list[dict]) -> str:
     """The rows as a Markdown table, with the count per stage."""
     lines = [f"# roi_diag: {bag}", "",
              "| truth id | area m^2 | height m | from route m | views | in LN "
-             "| furthest stage | measured |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| furthest stage | measured | far rocks | far track |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for w in sorted(rows, key=lambda w: w["route_distance_m"]):
         m = ", ".join(f"{k} {v}" for k, v in w["measured"].items())
+        fm = ", ".join(f"{k} {v}" for k, v in w.get("far_measured", {}).items())
         lines.append(f"| {w['id']} | {w['area_m2']:.2f} | {w['height_m']:.2f} "
                      f"| {w['route_distance_m']:.1f} | {w['views']} | {w['in_ln']} "
-                     f"| {w['stage']} | {m} |")
+                     f"| {w['stage']} | {m} | {w.get('far_stage', '-')} | {fm} |")
     counts = {s: sum(w["stage"] == s for w in rows) for s in STAGES}
+    far_counts = {s: sum(w.get("far_stage") == s for w in rows) for s in FAR_STAGES}
     lines += ["", f"In the LN: {sum(w['in_ln'] for w in rows)} of {len(rows)}; furthest stage: "
-              + ", ".join(f"{s} {n}" for s, n in counts.items() if n)]
+              + ", ".join(f"{s} {n}" for s, n in counts.items() if n)
+              + "; far rocks: " + ", ".join(f"{s} {n}" for s, n in far_counts.items() if n)]
     return "\n".join(lines) + "\n"
 
 

@@ -26,3 +26,24 @@ def test_markdown_counts_the_stages(diag):
     md = diag.markdown("bags/x", rows)
     assert "In the LN: 1 of 2; furthest stage: none 1, rock 1" in md
     assert md.index("| 3 |") < md.index("| 7 |")  # nearest the route first
+
+
+def test_far_verdict_takes_the_furthest_track_and_says_what_it_measured(diag):
+    import numpy as np
+
+    from roi_detector.far_rocks import FarRock, FarRockConfig
+
+    cfg = FarRockConfig()
+
+    def track(passed: bool, residual_px: float, score: float = float("nan")) -> FarRock:
+        return FarRock(1, np.zeros(2), 0.0, np.eye(2), 0.6, 0.3, 0.28, 8, 3.0,
+                       residual_px, 15.0, False, passed, None, score)
+
+    assert diag.far_verdict([], cfg, np.zeros(0)) == ("none", {})
+    sloppy = track(False, cfg.max_residual_px + 1.0)
+    refused = track(False, 0.5, score=0.2)
+    stage, measured = diag.far_verdict([sloppy, refused], cfg, np.array([0.3, 1.2]))
+    assert stage == "refused" and measured["off_m"] == 1.2 and measured["score"] == 0.2
+    assert diag.far_verdict([sloppy], cfg, np.array([0.3]))[0] == "geometry"
+    kept = track(True, 0.5, score=0.9)
+    assert diag.far_verdict([refused, kept], cfg, np.array([0.1, 0.9]))[0] == "kept"
