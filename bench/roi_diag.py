@@ -56,7 +56,7 @@ def diagnose(bag: str) -> list[dict]:
     from roi_detector.evaluation import match_nodes, true_nodes
     from roi_detector.inputs import load_rover_params
     from roi_detector.rover_pipeline import DriveMapper, RoverConfig
-    from roi_detector.truth import Truth
+    from roi_detector.truth import Truth, match_rule_radius
     from roi_network.records import ROCK, xy
 
     truth = Truth.load(bag)
@@ -68,29 +68,33 @@ def diagnose(bag: str) -> list[dict]:
         truth.write_odom_tum(odom)
         ln, _ = build_ln(bag, str(odom), None, cfg, log=lambda m: None, mapper=mapper,
                          trace=lambda v, p, m: events.append((v, np.array(p), m)))
+
+    def to_map(points_odom: list) -> np.ndarray:
+        """(N, 2) map x-y of odom x-y points."""
+        if not points_odom:
+            return np.zeros((0, 2))
+        pts = np.array(points_odom, float)
+        return truth.odom_to_map(np.column_stack([pts, np.zeros(len(pts))]))[:, :2]
+
     far = mapper.far.measured
-    far_map = (truth.odom_to_map(np.column_stack([np.array([f.xy for f in far]),
-                                                  np.zeros(len(far))]))[:, :2]
-               if far else np.zeros((0, 2)))
+    far_map = to_map([f.xy for f in far])
     r = truth.rois
     counted = np.flatnonzero(truth.counted(15.0) & (r["label"] == ROCK))
     nodes = ln.network().records
     _, j = match_nodes(nodes, truth)
     found = set(j[true_nodes(nodes, r, j, ROCK)].tolist())
-    ev_map = (truth.odom_to_map(np.column_stack([np.array([p for _, p, _ in events]),
-                                                 np.zeros(len(events))]))[:, :2]
-              if events else np.zeros((0, 2)))
+    ev_map = to_map([p for _, p, _ in events])
     views = truth.views(load_rover_params(Path(bag) / "rover.yaml"), 20.0)
     route = truth.trajectory.p[:, :2]
     rows = []
     for i in counted:
-        gate = max(1.0, 0.5 * r["major_m"][i]) + 0.5
+        gate = float(match_rule_radius(r["major_m"][i])) + 0.5
         near = np.linalg.norm(ev_map - xy(r[i:i + 1]), axis=1) < gate
         stage, measured = furthest([(events[k][0], events[k][2]) for k in np.flatnonzero(near)])
         d_far = np.linalg.norm(far_map - xy(r[i:i + 1]), axis=1)
-        far_stage, far_measured = far_verdict(
-            [far[k] for k in np.flatnonzero(d_far < gate + 0.5)], mapper.far.cfg,
-            d_far[d_far < gate + 0.5])
+        near_far = np.flatnonzero(d_far < gate + 0.5)
+        far_stage, far_measured = far_verdict([far[k] for k in near_far], mapper.far.cfg,
+                                              d_far[near_far])
         rows.append({"id": int(r["id"][i]), "area_m2": float(r["area_m2"][i]),
                      "height_m": float(r["height_m"][i]),
                      "route_distance_m": float(np.min(np.linalg.norm(route - xy(r[i:i + 1]),
