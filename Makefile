@@ -93,8 +93,8 @@ orbital-model: training-bags orbital-training-worlds
 
 # Re-train the committed rover model: the far rocks' Rock Rover (the elevation_map
 # method's classifier, used with classify_far_rocks), on every far track measured in the
-# quick bags of ROVER_TRAIN_SEEDS (120-190 per bag, 8-19 of them rocks; about 3 min to
-# generate and 4 min to run each, two at a time).
+# quick bags of ROVER_TRAIN_SEEDS (120-190 per bag, 8-19 of them rocks; about 4 min to
+# generate and 3 min to run each, two at a time).
 # `roi_detector train ... --method per_pair` trains the paper's per-pair Rock Rover and
 # Outcrop Rover instead (not committed).
 ROVER_MODEL := $(WS)/src/roi_detector/roi_detector/models/rover.npz

@@ -13,6 +13,16 @@ classifier trained on the other bags decides the left-out bag's tracks. Compared
   the geometric tests (``classified = "measured"``, the pipeline's default), kNN or
   boosted trees (``roi_detector train --kind``), trained on every measured track.
 
+Two questions about the training set, on the default recipe (boosted trees, every
+measured track), each as more rows:
+
+- ``--learning-curve N...``: trained on N of the other bags only (the N that follow the
+  left-out one, in the order given): would more training bags find more rocks?
+- ``--ignore-near M...``: the training tracks labelled false that lie within M m of a
+  truth rock left out of training (neither label; ``roi_detector train --ignore-near``,
+  whose default, 2.5 m, every other row uses; 0: train on every track): a track 1-2.5 m
+  off its rock is a rock to its features and false to the matching rule.
+
 Reported per row and score threshold: true and false tracks kept, their precision, and
 the counted truth rocks (above the rover thresholds, within 15 m of the route) that a
 kept true track finds.
@@ -43,7 +53,7 @@ def samples(bag: str, cache: Path) -> dict:
     """The bag's measured far tracks (cached), with the counted truth rock each true one
     finds (-1: none) and whether it passes the geometric tests."""
     from roi_detector.far_rocks import FarRockConfig, far_feature_names
-    from roi_detector.training import far_rock_samples
+    from roi_detector.training import far_rock_samples, near_rock_distance
     from roi_detector.truth import Truth, match_to_truth
     from roi_network.records import ROCK
 
@@ -62,6 +72,7 @@ def samples(bag: str, cache: Path) -> dict:
     data["counted_j"] = np.where((data["y"] == 1) & (j >= 0) & counted[np.clip(j, 0, None)],
                                  j, -1)
     data["n_counted"] = int(counted.sum())
+    data["near_rock_m"] = near_rock_distance(data["xy_map"], truth)
     names, cfg = far_feature_names(), FarRockConfig()
     x = data["x"]
     geometry = (x[:, names.index("far_parallax_deg")], x[:, names.index("far_residual_px")],
@@ -72,18 +83,27 @@ def samples(bag: str, cache: Path) -> dict:
     return data
 
 
-def leave_one_out(data: dict[str, dict], trained_on: str, kind: str, k: int = 5) -> list:
+def leave_one_out(data: dict[str, dict], trained_on: str, kind: str, k: int = 5,
+                  n_train: int | None = None, ignore_near_m: float | None = None) -> list:
     """Per left-out bag, the classifier's score of each of its tracks (trained on the
-    other bags' candidates or every track they measured)."""
+    other bags' candidates or every track they measured; on the ``n_train`` bags that
+    follow it only, when given; without the false tracks within ``ignore_near_m`` of a
+    truth rock, ``roi_detector train``'s default when None)."""
     from roi_detector.classifier import BinaryClassifier, ClassifierConfig
     from roi_detector.far_rocks import far_feature_names
+    from roi_detector.training import IGNORE_NEAR_M
+    from roi_detector.training import trained_on as kept_for_training
 
     names = far_feature_names()
     scores = []
-    for out in data:
-        rest = [d for b, d in data.items() if b != out]
-        pick = [np.ones(len(d["y"]), bool) if trained_on == "measured" else d["candidate"]
-                for d in rest]
+    keys = list(data)
+    for i, out in enumerate(keys):
+        # The n_train bags that follow the left-out one; all the others in their order.
+        others = (keys[i + 1:] + keys[:i])[:n_train] if n_train else keys[:i] + keys[i + 1:]
+        rest = [data[b] for b in others]
+        near_m = IGNORE_NEAR_M if ignore_near_m is None else ignore_near_m
+        pick = [(np.ones(len(d["y"]), bool) if trained_on == "measured" else d["candidate"])
+                & kept_for_training(d["y"], d["near_rock_m"], near_m) for d in rest]
         x = np.concatenate([d["x"][m] for d, m in zip(rest, pick, strict=True)])
         y = np.concatenate([d["y"][m] for d, m in zip(rest, pick, strict=True)])
         ok = np.isfinite(x).all(axis=1)
@@ -124,7 +144,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", type=Path, default=Path("out/far_classifier"))
     ap.add_argument("--name", default="far_classifier",
                     help="results file name (bench/results/NAME.{json,md})")
+    ap.add_argument("--learning-curve", type=int, nargs="+", default=[], metavar="N",
+                    help="also the default recipe trained on N of the other bags")
+    ap.add_argument("--ignore-near", type=float, nargs="+", default=[], metavar="M",
+                    help="also the default recipe without the false training tracks "
+                         "within M m of a truth rock")
     args = ap.parse_args(argv)
+    if any(n < 1 or n > len(args.bags) - 1 for n in args.learning_curve):
+        ap.error(f"--learning-curve: N in 1..{len(args.bags) - 1} (the other bags)")
+    if any(not np.isfinite(m) or m < 0 for m in args.ignore_near):
+        ap.error("--ignore-near: M >= 0 m")
     data = {b: samples(b, args.cache) for b in args.bags}
     n_cand = sum(int(d["candidate"].sum()) for d in data.values())
     n_true = sum(int(d["y"][d["candidate"]].sum()) for d in data.values())
@@ -138,9 +167,26 @@ def main(argv: list[str] | None = None) -> int:
             keep = [d[decided] & (sc > th) for d, sc in zip(data.values(), scores, strict=True)]
             rows.append({"recipe": label, "classified": classified, "trained_on": trained_on,
                          "kind": kind, "threshold": th, **tally(data, keep)})
+    # The training set's questions, on the default recipe (the last of RECIPES).
+    label, classified, trained_on, kind, decided = RECIPES[-1]
+    variants = ([(f"{label}, trained on {n} bags", {"n_train": n})
+                 for n in args.learning_curve]
+                + [(f"{label}, false tracks within {m:g} m of a rock not trained on"
+                    if m else f"{label}, trained on every track", {"ignore_near_m": m})
+                   for m in args.ignore_near])
+    for name, kw in variants:
+        scores = leave_one_out(data, trained_on, kind, **kw)
+        for th in THRESHOLDS:
+            keep = [d[decided] & (sc > th) for d, sc in zip(data.values(), scores, strict=True)]
+            rows.append({"recipe": name, "classified": classified, "trained_on": trained_on,
+                         "kind": kind, "threshold": th, **tally(data, keep)})
     report = {"command": "python bench/far_classifier_bench.py " + " ".join(args.bags)
               + (f" --cache {args.cache}" if args.cache != ap.get_default("cache") else "")
-              + (f" --name {args.name}" if args.name != ap.get_default("name") else ""),
+              + (f" --name {args.name}" if args.name != ap.get_default("name") else "")
+              + (" --learning-curve " + " ".join(map(str, args.learning_curve))
+                 if args.learning_curve else "")
+              + (" --ignore-near " + " ".join(f"{m:g}" for m in args.ignore_near)
+                 if args.ignore_near else ""),
               "bags": {Path(b).name: {"measured": len(d["y"]), "rocks": int(d["y"].sum()),
                                       "candidates": int(d["candidate"].sum()),
                                       "true_candidates": int(d["y"][d["candidate"]].sum()),

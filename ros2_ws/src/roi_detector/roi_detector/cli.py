@@ -30,6 +30,7 @@ from roi_detector.rover_pipeline import (
     RoverConfig,
     RoverDetector,
 )
+from roi_detector.training import IGNORE_NEAR_M
 
 DEFAULT_MODEL = Path(__file__).resolve().parent / "models" / "rover.npz"
 
@@ -175,7 +176,7 @@ def _cmd_train(args) -> int:
     else:
         summary = train_far_rock_model(args.bags, args.out, k=args.k,
                                        population=args.population, jobs=args.jobs,
-                                       kind=args.kind)
+                                       kind=args.kind, ignore_near_m=args.ignore_near)
     print(json.dumps(summary, indent=2))
     return 0
 
@@ -258,6 +259,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="elevation_map: the far rocks' Rock Rover as boosted trees (default) "
                    "or the paper's PCA + kNN")
     p.add_argument("--k", type=int, default=5, help="kNN neighbours")
+    p.add_argument("--ignore-near", type=float, default=IGNORE_NEAR_M, metavar="M",
+                   help="elevation_map: leave out of training the far tracks labelled false "
+                   f"within M m of a truth rock (default {IGNORE_NEAR_M:g}: train on every "
+                   "track)")
     p.set_defaults(func=_cmd_train)
     p = sub.add_parser("truth-odometry", help="truth trajectory re-expressed in odom (TUM)")
     p.add_argument("bag")

@@ -35,7 +35,17 @@ from roi_detector.rover_pipeline import (
     far_rock_records,
 )
 from roi_detector.truth import Truth, match_to_truth
-from roi_network.records import ROCK
+from roi_network.records import ROCK, xy
+
+#: Far tracks labelled false that lie within this distance (m) of a truth rock are left
+#: out of the Rock Rover's training, neither label (``roi_detector train --ignore-near``;
+#: 0: every track, the default). Such a track can be the rock's own blob placed
+#: 1-2.5 m off by its triangulation: a rock to its features, false to the matching rule.
+#: Left one training bag out, 2.5 m finds 83 of 157 counted rocks where training on every
+#: track finds 75, at the same precision (87 %); on the LN of four evaluation bags it
+#: found one rock more and kept three false rocks more (docs/roi_detector.md,
+#: 2026-11-28): not the default.
+IGNORE_NEAR_M = 0.0
 
 
 def labelled_candidates(bag_dir: str, feature_sets: tuple[str, ...], every: int = 2,
@@ -119,7 +129,7 @@ def far_rock_samples(bag_dir: str, log=print, population: str = "measured") -> d
 
     Returns:
         dict with ``x`` (N, F) float32, ``y`` (N,) 0/1, ``candidate`` (N,) bool,
-        ``xy_map`` (N, 2).
+        ``xy_map`` (N, 2), ``near_rock_m`` (N,) (:func:`near_rock_distance`).
     """
     if population not in FAR_POPULATIONS:
         raise ValueError(f"population: unknown '{population}' (one of {FAR_POPULATIONS})")
@@ -133,12 +143,42 @@ def far_rock_samples(bag_dir: str, log=print, population: str = "measured") -> d
     n_feat = len(far_feature_names())
     if not tracks:
         return {"x": np.zeros((0, n_feat), np.float32), "y": np.zeros(0, np.uint8),
-                "candidate": np.zeros(0, bool), "xy_map": np.zeros((0, 2))}
+                "candidate": np.zeros(0, bool), "xy_map": np.zeros((0, 2)),
+                "near_rock_m": np.zeros(0)}
     rec = far_rock_records(tracks)
     pts, j = match_nodes(rec, truth)
     y = true_nodes(rec, truth.rois, j, ROCK).astype(np.uint8)
     return {"x": np.stack([r.features for r in tracks]), "y": y,
-            "candidate": np.array([r.candidate for r in tracks]), "xy_map": pts[:, :2]}
+            "candidate": np.array([r.candidate for r in tracks]), "xy_map": pts[:, :2],
+            "near_rock_m": near_rock_distance(pts[:, :2], truth)}
+
+
+def near_rock_distance(xy_map: np.ndarray, truth: Truth) -> np.ndarray:
+    """Distance (m) from each of (N, 2) map positions to the nearest truth rock (inf
+    when the catalogue holds none)."""
+    from scipy.spatial import cKDTree
+
+    rocks = truth.rois[truth.rois["label"] == ROCK]
+    if not len(rocks) or not len(xy_map):
+        return np.full(len(xy_map), np.inf)
+    return cKDTree(xy(rocks)).query(np.asarray(xy_map, float))[0]
+
+
+def trained_on(y: np.ndarray, near_rock_m: np.ndarray,
+               ignore_near_m: float = IGNORE_NEAR_M) -> np.ndarray:
+    """Mask of the far tracks the Rock Rover trains on: every rock, and every non-rock
+    at least ``ignore_near_m`` from a truth rock (:data:`IGNORE_NEAR_M`; 0: every
+    track).
+
+    Raises:
+        ValueError: ``ignore_near_m`` negative or not finite.
+    """
+    if not np.isfinite(ignore_near_m) or ignore_near_m < 0:
+        raise ValueError(f"ignore_near_m: {ignore_near_m} m, not a distance >= 0")
+    y, near = np.asarray(y), np.asarray(near_rock_m, float)
+    if y.shape != near.shape:
+        raise ValueError(f"labels {y.shape} and distances {near.shape} differ in shape")
+    return (y == 1) | ~(near < ignore_near_m)
 
 
 def _seeds(bags: list[str]) -> list:
@@ -160,15 +200,18 @@ def _far_samples_quiet(bag: str, population: str) -> dict:
 
 def train_far_rock_model(bags: list[str], out: str, k: int = 5, log=print,
                          population: str = "measured", jobs: int = 1,
-                         kind: str = "gradient_boosting") -> dict:
+                         kind: str = "gradient_boosting",
+                         ignore_near_m: float = IGNORE_NEAR_M) -> dict:
     """Train the far rocks' Rock Rover (``kind``: boosted trees, or the paper's PCA + kNN
     with ``k`` neighbours) on the far tracks (``population``, see :data:`FAR_POPULATIONS`)
-    of ``bags`` (``jobs`` bags at a time, each in its own process) and write it to
+    of ``bags`` (``jobs`` bags at a time, each in its own process), less the false ones
+    within ``ignore_near_m`` of a truth rock (:func:`trained_on`), and write it to
     ``out``."""
     if kind not in FAR_KINDS:
         raise ValueError(f"kind: unknown '{kind}' (one of {FAR_KINDS})")
+    trained_on(np.zeros(0), np.zeros(0), ignore_near_m)  # a bad distance fails here
     t0 = time.perf_counter()
-    x, y = [], []
+    x, y, ignored = [], [], 0
     if jobs > 1:
         from concurrent.futures import ProcessPoolExecutor
 
@@ -179,8 +222,10 @@ def train_far_rock_model(bags: list[str], out: str, k: int = 5, log=print,
     for bag, data in zip(bags, samples, strict=True):
         log(f"{bag}: {len(data['y'])} far tracks ({population}), {int(data['y'].sum())} "
             f"rocks; {int(data['candidate'].sum())} candidates")
-        x.append(data["x"])
-        y.append(data["y"])
+        keep = trained_on(data["y"], data["near_rock_m"], ignore_near_m)
+        ignored += int((~keep).sum())
+        x.append(data["x"][keep])
+        y.append(data["y"][keep])
     xa, ya = np.concatenate(x), np.concatenate(y)
     finite = np.isfinite(xa).all(axis=1)
     xa, ya = xa[finite], ya[finite]
@@ -193,10 +238,12 @@ def train_far_rock_model(bags: list[str], out: str, k: int = 5, log=print,
                "seeds": _seeds(bags), "kind": kind, "k": k,
                "threshold": RoverConfig().far.min_score,
                "population": population, "samples": len(ya), "rocks": int(ya.sum()),
-               "negatives": int((ya == 0).sum()),
+               "negatives": int((ya == 0).sum()), "ignore_near_m": ignore_near_m,
+               "ignored_near_rocks": ignored,
                "train_s": round(time.perf_counter() - t0, 1),
                "command": f"roi_detector train {' '.join(bags)} --out {out} "
-                          f"--population {population} --kind {kind}"}
+                          f"--population {population} --kind {kind} "
+                          f"--ignore-near {ignore_near_m:g}"}
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     save_rover_model(out, {FAR_ROCK_CLASSIFIER: clf}, summary)
     return summary

@@ -395,3 +395,34 @@ def test_classifying_far_rocks_without_a_model_is_an_error(monkeypatch):
     with pytest.raises(ValueError, match="classify_far_rocks: no rover model"):
         cli.load_classifier(None, RoverConfig())  # the default classifies far rocks
     assert cli.load_classifier(None, RoverConfig(classify_far_rocks=False)) is None
+
+
+def test_far_rock_training_leaves_out_false_tracks_beside_a_rock():
+    """A far track labelled false within ignore_near_m of a truth rock is neither label:
+    it is left out of training; rocks, and false tracks farther off, are trained on."""
+    from roi_detector.training import IGNORE_NEAR_M, trained_on
+
+    y = np.array([1, 1, 0, 0, 0, 0])
+    near = np.array([0.3, 2.0, 1.2, 2.49, 2.5, np.inf])
+    assert trained_on(y, near, 2.5).tolist() == [True, True, False, False, True, True]
+    assert trained_on(y, near, 1.5).tolist() == [True, True, False, True, True, True]
+    assert IGNORE_NEAR_M == 0.0 and trained_on(y, near).all()  # the default: every track
+    with pytest.raises(ValueError, match="ignore_near_m"):
+        trained_on(y, near, -1.0)
+    with pytest.raises(ValueError, match="shape"):
+        trained_on(y, near[:3])
+
+
+def test_near_rock_distance_measures_to_rocks_only():
+    """The distance that decides the don't-care zone is to the nearest truth rock, not to
+    an outcrop."""
+    from types import SimpleNamespace
+
+    from roi_detector.training import near_rock_distance
+
+    rois = empty_records(2)
+    rois["x"], rois["y"], rois["label"] = [0.0, 10.0], [0.0, 0.0], [ROCK, OUTCROP]
+    d = near_rock_distance(np.array([[9.0, 0.0], [3.0, 4.0]]), SimpleNamespace(rois=rois))
+    assert np.allclose(d, [9.0, 5.0])
+    none = SimpleNamespace(rois=rois[rois["label"] == OUTCROP])
+    assert np.isinf(near_rock_distance(np.array([[0.0, 0.0]]), none)).all()
