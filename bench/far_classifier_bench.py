@@ -20,8 +20,8 @@ measured track), each as more rows:
   left-out one, in the order given): would more training bags find more rocks?
 - ``--ignore-near M...``: the training tracks labelled false that lie within M m of a
   truth rock left out of training (neither label; ``roi_detector train --ignore-near``,
-  whose default, 2.5 m, every other row uses; 0: train on every track): a track 1-2.5 m
-  off its rock is a rock to its features and false to the matching rule.
+  whose default, 0: every track, every other row uses): a track 1-2.5 m off its rock is
+  a rock to its features and false to the matching rule.
 
 Reported per row and score threshold: true and false tracks kept, their precision, and
 the counted truth rocks (above the rover thresholds, within 15 m of the route) that a
@@ -95,13 +95,13 @@ def leave_one_out(data: dict[str, dict], trained_on: str, kind: str, k: int = 5,
     from roi_detector.training import trained_on as kept_for_training
 
     names = far_feature_names()
+    near_m = IGNORE_NEAR_M if ignore_near_m is None else ignore_near_m
     scores = []
     keys = list(data)
     for i, out in enumerate(keys):
         # The n_train bags that follow the left-out one; all the others in their order.
         others = (keys[i + 1:] + keys[:i])[:n_train] if n_train else keys[:i] + keys[i + 1:]
         rest = [data[b] for b in others]
-        near_m = IGNORE_NEAR_M if ignore_near_m is None else ignore_near_m
         pick = [(np.ones(len(d["y"]), bool) if trained_on == "measured" else d["candidate"])
                 & kept_for_training(d["y"], d["near_rock_m"], near_m) for d in rest]
         x = np.concatenate([d["x"][m] for d, m in zip(rest, pick, strict=True)])
@@ -161,20 +161,15 @@ def main(argv: list[str] | None = None) -> int:
     rules = {"recipe": "rules alone", "classified": "-", "trained_on": "-", "kind": "-",
              "threshold": None, **tally(data, [d["candidate"] for d in data.values()])}
     rows = [rules]
-    for label, classified, trained_on, kind, decided in RECIPES:
-        scores = leave_one_out(data, trained_on, kind)
-        for th in THRESHOLDS:
-            keep = [d[decided] & (sc > th) for d, sc in zip(data.values(), scores, strict=True)]
-            rows.append({"recipe": label, "classified": classified, "trained_on": trained_on,
-                         "kind": kind, "threshold": th, **tally(data, keep)})
-    # The training set's questions, on the default recipe (the last of RECIPES).
+    # Every recipe, then the training set's questions on the default one (the last).
     label, classified, trained_on, kind, decided = RECIPES[-1]
-    variants = ([(f"{label}, trained on {n} bags", {"n_train": n})
-                 for n in args.learning_curve]
-                + [(f"{label}, false tracks within {m:g} m of a rock not trained on"
-                    if m else f"{label}, trained on every track", {"ignore_near_m": m})
-                   for m in args.ignore_near])
-    for name, kw in variants:
+    runs = ([(recipe, {}) for recipe in RECIPES]
+            + [((f"{label}, trained on {n} bags", classified, trained_on, kind, decided),
+                {"n_train": n}) for n in args.learning_curve]
+            + [((f"{label}, false tracks within {m:g} m of a rock not trained on" if m
+                 else f"{label}, trained on every track", classified, trained_on, kind,
+                 decided), {"ignore_near_m": m}) for m in args.ignore_near])
+    for (name, classified, trained_on, kind, decided), kw in runs:
         scores = leave_one_out(data, trained_on, kind, **kw)
         for th in THRESHOLDS:
             keep = [d[decided] & (sc > th) for d, sc in zip(data.values(), scores, strict=True)]

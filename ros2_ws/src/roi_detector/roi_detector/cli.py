@@ -30,7 +30,6 @@ from roi_detector.rover_pipeline import (
     RoverConfig,
     RoverDetector,
 )
-from roi_detector.training import IGNORE_NEAR_M
 
 DEFAULT_MODEL = Path(__file__).resolve().parent / "models" / "rover.npz"
 
@@ -200,6 +199,9 @@ def main(argv: list[str] | None = None) -> int:
         from roi_detector.detector_node import main as node_main
 
         return node_main(["roi_detector", *argv])
+    # Here, past the node's branch: the roi_detector node (which also imports this
+    # module, for load_classifier) has no use for the training code, which reads truth.
+    from roi_detector.training import IGNORE_NEAR_M
 
     ap = argparse.ArgumentParser(prog="roi_detector", description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
