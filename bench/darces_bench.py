@@ -213,7 +213,7 @@ def generality(names: list[str], n_lns: int, stress_lns: int, seed: int,
                methods: list[str] | None = None) -> dict[str, Any]:
     """The paper protocol on every family GN, odds decision (Chernoff and Markov bounds)
     beside fixed counts."""
-    methods = methods or ["darces", "darces_hard", "darces_counts"]
+    methods = methods or ["darces", "darces_top3", "darces_counts"]
     rows = []
     for name in names:
         gn = family_gn(name, seed=1)
@@ -285,7 +285,10 @@ def _write_generality_md(report: dict[str, Any]) -> None:
         "alignments bounded by Chernoff's inequality and Markov's, decided again on the "
         "EM's maximum-likelihood alignment when the hard refit falls short, control "
         "triplets over the candidate cap tried last and votes by alignment (since "
-        "2026-11-27); `hard`: the "
+        "2026-11-27), the odds of the triangle hypothesis that found the alignment "
+        "and a floor under the Chernoff bound (since 2026-11-28, twelfth session); "
+        "`top3`: the odds leaving out the three largest node terms, no floor (before "
+        "it); `hard`: the "
         "decision on the hard refit alone (before 2026-11-26); `counts`: the fixed "
         "support/margin counts (the matcher before issue 13). "
         "no fix | oracle: abstentions among the LNs the oracle fits within 2 m. "
@@ -558,7 +561,7 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=7, help="LN seed (generality, firstfix)")
     p.add_argument("--methods", default=None,
                    help="paper/stress: methods of darces_eval (default: its own); "
-                   "generality: methods (default darces,darces_hard,darces_counts)")
+                   "generality: methods (default darces,darces_top3,darces_counts)")
     p.add_argument("--tag", default="",
                    help="paper/stress: results go to darces_<mode>_<tag>.{json,md}")
     p.add_argument("--merge", action="store_true",

@@ -7,6 +7,10 @@
   alignments (``MatchConfig(chernoff_orders=())``, the odds decision's first pass).
 * ``darces_hard``: the odds decided on the hard refit alone, as before 2026-11-26
   (``MatchConfig(decide_on_ml=False)``).
+* ``darces_top3``: the odds decision before 2026-11-28, twelfth session: the three
+  largest node terms left out in place of the terms of the control triangle that found
+  the alignment, and no floor under the Chernoff bound
+  (``MatchConfig(spent_by_triangle=False, min_chance_count=0)``).
 * ``darces_original``: the paper's baseline, the original DARCES: same machinery without
   the orientation and semantic constraints (:meth:`MatchConfig.original`).
 * ``kiss_matcher``: KISS-Matcher 1.0.2 (ROBIN max-clique pruning + graduated
@@ -28,6 +32,7 @@ from roi_network.records import xy
 from roi_network.transform import Rigid2D
 
 METHODS = ("darces", "darces_counts", "darces_markov", "darces_first_all", "darces_hard",
+           "darces_top3",
            "darces_original", "kiss_matcher")
 
 
@@ -109,6 +114,8 @@ def make_method(name: str, gn: RoiNetwork) -> LnMatcher:
         return Matcher(gn, MatchConfig(first_fix_judged_at_newest=False))
     if name == "darces_hard":
         return Matcher(gn, MatchConfig(decide_on_ml=False))
+    if name == "darces_top3":
+        return Matcher(gn, MatchConfig(spent_by_triangle=False, min_chance_count=0.0))
     if name == "darces_original":
         return Matcher(gn, MatchConfig.original())
     if name == "kiss_matcher":

@@ -207,6 +207,15 @@ class MatchConfig:
             (:mod:`~darces_matcher.decision`): a drifted node on its rock in a boulder
             field is then evidence against the field's surroundings, not against the
             field's core; 0: the 8-nearest-neighbour density alone (before 2026-11-27).
+        spent_by_triangle: the global search's odds leave out the node terms of the
+            control triangle of least evidence among the hypotheses that are the
+            alignment (:mod:`~darces_matcher.decision`, "spent triangles"); False: the
+            three largest terms (before 2026-11-28, twelfth session).
+        min_chance_count: the least count of chance alignments as good as the winner
+            that Chernoff's bound may claim (:mod:`~darces_matcher.decision`, "the
+            floor"): 1, a fix needs odds of at least 1 / ``false_match_rate`` against a
+            chance alignment whatever the bound says; 0: no floor (before 2026-11-28,
+            twelfth session).
         track_spent_nodes: in :meth:`track`, the largest node terms left out of the
             odds. 0: the EM moves the alignment continuously inside the prior, it is not
             fitted to three nodes as a control triangle's is, and the count of
@@ -290,6 +299,8 @@ class MatchConfig:
     chance_scale_sigmas: float = 3.0
     chernoff_orders: tuple[float, ...] = (0.2, 0.3, 0.4, 0.5, 0.6, 0.75, 0.9)
     track_spent_nodes: int = 0
+    spent_by_triangle: bool = True
+    min_chance_count: float = 1.0
     track_cell_fraction: float = 0.25
     min_side_floor_m: float | None = 3.0
 

@@ -34,6 +34,22 @@ The log-odds of the alignment is the sum over the LN of log LR_i, less the three
 largest terms: T was fitted to the nodes, three of them (a triangle) fix it, and their
 agreement is no evidence (astrometry.net leaves the quad's own stars out likewise).
 
+Which three (spent triangles, ``MatchConfig.spent_by_triangle``, since 2026-11-28,
+twelfth session): a hypothesis of the global search is a control triangle's three LN
+nodes put on a congruent GN triangle, and under chance the other nodes land where chance
+puts them whatever those three did. So a hypothesis' evidence is the sum over the nodes
+outside its own triangle, and the union over the ``n_tested`` hypotheses (below) bounds
+the best of them, whichever it is. The winner's odds are then those of the hypothesis
+that found it, scored at the refined alignment as before: the sum less the terms of the
+triangle of least evidence among the hypotheses that are this alignment (made of three of
+its pairs, or every node within its gate of where it maps them:
+:func:`~darces_matcher.vote.agreeing`), each alternative's likewise. Leaving out the
+three largest terms, the rule before, is the same bound taken at the worst triangle: it
+charged a right alignment found by a triangle of weak nodes for the LN's three strongest
+(in a boulder field, the few isolated rocks). With no agreeing hypothesis (an alignment
+the refit moved away from every triangle) the three largest are left out, as before.
+The Chernoff moments leave out the three smallest, which bounds any three.
+
 The outlier share w is not known in advance: a clean simulated LN has few nodes without
 a counterpart, a rover's LN on a detected GN most of them (false rover detections times
 orbital misses: on atacama_1km seed 3's final LN the best fit pairs 3 of 17 nodes). A
@@ -86,6 +102,18 @@ the data: log 3 = 1.1 nats charged for nothing.)
 It helps where many precise nodes each carry E[LR_i^s] well below 1 and the winner's
 odds are weak, which is where Markov's bound withheld fixes the oracle makes
 (docs/matcher.md); on short, drifted LNs Markov's stays the smaller and nothing changes.
+
+The floor (``MatchConfig.min_chance_count``, since 2026-11-28, twelfth session): the
+Chernoff bound may lower the count of chance alignments to 1 and no further, so that a
+fix needs odds of at least 1 / ``false_match_rate`` against a chance alignment, whatever
+the bound. The moments assume that a chance alignment drops each node independently and
+uniformly over the GN. On a clustered GN it does not: a triangle put on a boulder field
+brings the LN's own nearby nodes into the field too, and each of them then scores about
+what it would on its own rock (the density is local). A 27-node LN of one strongly
+clustered GN placed so on another scored odds of e^0.1, an alignment the moments call an
+e^-11 event (the null test, docs/matcher.md). The odds themselves hold on clustered GNs,
+the far tail of the moments does not: below odds of 1 / ``false_match_rate`` the bound
+is not trusted.
 """
 
 from __future__ import annotations
@@ -264,6 +292,44 @@ class ChanceModel:
         logs = np.sort(np.array(logs))
         return float(logs[SPENT_NODES:].sum()) if len(logs) > SPENT_NODES else 0.0
 
+    def _evidence(self, mapped: np.ndarray, labels: np.ndarray, var: np.ndarray
+                  ) -> np.ndarray:
+        """E_i of (M, 2) mapped LN nodes (``map``, m) of labels (M,) and per-axis
+        variances (M,), m^2: the sum over the GN nodes within reach of each node's
+        Gaussian times the class ratio over the GN's density at the node's scale
+        (module docstring)."""
+        reach = _REACH * np.sqrt(var)
+        k = min(_K, len(self.gn_labels))
+        dist, idx = self.tree.query(mapped, k=k, distance_upper_bound=float(reach.max()))
+        dist, idx = dist.reshape(len(mapped), k), idx.reshape(len(mapped), k)
+        near = dist <= reach[:, None]
+        j = np.where(near, idx, 0)
+        gauss = np.exp(-0.5 * dist**2 / var[:, None]) / (2.0 * math.pi * var[:, None])
+        # Each node against the GN's density at its own scale (one density per bin).
+        bins = self.variance_bins(var)
+        density = np.empty_like(gauss)
+        for vbin in np.unique(bins):
+            rows = bins == vbin
+            density[rows] = self.density_at(int(vbin))[0][j[rows]]
+        ratio = gauss * self._ratio(labels, j, density)
+        return np.where(near, ratio, 0.0).sum(axis=1)
+
+    def triangle_odds(self, mapped: np.ndarray, triangles: np.ndarray, labels: np.ndarray,
+                      var: np.ndarray) -> np.ndarray:
+        """Log-odds of H triangle hypotheses, each at its own transform ((H, N, 2) the LN
+        mapped by each, ``map``, m) with its own triangle's terms left out ((H, 3) LN
+        indices; module docstring, "spent triangles"); fixed outlier share. LN labels
+        (N,) and per-axis variances (N,), m^2."""
+        h, n = mapped.shape[:2]
+        if h == 0:
+            return np.zeros(0)
+        evidence = self._evidence(mapped.reshape(h * n, 2), np.tile(labels, h),
+                                  np.tile(var, h)).reshape(h, n)
+        w = self.outlier_prior
+        node = np.log(w + (1.0 - w) * evidence)
+        spent = np.take_along_axis(node, np.asarray(triangles), axis=1).sum(axis=1)
+        return node.sum(axis=1) - spent
+
     def odds(self, yaw: float, t: np.ndarray, pts: np.ndarray, labels: np.ndarray,
              var: np.ndarray, spent: int = SPENT_NODES) -> Odds:
         """Log-odds of the alignment (yaw rad, t m) of an LN against a chance one.
@@ -278,21 +344,7 @@ class ChanceModel:
                 to: a control triangle's three in the global search).
         """
         mapped = transform_points(yaw, np.asarray(t, dtype=float), pts)
-        reach = _REACH * np.sqrt(var)
-        k = min(_K, len(self.gn_labels))
-        dist, idx = self.tree.query(mapped, k=k, distance_upper_bound=float(reach.max()))
-        dist, idx = dist.reshape(len(pts), k), idx.reshape(len(pts), k)
-        near = dist <= reach[:, None]
-        j = np.where(near, idx, 0)
-        gauss = np.exp(-0.5 * dist**2 / var[:, None]) / (2.0 * math.pi * var[:, None])
-        # Each node against the GN's density at its own scale (one density per bin).
-        bins = self.variance_bins(var)
-        density = np.empty_like(gauss)
-        for vbin in np.unique(bins):
-            rows = bins == vbin
-            density[rows] = self.density_at(int(vbin))[0][j[rows]]
-        ratio = gauss * self._ratio(labels, j, density)
-        evidence = np.where(near, ratio, 0.0).sum(axis=1)
+        evidence = self._evidence(mapped, labels, var)
         if not self.marginal:
             w = self.outlier_prior
             node = np.log(w + (1.0 - w) * evidence)
@@ -347,7 +399,8 @@ def _peak_table(s: float) -> tuple[np.ndarray, np.ndarray]:
 
 def false_match_probability(log_odds: float, n_tested: float,
                             alternatives: list[float] | tuple[float, ...] = (),
-                            log_moments: dict[float, float] | None = None) -> float:
+                            log_moments: dict[float, float] | None = None,
+                            min_count: float = 0.0) -> float:
     """Probability that the winning alignment is not the true one.
 
     Args:
@@ -358,6 +411,8 @@ def false_match_probability(log_odds: float, n_tested: float,
         log_moments: log E[LR^s] of a chance alignment of this LN, by order s in (0, 1)
             (Chernoff's bounds beside Markov's, module docstring); None or empty:
             Markov's alone.
+        min_count: the least the Chernoff bound may lower the count of chance
+            alignments to (module docstring, "the floor"); 0: no floor.
 
     Returns:
         (n + sum e^K_a) / (n + e^K + sum e^K_a), computed in log space, n the expected
@@ -368,7 +423,8 @@ def false_match_probability(log_odds: float, n_tested: float,
     log_n = math.log(max(n_tested, 1.0))
     if log_moments:
         chernoff = min(m + (1.0 - s) * log_odds for s, m in log_moments.items())
-        log_n += min(0.0, chernoff)
+        log_n = max(log_n + min(0.0, chernoff),
+                    math.log(min_count) if min_count > 0.0 else -math.inf)
     others = np.array([log_n, *alternatives], dtype=float)
     log_others = float(np.logaddexp.reduce(others))
     # p = e^lo / (e^lo + e^K) = 1 / (1 + e^(K - lo))
@@ -394,8 +450,8 @@ class Verdict:
 
 
 def decide(log_odds: float, n_tested: float, alternatives: list[float],
-           false_match_rate: float, log_moments: dict[float, float] | None = None
-           ) -> Verdict:
+           false_match_rate: float, log_moments: dict[float, float] | None = None,
+           min_count: float = 0.0) -> Verdict:
     """Accept the winner when its false-match probability is within the accepted rate.
 
     Args:
@@ -403,10 +459,11 @@ def decide(log_odds: float, n_tested: float, alternatives: list[float],
         n_tested: alignments examined by the search.
         alternatives: K of the distinct alternatives refined.
         false_match_rate: the accepted share of wrong fixes (the one threshold).
-        log_moments: see :func:`false_match_probability`.
+        log_moments, min_count: see :func:`false_match_probability`.
     """
-    p_false = false_match_probability(log_odds, n_tested, alternatives, log_moments)
+    p_false = false_match_probability(log_odds, n_tested, alternatives, log_moments,
+                                      min_count)
     accept = p_false <= false_match_rate
     ambiguous = (not accept) and false_match_probability(
-        log_odds, n_tested, (), log_moments) <= false_match_rate
+        log_odds, n_tested, (), log_moments, min_count) <= false_match_rate
     return Verdict(accept, log_odds, p_false, ambiguous)

@@ -39,7 +39,7 @@ from darces_matcher.em_refit import gn_density
 from darces_matcher.gn_index import GnIndex
 from darces_matcher.refit import Refit
 from darces_matcher.result import MatchResult, Status
-from darces_matcher.search import Search
+from darces_matcher.search import Hypotheses, Search
 from darces_matcher.semantics import SoftSemantics
 from darces_matcher.timings import add_stage, elapsed_ms, with_total
 from darces_matcher.tolerances import LnTolerances
@@ -86,7 +86,7 @@ class Matcher(LnTolerances, Search, SoftSemantics, Refit, Tracking):
         self._gn = gn
         self._blind: Matcher | None = None
         #: (alignments examined, odds of the distinct alternatives) of the last search.
-        self._last_search: tuple[float, list[float]] = (1.0, [])
+        self._last_search: tuple[float, list[float], Hypotheses | None] = (1.0, [], None)
         #: Where the last LN's fit is judged precise (``max_position_sigma_m``), as
         #: indices into its finite nodes: None, every node; with ``anchor_newest``, the
         #: newest node (where the rover is).

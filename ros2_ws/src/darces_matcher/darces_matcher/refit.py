@@ -26,6 +26,7 @@ from roi_network.transform import Rigid2D
 
 if TYPE_CHECKING:
     from darces_matcher.matcher import Matcher
+    from darces_matcher.search import Hypotheses
 
 
 class Refit:
@@ -40,7 +41,7 @@ class Refit:
     _gn_labels: np.ndarray
     _blind: Matcher | None
     _last: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
-    _last_search: tuple[float, list[float]]
+    _last_search: tuple[float, list[float], Hypotheses | None]
 
     def _em_refit(self, result: MatchResult) -> MatchResult:
         """Maximum-likelihood refit of a fix (EM, :mod:`~darces_matcher.em_refit`).
@@ -125,13 +126,24 @@ class Refit:
 
     def _verdict(self, fit: EmFit, pts: np.ndarray, labels: np.ndarray, var: np.ndarray,
                  n_tested: float, alternatives: Sequence[float],
-                 spent: int = SPENT_NODES) -> Verdict:
+                 tested: Hypotheses | None = None, spent: int = SPENT_NODES) -> Verdict:
         """The odds decision (:func:`~darces_matcher.decision.decide`) on an EM alignment,
         given the count of alignments examined and the distinct alternatives' log-odds;
-        ``spent``: the largest node terms left out of its odds."""
-        odds = self.chance.odds(fit.yaw, fit.t, pts, labels, var, spent)
-        return decide(odds.log_odds, n_tested, alternatives, self.config.false_match_rate,
-                      self._log_moments(labels, var))
+        ``tested``: the search's hypotheses, whose triangles that are this alignment
+        give the terms left out of its odds (``MatchConfig.spent_by_triangle``); else
+        ``spent``, the largest node terms left out."""
+        cfg = self.config
+        moments = self._log_moments(labels, var)
+        k = self.chance.odds(fit.yaw, fit.t, pts, labels, var, spent).log_odds
+        verdict = decide(k, n_tested, alternatives, cfg.false_match_rate, moments,
+                         cfg.min_chance_count)
+        if tested is None or verdict.accept:
+            # The hypotheses' odds only raise the fit's: it passes on them too.
+            return verdict
+        k = max(k, float(tested.log_odds(self.chance, [(fit.yaw, fit.t, fit.ln, fit.gn)],
+                                         pts, labels, var)[0]))
+        return decide(k, n_tested, alternatives, cfg.false_match_rate, moments,
+                      cfg.min_chance_count)
 
 def em_covariance(pts: np.ndarray, var: np.ndarray, fit: EmFit) -> np.ndarray:
     """(x, y, yaw) covariance of an EM fit, each node informing it by its probability of

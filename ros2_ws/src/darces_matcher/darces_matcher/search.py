@@ -31,6 +31,7 @@ from darces_matcher.timings import add_stage
 from darces_matcher.tolerances import Tolerances
 from darces_matcher.triplets import control_triplets
 from darces_matcher.vote import (
+    agreeing,
     displacement,
     pose_covariance,
     refine,
@@ -49,7 +50,7 @@ class Search:
     config: MatchConfig
     index: GnIndex
     chance: ChanceModel
-    _last_search: tuple[float, list[float]]
+    _last_search: tuple[float, list[float], Hypotheses | None]
 
     def _control_triplets(self, pts: np.ndarray, labels: np.ndarray, node_tol: np.ndarray,
                           edge_tol: np.ndarray) -> tuple[np.ndarray, int]:
@@ -229,12 +230,26 @@ class Search:
         if cfg.decision == "odds":
             # The odds of the winner and of every distinct alternative against chance.
             var = 1.0 / weights
-            alternatives = [self.chance.odds(c.yaw, c.t, pts, labels, var).log_odds
-                            for c in candidates[1:] if not _same_fix(best, c)]
-            self._last_search = (n_tested, alternatives)
-            verdict = decide(self.chance.odds(best.yaw, best.t, pts, labels, var).log_odds,
-                             n_tested, alternatives, cfg.false_match_rate,
-                             self._log_moments(labels, var))
+            tested = (Hypotheses(pool.ln_idx, pool.gn_idx, pool.mapped, pool.support, gate)
+                      if cfg.spent_by_triangle and not cfg.marginal_outliers else None)
+
+            scored = [best, *(c for c in candidates[1:] if not _same_fix(best, c))]
+            odds = np.array([self.chance.odds(c.yaw, c.t, pts, labels, var).log_odds
+                             for c in scored])
+            moments = self._log_moments(labels, var)
+            verdict = decide(float(odds[0]), n_tested, odds[1:].tolist(),
+                             cfg.false_match_rate, moments, cfg.min_chance_count)
+            # The hypotheses' odds only raise an alignment's: a lone winner that passes
+            # on the refit's odds passes on them too (the decision is the same; the odds
+            # reported are then the refit's, a lower bound).
+            if tested is not None and not (verdict.accept and len(scored) == 1):
+                odds = np.maximum(odds, tested.log_odds(
+                    self.chance, [(c.yaw, c.t, c.ln, c.gn) for c in scored], pts, labels,
+                    var))
+                verdict = decide(float(odds[0]), n_tested, odds[1:].tolist(),
+                                 cfg.false_match_rate, moments, cfg.min_chance_count)
+            alternatives = odds[1:].tolist()
+            self._last_search = (n_tested, alternatives, tested)
             log_odds, p_false = verdict.log_odds, verdict.p_false
             unsupported = not verdict.accept and not verdict.ambiguous
             ambiguous = not verdict.accept and verdict.ambiguous
@@ -317,6 +332,51 @@ class _Refined:
     ln: np.ndarray
     gn: np.ndarray
     cost: float
+
+
+@dataclass
+class Hypotheses:
+    """The triangle hypotheses a search verified, for the odds of the hypothesis that
+    found an alignment (:mod:`~darces_matcher.decision`, "spent triangles"): their
+    LN and GN vertices (H, 3), the LN mapped by each (H, N, 2, metres), their support
+    (H,) and the nodes' verification gates (N,), metres."""
+
+    ln_idx: np.ndarray
+    gn_idx: np.ndarray
+    mapped: np.ndarray
+    support: np.ndarray
+    gate: np.ndarray
+
+    #: Hypotheses of one alignment scored (the best supported): the odds are a maximum
+    #: over them, so fewer only lowers it.
+    MAX_SCORED = 8
+
+    def log_odds(self, chance: ChanceModel, fits: list[tuple[float, np.ndarray, np.ndarray,
+                                                            np.ndarray]],
+                 pts: np.ndarray, labels: np.ndarray, var: np.ndarray) -> np.ndarray:
+        """Per alignment (yaw, t, LN pair indices, GN pair indices) of ``fits``: the best
+        odds, each at its own transform with its own triangle left out, of the
+        hypotheses that are it (:func:`~darces_matcher.vote.agreeing`, within one gate);
+        -inf when none is. LN positions ``pts``, labels, per-axis variances ``var``. One
+        evaluation of the chance model for all of them."""
+        groups = []
+        for yaw, t, ln, gn in fits:
+            fix_mapped = transform_points(yaw, np.asarray(t, dtype=float), pts)
+            # Only hypotheses with half the alignment's support or more can be it (the
+            # rest put half its pairs outside their gates): a cheap first cut.
+            rows = np.flatnonzero(self.support >= 0.5 * len(ln))
+            rows = rows[agreeing(self.ln_idx[rows], self.gn_idx[rows], self.mapped[rows], ln,
+                                 gn, fix_mapped, self.gate, 1.0)]
+            groups.append(rows[np.argsort(-self.support[rows], kind="stable")
+                               [: self.MAX_SCORED]])
+        rows = np.concatenate(groups) if groups else np.zeros(0, dtype=np.int64)
+        scores = chance.triangle_odds(self.mapped[rows], self.ln_idx[rows], labels, var)
+        out, at = np.full(len(fits), -np.inf), 0
+        for i, g in enumerate(groups):
+            if len(g):
+                out[i] = scores[at : at + len(g)].max()
+            at += len(g)
+        return out
 
 
 class _Pool:

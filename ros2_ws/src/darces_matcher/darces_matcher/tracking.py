@@ -100,7 +100,8 @@ class Tracking:
         # The count of alignments charges the EM's freedom: no node is spent (a triangle
         # fixes the global search's alignments, not this one's).
         n_tested = self.prior_search_size(pts, var, p, cfg.track_cell_fraction)
-        verdict = self._verdict(fit, pts, labels, var, n_tested, [], cfg.track_spent_nodes)
+        verdict = self._verdict(fit, pts, labels, var, n_tested, [],
+                                spent=cfg.track_spent_nodes)
         fitted = Rigid2D(fit.yaw, fit.t[0], fit.t[1])
         d = np.array([fit.t[0] - prior.tx, fit.t[1] - prior.ty,
                       wrap_angle(fit.yaw - prior.yaw)])

@@ -82,11 +82,30 @@ def triplet_votes(
     """
     if not len(source):
         return 0
+    agree = agreeing(ln_idx, gn_idx, mapped, fix_ln, fix_gn, fix_mapped, gate, same_ratio)
+    return len(np.unique(source[agree]))
+
+
+def agreeing(
+    ln_idx: np.ndarray,
+    gn_idx: np.ndarray,
+    mapped: np.ndarray,
+    fix_ln: np.ndarray,
+    fix_gn: np.ndarray,
+    fix_mapped: np.ndarray,
+    gate: np.ndarray,
+    same_ratio: float,
+) -> np.ndarray:
+    """(H,) mask of the triangle hypotheses that are a fix: made of three of its inlier
+    pairs, or the same alignment (every LN node within ``same_ratio`` gates of where the
+    fix maps it). Arguments as :func:`triplet_votes`'."""
+    if not len(ln_idx):
+        return np.zeros(0, dtype=bool)
     partner = np.full(len(fix_mapped), -1, dtype=np.int64)
     partner[fix_ln] = fix_gn
-    agreeing = (partner[ln_idx] == gn_idx).all(axis=1)
-    agreeing |= displacement(mapped, fix_mapped, gate) <= same_ratio
-    return len(np.unique(source[agreeing]))
+    agree = (partner[ln_idx] == gn_idx).all(axis=1)
+    agree |= displacement(mapped, fix_mapped, gate) <= same_ratio
+    return agree
 
 
 def associate(

@@ -336,3 +336,99 @@ def test_decision_on_the_ml_alignment_rescues_right_fixes_only() -> None:
         assert a.false_match_probability <= MatchConfig().false_match_rate
         assert transform_error(a.map_T_odom, sim, pts) <= oracle_error(sim, pts, labels) + 2.0
     assert rescued >= 1
+
+
+def test_a_hypothesis_odds_leave_out_its_own_triangle() -> None:
+    # The odds of a triangle hypothesis sum the LN's node terms less its own triangle's
+    # (module docstring, "spent triangles"): its three largest terms, the rule before,
+    # is one such triangle; a triangle of weaker nodes leaves more evidence.
+    from darces_matcher.search import Hypotheses
+    from darces_matcher.vote import transform_points
+
+    gn = family_gn("poisson_85", seed=1)
+    pts, labels = xy(gn.records), gn.records["label"]
+    chance = ChanceModel(cKDTree(pts), labels, use_labels=True, outlier_prior=0.3,
+                         label_confusion=0.1)
+    rng = np.random.default_rng(3)
+    idx = rng.choice(len(pts), 12, replace=False)
+    truth_yaw, truth_t = 0.7, np.array([120.0, -40.0])
+    # LN in odom: the GN nodes moved by the inverse of (yaw, t), plus noise.
+    c, s = math.cos(truth_yaw), math.sin(truth_yaw)
+    ln = (pts[idx] - truth_t) @ np.array([[c, -s], [s, c]]) + rng.normal(0, 0.3, (12, 2))
+    var = np.full(12, 0.5**2)
+    mapped = transform_points(truth_yaw, truth_t, ln)
+    top3 = chance.odds(truth_yaw, truth_t, ln, labels[idx], var)
+    order = np.argsort(top3.node_log_lr)
+    strong, weak = order[-3:], order[:3]
+    both = chance.triangle_odds(np.stack([mapped, mapped]), np.stack([strong, weak]),
+                                labels[idx], var)
+    assert both[0] == pytest.approx(top3.log_odds)
+    assert both[1] > both[0] + 1.0
+    # The alignment's odds: the best of the hypotheses that are it; none is: -inf.
+    gate = np.full(12, 1.5)
+    tested = Hypotheses(np.stack([strong, weak]), np.stack([idx[strong], idx[weak]]),
+                        np.stack([mapped, mapped + 50.0]), np.array([12, 0]), gate)
+    fits = [(truth_yaw, truth_t, np.arange(12), idx),
+            (truth_yaw + 1.0, truth_t, np.arange(12), idx[::-1])]
+    got = tested.log_odds(chance, fits, ln, labels[idx], var)
+    assert got[0] == pytest.approx(both[0])  # the weak triangle's hypothesis is elsewhere
+    assert got[1] == -np.inf
+
+
+def test_odds_of_the_finding_triangle_fix_right_lns_only() -> None:
+    # A clustered GN under stress, where a right alignment found by a triangle of weak
+    # nodes (a boulder field) was charged for the LN's three strongest: the odds of the
+    # hypothesis that found it fix more LNs, every fix right; LNs of another GN of the
+    # same statistics still get none.
+    from darces_matcher.eval_cli import oracle_error
+
+    gn = family_gn("thomas_few", seed=1)
+    pts, labels = xy(gn.records), gn.records["label"]
+    # The family protocol's LNs (bench/darces_bench.py family_options at 85 ROIs/km^2).
+    options = SimOptions(min_nodes=9, max_nodes=13, walks_per_pair=16, outliers=0.3,
+                         label_flips=0.1)
+    tri, top3 = Matcher(gn), Matcher(gn, MatchConfig(spent_by_triangle=False))
+    fixes = {"tri": 0, "top3": 0}
+    for sim in iter_lns(gn, options, seed=7, max_lns=60):
+        for name, matcher in (("tri", tri), ("top3", top3)):
+            result = matcher.match(sim.records)
+            if result.is_fix:
+                fixes[name] += 1
+                assert transform_error(result.map_T_odom, sim, pts) <= \
+                    oracle_error(sim, pts, labels) + 2.0
+    assert fixes["tri"] > fixes["top3"]
+    other = Matcher(family_gn("thomas_few", seed=2))
+    for sim in iter_lns(gn, options, seed=3, max_lns=8):
+        result = other.match(sim.records)
+        assert not result.is_fix
+
+
+def test_the_floor_keeps_a_fix_to_odds_of_one_over_the_rate() -> None:
+    # Chernoff's moments of a long LN can call odds of ~1 an e^-11 event; the floor
+    # (MatchConfig.min_chance_count) lets the bound lower the chance count to 1 only.
+    moments = {0.5: -20.0, 0.75: -15.0}
+    loose = false_match_probability(0.1, 300.0, (), moments)
+    floored = false_match_probability(0.1, 300.0, (), moments, min_count=1.0)
+    assert loose < 0.01 and floored == pytest.approx(1.0 / (1.0 + math.exp(0.1)))
+    # Where the bound leaves more than one chance alignment, the floor does not bind.
+    mild = {0.9: -6.0}  # 300 e^(-6 + 0.1 * 12) = 2.5 alignments
+    assert false_match_probability(12.0, 300.0, (), mild, min_count=1.0) == \
+        pytest.approx(false_match_probability(12.0, 300.0, (), mild))
+    assert false_match_probability(12.0, 300.0, (), mild) < \
+        false_match_probability(12.0, 300.0)
+    assert not decide(0.1, 300.0, [], 1e-2, moments, min_count=1.0).accept
+    assert decide(0.1, 300.0, [], 1e-2, moments).accept
+
+
+def test_a_clustered_chance_alignment_is_no_fix() -> None:
+    # The null test's closest chance alignment (2026-11-28): the 95th stressed LN of the
+    # family's thomas_strong (GN seed 1, LN seed 7) on the GN of seed 2, which the
+    # label-blind search placed at odds e^0.1 on a boulder field.
+    # The family protocol at 400 ROIs/km^2 (bench/darces_bench.py family_options).
+    options = SimOptions(walks_per_pair=2, outliers=0.3, label_flips=0.1)
+    lns = list(iter_lns(family_gn("thomas_strong", seed=1), options, seed=7, max_lns=95))
+    ln = lns[94].records
+    other = family_gn("thomas_strong", seed=2)
+    assert Matcher(other, MatchConfig(min_chance_count=0.0)).match(ln).is_fix
+    result = Matcher(other).match(ln)
+    assert not result.is_fix and result.false_match_probability > 0.1

@@ -118,8 +118,11 @@ def test_search_first_tracks_only_when_the_search_fails_and_a_prior_is_given(gn,
     # search and placed by the prior. That prefix (nodes 0.7-1.9 m, 1 sigma) is placed at
     # odds 0.005 with its covariance as it is, and just misses the 0.01 threshold (0.012)
     # with the node sigmas relative to its first node, whose smaller cells count more
-    # distinct alignments inside the prior: the records' covariance as it is, here.
-    matcher = Matcher(gn, MatchConfig(ln_sigma_relative=False, localized_keep_likelier=False))
+    # distinct alignments inside the prior: the records' covariance as it is, here. The
+    # search's odds leave out the three largest node terms (the rule before the spent
+    # triangles, under which the search fixes that prefix itself).
+    matcher = Matcher(gn, MatchConfig(ln_sigma_relative=False, localized_keep_likelier=False,
+                                      spent_by_triangle=False))
     gn_pts = xy(gn.records)
     # A whole LN: the global search fixes it, the prior is not used.
     sim = lns[0]
