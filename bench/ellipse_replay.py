@@ -41,12 +41,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from replay_matcher import read_run, replay
+from replay_matcher import read_run, replay, truth_along
 
 from roi_network.geojson import read_geojson
 from roi_network.network import RoiNetwork
 from roi_network.records import xy
-from roi_network.transform import Rigid2D
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -146,13 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         if len(t) == 0:
             p.error(f"{b / 'gn.geojson'} holds no ROI")
     lns, odometry = read_run(args.run_dir)
-    truth = np.loadtxt(truth_path, comments="#", ndmin=2)
-    stamps = np.array([o[0] for o in odometry])
-    odom_xy = np.array([[o[1], o[2]] for o in odometry])
-    k = np.clip(np.searchsorted(truth[:, 0], stamps), 0, len(truth) - 1)
-    truth_xy = truth[k, 1:3]
-    dist = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(truth_xy, axis=0), axis=1))]
-    oracle = Rigid2D.fit(odom_xy, truth_xy)
+    truth_xy, dist, oracle = truth_along(odometry, truth_path)
     _, side = _square(own.records)
     print(f"{args.run_dir}: {len(lns)} LNs, route {dist[-1]:.0f} m; own GN {len(own)} ROIs "
           f"on a {side:.0f} m square", flush=True)

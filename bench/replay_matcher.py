@@ -107,6 +107,19 @@ def read_run(run_dir: Path, cov_scale: float = 1.0) -> tuple[list, list]:
     return lns, odometry
 
 
+def truth_along(odometry: list, truth_path: Path) -> tuple[np.ndarray, np.ndarray, Rigid2D]:
+    """At each odometry message of :func:`read_run`: the truth position (map, x-y), the
+    distance travelled along the truth, and the oracle alignment (the rigid fit of the
+    whole odometry onto the truth), from the bag's ``truth/trajectory.tum``."""
+    truth = np.loadtxt(truth_path, comments="#", ndmin=2)
+    stamps = np.array([o[0] for o in odometry])
+    odom_xy = np.array([[o[1], o[2]] for o in odometry])
+    k = np.clip(np.searchsorted(truth[:, 0], stamps), 0, len(truth) - 1)
+    truth_xy = truth[k, 1:3]
+    dist = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(truth_xy, axis=0), axis=1))]
+    return truth_xy, dist, Rigid2D.fit(odom_xy, truth_xy)
+
+
 def replay(lns: list, odometry: list, gn, truth_xy: np.ndarray, dist: np.ndarray,
            variant: str, oracle: Rigid2D, events_out=None) -> dict:
     """One variant over the run; returns its figures (see the module docstring)."""
@@ -194,13 +207,7 @@ def main(argv: list[str] | None = None) -> int:
         if not path.is_file():
             p.error(f"{path} not found")
     lns, odometry = read_run(args.run_dir, args.cov_scale)
-    truth = np.loadtxt(truth_path, comments="#", ndmin=2)
-    stamps = np.array([o[0] for o in odometry])
-    odom_xy = np.array([[o[1], o[2]] for o in odometry])
-    k = np.clip(np.searchsorted(truth[:, 0], stamps), 0, len(truth) - 1)
-    truth_xy = truth[k, 1:3]
-    dist = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(truth_xy, axis=0), axis=1))]
-    oracle = Rigid2D.fit(odom_xy, truth_xy)
+    truth_xy, dist, oracle = truth_along(odometry, truth_path)
     gn = read_geojson(gn_path)
     print(f"{args.run_dir}: {len(lns)} LNs, {len(odometry)} odometry poses, route "
           f"{dist[-1]:.0f} m; GN {gn_path} ({len(gn)} ROIs)", flush=True)
