@@ -37,18 +37,17 @@ agreement is no evidence (astrometry.net leaves the quad's own stars out likewis
 Which three (spent triangles, ``MatchConfig.spent_by_triangle``, since 2026-11-28,
 twelfth session): a hypothesis of the global search is a control triangle's three LN
 nodes put on a congruent GN triangle, and under chance the other nodes land where chance
-puts them whatever those three did. So a hypothesis' evidence is the sum over the nodes
-outside its own triangle, and the union over the ``n_tested`` hypotheses (below) bounds
-the best of them, whichever it is. The winner's odds are then those of the hypothesis
-that found it, scored at the refined alignment as before: the sum less the terms of the
-triangle of least evidence among the hypotheses that are this alignment (made of three of
-its pairs, or every node within its gate of where it maps them:
-:func:`~darces_matcher.vote.agreeing`), each alternative's likewise. Leaving out the
-three largest terms, the rule before, is the same bound taken at the worst triangle: it
-charged a right alignment found by a triangle of weak nodes for the LN's three strongest
-(in a boulder field, the few isolated rocks). With no agreeing hypothesis (an alignment
-the refit moved away from every triangle) the three largest are left out, as before.
-The Chernoff moments leave out the three smallest, which bounds any three.
+puts them whatever those three did. So a hypothesis' evidence is the sum, at its own
+transform, over the nodes outside its own triangle (:meth:`ChanceModel.triangle_odds`),
+and the union over the ``n_tested`` hypotheses (below) bounds the best of them, whichever
+it is. An alignment's odds are the best of those of the hypotheses that are it (made of
+three of its pairs, or every node within its gate of where it maps them:
+:func:`~darces_matcher.vote.agreeing`; the 8 best supported), and at least the sum at
+the refined alignment less its three largest terms, the rule before (which also covers an
+alignment the refit moved away from every triangle); each alternative's likewise. The
+rule before charged a right alignment found by a triangle of weak nodes for the LN's
+three strongest (in a boulder field, the few isolated rocks). The Chernoff moments leave
+out the three smallest, which bounds any three.
 
 The outlier share w is not known in advance: a clean simulated LN has few nodes without
 a counterpart, a rover's LN on a detected GN most of them (false rover detections times
