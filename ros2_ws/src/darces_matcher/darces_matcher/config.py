@@ -207,10 +207,11 @@ class MatchConfig:
             (:mod:`~darces_matcher.decision`): a drifted node on its rock in a boulder
             field is then evidence against the field's surroundings, not against the
             field's core; 0: the 8-nearest-neighbour density alone (before 2026-11-27).
-        spent_by_triangle: the global search's odds leave out the node terms of the
-            control triangle of least evidence among the hypotheses that are the
-            alignment (:mod:`~darces_matcher.decision`, "spent triangles"); False: the
-            three largest terms (before 2026-11-28, twelfth session).
+        spent_by_triangle: the global search's odds of an alignment are the best of
+            its triangle hypotheses' own, each at its own transform with its own
+            triangle's terms left out, and at least the three-largest rule's
+            (:mod:`~darces_matcher.decision`, "spent triangles"); False: the three
+            largest terms at the refined alignment (before 2026-11-28, twelfth session).
         min_chance_count: the least count of chance alignments as good as the winner
             that Chernoff's bound may claim (:mod:`~darces_matcher.decision`, "the
             floor"): 1, a fix needs odds of at least 1 / ``false_match_rate`` against a
