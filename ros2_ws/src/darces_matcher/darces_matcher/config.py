@@ -299,9 +299,9 @@ class MatchConfig:
     false_match_rate: float = 1e-2
     chance_scale_sigmas: float = 3.0
     chernoff_orders: tuple[float, ...] = (0.2, 0.3, 0.4, 0.5, 0.6, 0.75, 0.9)
-    track_spent_nodes: int = 0
     spent_by_triangle: bool = True
     min_chance_count: float = 1.0
+    track_spent_nodes: int = 0
     track_cell_fraction: float = 0.25
     min_side_floor_m: float | None = 3.0
 

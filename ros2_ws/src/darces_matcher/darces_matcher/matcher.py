@@ -85,7 +85,8 @@ class Matcher(LnTolerances, Search, SoftSemantics, Refit, Tracking):
         self._gn_labels = gn.records["label"].astype(np.int64)
         self._gn = gn
         self._blind: Matcher | None = None
-        #: (alignments examined, odds of the distinct alternatives) of the last search.
+        #: (alignments examined, odds of the distinct alternatives, its hypotheses when
+        #: the odds are by spent triangles) of the last search.
         self._last_search: tuple[float, list[float], Hypotheses | None] = (1.0, [], None)
         #: Where the last LN's fit is judged precise (``max_position_sigma_m``), as
         #: indices into its finite nodes: None, every node; with ``anchor_newest``, the

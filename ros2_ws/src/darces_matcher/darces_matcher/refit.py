@@ -126,21 +126,21 @@ class Refit:
 
     def _verdict(self, fit: EmFit, pts: np.ndarray, labels: np.ndarray, var: np.ndarray,
                  n_tested: float, alternatives: Sequence[float],
-                 tested: Hypotheses | None = None, spent: int = SPENT_NODES) -> Verdict:
+                 hypotheses: Hypotheses | None = None, spent: int = SPENT_NODES) -> Verdict:
         """The odds decision (:func:`~darces_matcher.decision.decide`) on an EM alignment,
         given the count of alignments examined and the distinct alternatives' log-odds;
-        ``tested``: the search's hypotheses, whose triangles that are this alignment
-        give the terms left out of its odds (``MatchConfig.spent_by_triangle``); else
-        ``spent``, the largest node terms left out."""
+        ``hypotheses``: the search's, whose triangles that are this alignment give the
+        terms left out of its odds (``MatchConfig.spent_by_triangle``); else ``spent``,
+        the largest node terms left out."""
         cfg = self.config
         moments = self._log_moments(labels, var)
         k = self.chance.odds(fit.yaw, fit.t, pts, labels, var, spent).log_odds
         verdict = decide(k, n_tested, alternatives, cfg.false_match_rate, moments,
                          cfg.min_chance_count)
-        if tested is None or verdict.accept:
+        if hypotheses is None or verdict.accept:
             # The hypotheses' odds only raise the fit's: it passes on them too.
             return verdict
-        k = max(k, float(tested.log_odds(self.chance, [(fit.yaw, fit.t, fit.ln, fit.gn)],
+        k = max(k, float(hypotheses.log_odds(self.chance, [(fit.yaw, fit.t, fit.ln, fit.gn)],
                                          pts, labels, var)[0]))
         return decide(k, n_tested, alternatives, cfg.false_match_rate, moments,
                       cfg.min_chance_count)

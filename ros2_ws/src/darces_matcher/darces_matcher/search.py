@@ -230,8 +230,9 @@ class Search:
         if cfg.decision == "odds":
             # The odds of the winner and of every distinct alternative against chance.
             var = 1.0 / weights
-            tested = (Hypotheses(pool.ln_idx, pool.gn_idx, pool.mapped, pool.support, gate)
-                      if cfg.spent_by_triangle and not cfg.marginal_outliers else None)
+            hypotheses = (Hypotheses(pool.ln_idx, pool.gn_idx, pool.mapped, pool.support,
+                                     gate)
+                          if cfg.spent_by_triangle and not cfg.marginal_outliers else None)
 
             scored = [best, *(c for c in candidates[1:] if not _same_fix(best, c))]
             odds = np.array([self.chance.odds(c.yaw, c.t, pts, labels, var).log_odds
@@ -242,14 +243,14 @@ class Search:
             # The hypotheses' odds only raise an alignment's: a lone winner that passes
             # on the refit's odds passes on them too (the decision is the same; the odds
             # reported are then the refit's, a lower bound).
-            if tested is not None and not (verdict.accept and len(scored) == 1):
-                odds = np.maximum(odds, tested.log_odds(
+            if hypotheses is not None and not (verdict.accept and len(scored) == 1):
+                odds = np.maximum(odds, hypotheses.log_odds(
                     self.chance, [(c.yaw, c.t, c.ln, c.gn) for c in scored], pts, labels,
                     var))
                 verdict = decide(float(odds[0]), n_tested, odds[1:].tolist(),
                                  cfg.false_match_rate, moments, cfg.min_chance_count)
             alternatives = odds[1:].tolist()
-            self._last_search = (n_tested, alternatives, tested)
+            self._last_search = (n_tested, alternatives, hypotheses)
             log_odds, p_false = verdict.log_odds, verdict.p_false
             unsupported = not verdict.accept and not verdict.ambiguous
             ambiguous = not verdict.accept and verdict.ambiguous
