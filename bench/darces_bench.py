@@ -64,8 +64,6 @@ from roi_network.transform import Rigid2D
 
 RESULTS = Path(__file__).resolve().parent / "results"
 GN_FILE = RESULTS / "darces_gn174.geojson"
-#: One JSON file per family GN measured by ``generality`` (merged into the table).
-PARTS = RESULTS / "darces_generality_parts"
 
 
 def _gn_file() -> Path:
@@ -209,11 +207,18 @@ def family_options(density_per_km2: float, **overrides: Any) -> SimOptions:
                       **overrides)
 
 
+def _generality_name(tag: str) -> str:
+    """The results' stem: ``darces_generality`` or ``darces_generality_<tag>``."""
+    return f"darces_generality_{tag}" if tag else "darces_generality"
+
+
 def generality(names: list[str], n_lns: int, stress_lns: int, seed: int,
-               methods: list[str] | None = None) -> dict[str, Any]:
+               methods: list[str] | None = None, tag: str = "") -> dict[str, Any]:
     """The paper protocol on every family GN, odds decision (Chernoff and Markov bounds)
-    beside fixed counts."""
+    beside fixed counts. ``tag``: a table of its own (its rows in
+    ``<name>_parts``), e.g. one method on more LNs beside the main table."""
     methods = methods or ["darces", "darces_top3", "darces_counts"]
+    parts = RESULTS / f"{_generality_name(tag)}_parts"
     rows = []
     for name in names:
         gn = family_gn(name, seed=1)
@@ -234,20 +239,22 @@ def generality(names: list[str], n_lns: int, stress_lns: int, seed: int,
         rows.append(row)
         # Each GN's row as soon as it is measured: runs over parts of the family (one
         # process each) are merged into the table by ``generality --merge``.
-        PARTS.mkdir(parents=True, exist_ok=True)
-        _write_json_atomic(PARTS / f"{name}.json", {**row, "lns_per_gn": n_lns,
+        parts.mkdir(parents=True, exist_ok=True)
+        _write_json_atomic(parts / f"{name}.json", {**row, "lns_per_gn": n_lns,
                                                      "stress_lns_per_gn": stress_lns,
                                                      "seed": seed})
         print(json.dumps({"gn": name, **{p: {m: {k: row[p]["methods"][m][k] for k in (
             "correct_match_rate", "false_match_rate", "no_fix_rate", "no_fix_oracle_fit_rate")}
             for m in methods} for p in ("clean", "stress") if p in row}}), flush=True)
-    return merge_generality()
+    return merge_generality(tag)
 
 
-def merge_generality() -> dict[str, Any]:
+def merge_generality(tag: str = "") -> dict[str, Any]:
     """The family table from every GN row measured so far (family order)."""
-    rows = [json.loads((PARTS / f"{name}.json").read_text()) for name in FAMILY
-            if (PARTS / f"{name}.json").exists()]
+    stem = _generality_name(tag)
+    parts = RESULTS / f"{stem}_parts"
+    rows = [json.loads((parts / f"{name}.json").read_text()) for name in FAMILY
+            if (parts / f"{name}.json").exists()]
     counts = sorted({(r["lns_per_gn"], r["stress_lns_per_gn"], r["seed"]) for r in rows})
     command = "; ".join(f"python bench/darces_bench.py generality --max-lns {n} "
                         f"--stress-lns {m} --seed {seed} --gns "
@@ -255,12 +262,17 @@ def merge_generality() -> dict[str, Any]:
                                    if (r["lns_per_gn"], r["stress_lns_per_gn"], r["seed"])
                                    == (n, m, seed))
                         for n, m, seed in counts)
-    command += "; python bench/darces_bench.py generality --merge"
+    tagged = f" --tag {tag}" if tag else ""
+    methods = sorted({m for r in rows for p in ("clean", "stress") if p in r
+                      for m in r[p]["methods"]})
+    if tag:
+        command = command.replace(" --gns ", f" --methods {','.join(methods)}{tagged} --gns ")
+    command += f"; python bench/darces_bench.py generality --merge{tagged}"
     report = {"mode": "generality", "gn_seed": 1, "rows": rows, "command": command,
               "timing": "wall time of match() per LN on a 2-core machine, other jobs "
                         "beside it (docs/matcher.md says which, per run)"}
-    _write_json_atomic(RESULTS / "darces_generality.json", report)
-    _write_generality_md(report)
+    _write_json_atomic(RESULTS / f"{stem}.json", report)
+    _write_generality_md(report, RESULTS / f"{stem}.md")
     return report
 
 
@@ -274,7 +286,7 @@ def _write_json_atomic(path: Path, report: dict[str, Any]) -> None:
     tmp.replace(path)
 
 
-def _write_generality_md(report: dict[str, Any]) -> None:
+def _write_generality_md(report: dict[str, Any], path: Path) -> None:
     lines = [
         "# darces_matcher benchmark: generality (evaluation family of GNs)",
         "",
@@ -319,7 +331,7 @@ def _write_generality_md(report: dict[str, Any]) -> None:
                     f"| {m['time_ms']['p95']:.1f} | {why} |")
     lines += ["", "GN descriptions:", ""]
     lines += [f"- `{r['gn']}`: {r['description']}" for r in report["rows"]]
-    (RESULTS / "darces_generality.md").write_text("\n".join(lines) + "\n")
+    path.write_text("\n".join(lines) + "\n")
 
 
 def first_fix(gn, options: SimOptions, config: MatchConfig, n_lns: int, seed: int
@@ -563,7 +575,8 @@ def main() -> None:
                    help="paper/stress: methods of darces_eval (default: its own); "
                    "generality: methods (default darces,darces_top3,darces_counts)")
     p.add_argument("--tag", default="",
-                   help="paper/stress: results go to darces_<mode>_<tag>.{json,md}")
+                   help="paper/stress/generality: results go to "
+                        "darces_<mode>_<tag>.{json,md}")
     p.add_argument("--merge", action="store_true",
                    help="generality: only rebuild the table from the GN rows measured")
     p.add_argument("--bag", type=Path, default=Path("/work/bags/quick"))
@@ -599,11 +612,11 @@ def main() -> None:
             p.error(f"unknown GN(s) {unknown} (known: {', '.join(FAMILY)})")
         lns = args.max_lns or 400
         if args.mode == "generality" and args.merge:
-            merge_generality()
+            merge_generality(args.tag)
         elif args.mode == "generality":
             stress = lns if args.stress_lns is None else args.stress_lns
             generality(names, lns, stress, args.seed,
-                       args.methods.split(",") if args.methods else None)
+                       args.methods.split(",") if args.methods else None, args.tag)
         elif args.mode == "firstfix":
             firstfix(names, lns, args.seed)
         elif args.mode == "tracknull":

@@ -15,12 +15,23 @@ matcher ran (labelled, then label-blind) and sorts the LN into one of:
 * the matcher's reason otherwise (``unsupported_refit``, ``label_mismatch``,
   ``imprecise``, ...).
 
+With ``--misfits`` it looks at the other miss instead: the fixes that are false matches
+(error more than 2 m over the oracle's). For each, the annealing-free EM of the matcher's
+mixture model (:mod:`darces_matcher.em_refit`) is run from the true alignment and its
+local maximum compared with the fix's:
+
+* ``the model's maximum``: the fix's likelihood is at least that of the maximum next to
+  the truth: no estimator on this likelihood places the LN closer; what the oracle
+  knows beyond it is the pairs;
+* ``a better maximum near the truth``: the search or the refit stopped at a lesser one.
+
 Evaluation code: it reads the simulation's truth; the matcher does not.
 
 Usage::
 
     python bench/darces_why.py thomas_strong --lns 100
     python bench/darces_why.py matern_1000 --lns 100 --json OUT.json
+    python bench/darces_why.py matern_400 --lns 200 --misfits
 """
 
 from __future__ import annotations
@@ -39,7 +50,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from darces_bench import family_options
 
-from darces_matcher.eval_cli import CORRECT_M, oracle_error
+from darces_matcher.eval_cli import CORRECT_M, oracle_error, transform_error
 from darces_matcher.gn_generator import FAMILY, family_gn
 from darces_matcher.matcher import MatchConfig, Matcher
 from darces_matcher.simulate import iter_lns
@@ -105,12 +116,29 @@ def classify(reason: str, searches: list[dict[str, Any]], truth: Rigid2D) -> str
     return "no right hypothesis"
 
 
+def misfit(matcher: Matcher, result, sim, gn_pts: np.ndarray) -> dict[str, Any]:
+    """The likelihood of a false match's alignment against the maximum next to the truth
+    (module docstring), from the LN as the matcher's last search prepared it."""
+    _, pts, labels, _, weights = matcher._last
+    var = 1.0 / weights
+    fix = matcher._em_fit(pts, labels, var, result.map_T_odom, 0.0)
+    near = matcher._em_fit(pts, labels, var, sim.map_T_odom, 0.0)
+    return {"log_lik_fix": fix.log_likelihood, "log_lik_near_truth": near.log_likelihood,
+            "error_near_truth_m": transform_error(Rigid2D(near.yaw, near.t[0], near.t[1]),
+                                                  sim, gn_pts),
+            "category": "the model's maximum"
+            if fix.log_likelihood >= near.log_likelihood - 1e-6
+            else "a better maximum near the truth"}
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("gn", help=f"family GN ({', '.join(FAMILY)})")
     p.add_argument("--lns", type=int, default=100, help="LNs to match")
     p.add_argument("--seed", type=int, default=7, help="LN seed")
     p.add_argument("--clean", action="store_true", help="no outliers or label flips")
+    p.add_argument("--misfits", action="store_true",
+                   help="look at the false matches instead of the unfixed LNs")
     p.add_argument("--json", type=Path, help="write the per-LN rows here")
     args = p.parse_args(argv)
     if args.gn not in FAMILY:
@@ -125,22 +153,46 @@ def main(argv: list[str] | None = None) -> int:
         matcher.log.clear()
         result = matcher.match(sim.records)
         oracle = oracle_error(sim, gn_pts, gn_labels)
+        if args.misfits:
+            if not result.is_fix:
+                continue
+            error = transform_error(result.map_T_odom, sim, gn_pts)
+            if error <= oracle + CORRECT_M:
+                continue
+            rows.append({"ln": k, "error_m": error, "oracle_m": oracle,
+                         "reason": result.reason,
+                         "p_false": float(result.false_match_probability),
+                         **misfit(matcher, result, sim, gn_pts)})
+            continue
         if result.is_fix or oracle > CORRECT_M:
             continue
         rows.append({"ln": k, "reason": result.reason,
                      "p_false": float(result.false_match_probability),
                      "category": classify(result.reason, matcher.log, sim.map_T_odom)})
     counts = Counter(r["category"] for r in rows)
+    what = "false matches" if args.misfits else "unfixed that the oracle fits"
     print(f"{args.gn} ({'clean' if args.clean else 'stress'}, {args.lns} LNs, seed "
-          f"{args.seed}): {len(rows)} unfixed that the oracle fits")
+          f"{args.seed}): {len(rows)} {what}")
     for category, n in counts.most_common():
+        if args.misfits:
+            mine = [r for r in rows if r["category"] == category]
+            gap = [r["log_lik_near_truth"] - r["log_lik_fix"] for r in mine]
+            print(f"  {category}: {n} (error {min(r['error_m'] for r in mine):.1f}-"
+                  f"{max(r['error_m'] for r in mine):.1f} m, oracle "
+                  f"{min(r['oracle_m'] for r in mine):.1f}-"
+                  f"{max(r['oracle_m'] for r in mine):.1f} m; the maximum next to the truth "
+                  f"{min(r['error_near_truth_m'] for r in mine):.1f}-"
+                  f"{max(r['error_near_truth_m'] for r in mine):.1f} m off, "
+                  f"{min(gap):+.2f}..{max(gap):+.2f} nats)")
+            continue
         pf = [r["p_false"] for r in rows if r["category"] == category
               and np.isfinite(r["p_false"])]
         span = f" (p_false {min(pf):.2g}-{max(pf):.2g})" if pf else ""
         print(f"  {category}: {n}{span}")
     if args.json:
         args.json.write_text(json.dumps({"gn": args.gn, "lns": args.lns, "seed": args.seed,
-                                         "stress": not args.clean, "rows": rows},
+                                         "stress": not args.clean,
+                                         "misfits": args.misfits, "rows": rows},
                                         indent=2) + "\n")
     return 0
 

@@ -37,3 +37,29 @@ def test_search_or_decision(why):
     assert why.classify("insufficient_support", [none_right, empty], truth) == \
         "no right hypothesis"
     assert why.classify("unsupported_refit", [best_right], truth) == "unsupported_refit"
+
+
+def test_a_misfit_is_weighed_against_the_maximum_next_to_the_truth(why):
+    from darces_matcher.gn_generator import family_gn
+    from darces_matcher.matcher import Matcher
+    from darces_matcher.simulate import iter_lns
+    from roi_network.records import xy
+    from roi_network.transform import Rigid2D
+
+    gn = family_gn("poisson_85", seed=1)
+    options = why.family_options(85.0)
+    sim = next(iter(iter_lns(gn, options, seed=7, max_lns=1)))
+    matcher = Matcher(gn)
+    result = matcher.match(sim.records)
+    assert result.is_fix
+    # The fix is the maximum next to the truth: the same alignment, the same likelihood.
+    row = why.misfit(matcher, result, sim, xy(gn.records))
+    assert row["category"] == "the model's maximum"
+    assert abs(row["log_lik_near_truth"] - row["log_lik_fix"]) < 0.5
+    assert row["error_near_truth_m"] < 2.0
+    # An alignment 20 m and 2 degrees off is not a maximum of the likelihood.
+    t = result.map_T_odom
+    result.map_T_odom = Rigid2D(t.yaw + 0.035, t.tx + 20.0, t.ty)
+    row = why.misfit(matcher, result, sim, xy(gn.records))
+    assert row["category"] == "a better maximum near the truth"
+    assert row["log_lik_near_truth"] > row["log_lik_fix"] + 1.0
