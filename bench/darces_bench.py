@@ -207,18 +207,25 @@ def family_options(density_per_km2: float, **overrides: Any) -> SimOptions:
                       **overrides)
 
 
-def _generality_name(tag: str) -> str:
-    """The results' stem: ``darces_generality`` or ``darces_generality_<tag>``."""
-    return f"darces_generality_{tag}" if tag else "darces_generality"
+def _generality_stem(tag: str) -> Path:
+    """The results' path without suffix: ``darces_generality`` or
+    ``darces_generality_<tag>``; the GN rows are in ``<stem>_parts/``."""
+    return RESULTS / (f"darces_generality_{tag}" if tag else "darces_generality")
+
+
+def _generality_parts(tag: str) -> Path:
+    """The directory of the GN rows of a generality table (one JSON file per GN)."""
+    stem = _generality_stem(tag)
+    return stem.with_name(f"{stem.name}_parts")
 
 
 def generality(names: list[str], n_lns: int, stress_lns: int, seed: int,
                methods: list[str] | None = None, tag: str = "") -> dict[str, Any]:
     """The paper protocol on every family GN, odds decision (Chernoff and Markov bounds)
-    beside fixed counts. ``tag``: a table of its own (its rows in
-    ``<name>_parts``), e.g. one method on more LNs beside the main table."""
+    beside fixed counts. ``tag``: a table of its own (:func:`_generality_stem`), e.g.
+    one method on more LNs beside the main table."""
     methods = methods or ["darces", "darces_top3", "darces_counts"]
-    parts = RESULTS / f"{_generality_name(tag)}_parts"
+    parts = _generality_parts(tag)
     rows = []
     for name in names:
         gn = family_gn(name, seed=1)
@@ -251,28 +258,27 @@ def generality(names: list[str], n_lns: int, stress_lns: int, seed: int,
 
 def merge_generality(tag: str = "") -> dict[str, Any]:
     """The family table from every GN row measured so far (family order)."""
-    stem = _generality_name(tag)
-    parts = RESULTS / f"{stem}_parts"
+    stem, parts = _generality_stem(tag), _generality_parts(tag)
     rows = [json.loads((parts / f"{name}.json").read_text()) for name in FAMILY
             if (parts / f"{name}.json").exists()]
     counts = sorted({(r["lns_per_gn"], r["stress_lns_per_gn"], r["seed"]) for r in rows})
+    tagged = f" --tag {tag}" if tag else ""
+    # A tagged table's methods are its own choice: its command names them.
+    methods = sorted({m for r in rows for p in ("clean", "stress") if p in r
+                      for m in r[p]["methods"]})
+    chosen = f" --methods {','.join(methods)}{tagged}" if tag else ""
     command = "; ".join(f"python bench/darces_bench.py generality --max-lns {n} "
-                        f"--stress-lns {m} --seed {seed} --gns "
+                        f"--stress-lns {m} --seed {seed}{chosen} --gns "
                         + ",".join(r["gn"] for r in rows
                                    if (r["lns_per_gn"], r["stress_lns_per_gn"], r["seed"])
                                    == (n, m, seed))
                         for n, m, seed in counts)
-    tagged = f" --tag {tag}" if tag else ""
-    methods = sorted({m for r in rows for p in ("clean", "stress") if p in r
-                      for m in r[p]["methods"]})
-    if tag:
-        command = command.replace(" --gns ", f" --methods {','.join(methods)}{tagged} --gns ")
     command += f"; python bench/darces_bench.py generality --merge{tagged}"
     report = {"mode": "generality", "gn_seed": 1, "rows": rows, "command": command,
               "timing": "wall time of match() per LN on a 2-core machine, other jobs "
                         "beside it (docs/matcher.md says which, per run)"}
-    _write_json_atomic(RESULTS / f"{stem}.json", report)
-    _write_generality_md(report, RESULTS / f"{stem}.md")
+    _write_json_atomic(stem.with_name(f"{stem.name}.json"), report)
+    _write_generality_md(report, stem.with_name(f"{stem.name}.md"))
     return report
 
 
