@@ -2,7 +2,9 @@
 
 For each bag: the LN built by ``roi_detector ln`` (same library code) with the truth
 trajectory re-expressed in odom as odometry (detection geometry alone) and, when a
-``vo.tum`` is given per bag, with rover_vo odometry; judged by ``roi_detector eval``
+``vo.tum`` is given per bag, with rover_vo odometry (its nodes' covariance from the
+``vo_covariance.txt`` beside it when there is one, as ``roi_detector ln`` takes it; the
+truth odometry carries none: 1 % of the distance); judged by ``roi_detector eval``
 (DESIGN.md's matching rule): recall of the truth ROIs above the rover thresholds within
 15 m of the route, precision, classification accuracy, LN node error, and
 ``Matcher(gn).match(ln)`` against the truth GN. Speed: detection time per stereo pair
@@ -35,7 +37,7 @@ def _one_thread() -> None:
 def run_bag(bag: str, model: str | None, every: int, cfg, tag: str, work: Path,
             vo: str | None = None, gn: str | None = None) -> dict:
     """LN + evaluation of one bag with one configuration."""
-    from roi_detector.cli import build_ln
+    from roi_detector.cli import build_ln, odometry_covariance_file
     from roi_detector.evaluation import evaluate_ln
     from roi_detector.truth import Truth
 
@@ -48,8 +50,13 @@ def run_bag(bag: str, model: str | None, every: int, cfg, tag: str, work: Path,
         if path is None:
             out[kind] = {"status": "not run (no rover_vo odometry file given)"}
             continue
+        # The odometry's own covariance when rover_vo (or globloc run) wrote one beside
+        # it, as roi_detector ln takes it; the truth odometry has none (1 % drift model).
+        cov_file = odometry_covariance_file(path, None)
         t0 = time.perf_counter()
-        ln, stats = build_ln(bag, path, model, cfg, every=every, log=lambda m: None)
+        ln, stats = build_ln(bag, path, model, cfg, every=every, log=lambda m: None,
+                             odometry_cov=cov_file)
+        stats["odometry_covariance"] = str(cov_file) if cov_file else "1 % drift model"
         wall = time.perf_counter() - t0
         ln_path = work / f"{name}_{tag}_{kind}_ln.geojson"
         ln.save(ln_path, stats)

@@ -1,14 +1,17 @@
 """``roi_detector``: the rover ROI pipeline offline (same library code as the nodes).
 
     roi_detector train BAG_DIR... --out models/rover.npz [--method per_pair]
-    roi_detector ln BAG_DIR --odometry DIR/vo.tum --out DIR/ln.geojson
+    roi_detector ln BAG_DIR --odometry DIR/vo.tum --out DIR/ln.geojson [--covariance FILE]
     roi_detector eval DIR/ln.geojson BAG_DIR [--json OUT] [--plot OUT.png]
     roi_detector truth-odometry BAG_DIR --out DIR/truth_odom.tum   (evaluation helper)
     roi_detector [--ros-args ...]                                   (the roi_detector node)
 
 ``train``, ``eval`` and ``truth-odometry`` read the bag's truth files (training and
 evaluation only); ``ln`` reads the stereo images, rover.yaml, the odometry file and the
-model, never the truth.
+model, never the truth. Each LN node's covariance comes from the odometry's covariance at
+its observations, as in the nodes: ``ln`` reads it from ``vo_covariance.txt`` beside the
+odometry file (what ``rover_vo odometry`` and ``globloc run`` write), or ``--covariance``;
+a TUM file alone carries none, and ``--drift`` then models it.
 """
 
 from __future__ import annotations
@@ -23,7 +26,14 @@ import numpy as np
 
 from roi_detector.elevation_map import OUTCROP_RULES, outcrop_rule
 from roi_detector.far_rocks import FAR_KINDS, FAR_POPULATIONS, FarRockConfig
-from roi_detector.inputs import BadInput, load_rover_params, read_stereo_frames, read_tum
+from roi_detector.inputs import (
+    POSE_COVARIANCE_FILE,
+    BadInput,
+    load_rover_params,
+    read_pose_covariance,
+    read_stereo_frames,
+    read_tum,
+)
 from roi_detector.rover_pipeline import (
     METHODS,
     DriveMapper,
@@ -86,10 +96,28 @@ def odometry_xy_covariance(track, drift_frac: float) -> np.ndarray:
     return sigma[:, None, None] ** 2 * np.eye(2)[None]
 
 
+def odometry_covariance_file(odometry: str | Path, covariance: str | None) -> Path | None:
+    """The pose covariance file of an odometry file: ``covariance`` if given ('none':
+    none), else :data:`~roi_detector.inputs.POSE_COVARIANCE_FILE` beside the odometry
+    file when there is one."""
+    if covariance == "none":
+        return None
+    if covariance:
+        return Path(covariance)
+    beside = Path(odometry).parent / POSE_COVARIANCE_FILE
+    return beside if beside.is_file() else None
+
+
 def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | None = None,
              every: int = 1, drift_frac: float = 0.01, log=print, trace=None,
-             mapper: DriveMapper | None = None, describe: bool = False) -> tuple:
+             mapper: DriveMapper | None = None, describe: bool = False,
+             odometry_cov: str | Path | None = None) -> tuple:
     """Run detection, tracking and the LN over a bag with an odometry file.
+
+    ``odometry_cov``: the odometry's pose covariance file (a row per odometry stamp,
+    :func:`~roi_detector.inputs.read_pose_covariance`), whose x-y block places each LN
+    node's covariance as the nodes take it from /vo/odometry; None: 1-sigma
+    ``drift_frac`` of the distance travelled (:func:`odometry_xy_covariance`).
 
     ``trace``: set as the elevation map's :attr:`ElevationMap.trace` (diagnostics).
     ``mapper``: the DriveMapper to fill (built with ``cfg`` and its rover model, which the
@@ -103,7 +131,8 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
     cfg = cfg or RoverConfig()
     params = load_rover_params(Path(bag_dir) / "rover.yaml")
     track = read_tum(odometry)
-    track.cov = odometry_xy_covariance(track, drift_frac)
+    track.cov = (read_pose_covariance(odometry_cov, track.t) if odometry_cov is not None
+                 else odometry_xy_covariance(track, drift_frac))
     bad = BadInput(lambda m: log(f"roi_detector: {m}"))
     mapper = mapper if mapper is not None else DriveMapper(
         cfg, classifier=load_classifier(model, cfg))
@@ -145,14 +174,19 @@ def _cmd_ln(args) -> int:
                       classify_far_rocks=args.classify_far_rocks,
                       far=FarRockConfig(classified=args.far_classified),
                       elevation_map=outcrop_rule(args.outcrops))
-    ln, stats = build_ln(args.bag, args.odometry, args.model, cfg, args.every, args.drift)
+    cov_file = odometry_covariance_file(args.odometry, args.covariance)
+    ln, stats = build_ln(args.bag, args.odometry, args.model, cfg, args.every, args.drift,
+                         odometry_cov=cov_file)
     meta = {"source_bag": str(Path(args.bag).resolve()), "odometry": str(args.odometry),
+            "odometry_covariance": str(cov_file) if cov_file is not None
+            else f"{args.drift:g} of the distance travelled, 1 sigma (--drift)",
             "model": args.model or str(_installed_model()), **stats}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     ln.save(args.out, meta)
     print(f"roi_detector ln: {stats['pairs']} stereo pairs, {stats['detections']} detections, "
           f"{stats['tracks']} tracks -> {len(ln)} LN nodes in {args.out} "
-          f"({stats['detect_s_per_pair']:.3f} s/pair detection)")
+          f"({stats['detect_s_per_pair']:.3f} s/pair detection); node covariance from "
+          f"{meta['odometry_covariance']}")
     return 0
 
 
@@ -235,8 +269,12 @@ def main(argv: list[str] | None = None) -> int:
                    help="elevation_map: the outcrop rule: per observed cell (default), or on "
                    "the colour averaged over 0.2 m (finds more outcrops seen from afar, "
                    "and more grey regions that are not: docs/roi_detector.md)")
+    p.add_argument("--covariance", default=None, metavar="FILE",
+                   help="the odometry's pose covariance (t and 36 numbers per odometry stamp, "
+                   f"as rover_vo writes it; default: {POSE_COVARIANCE_FILE} beside the "
+                   "odometry file, if there is one; 'none': use --drift)")
     p.add_argument("--drift", type=float, default=0.01,
-                   help="odometry 1-sigma error per metre travelled (TUM has no covariance)")
+                   help="with no covariance file: odometry 1-sigma error per metre travelled")
     p.set_defaults(func=_cmd_ln)
     p = sub.add_parser("eval", help="an LN judged against the bag's truth")
     p.add_argument("ln")

@@ -268,6 +268,60 @@ def read_tum(path: str | Path, max_gap_s: float = 12.0) -> PoseTrack:
     return PoseTrack(a[:, 0], a[:, 1:4], a[:, 4:8], max_gap_s=max_gap_s)
 
 
+#: The pose covariance file ``rover_vo odometry`` writes beside its ``vo.tum`` (and
+#: ``globloc run`` beside a run's): ``t`` and the 36 row-major entries of each pose's
+#: 6x6 covariance ([x y z rx ry rz] in odom; m^2, rad^2).
+POSE_COVARIANCE_FILE = "vo_covariance.txt"
+
+
+def read_pose_covariance(path: str | Path, stamps_s) -> np.ndarray:
+    """(N, 2, 2) x-y covariance in odom at each of the odometry's stamps ``stamps_s``,
+    from a pose covariance file (:data:`POSE_COVARIANCE_FILE`), as the roi_detector node
+    takes it from each /vo/odometry message.
+
+    Raises:
+        ValueError: naming the file (and line) of a malformed row, a covariance that is
+            not finite or has a negative variance, or the first odometry stamp with no
+            covariance row (within 1 microsecond).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ValueError(f"{path}: cannot read the odometry covariance ({exc.strerror})"
+                         ) from None
+    stamps, covs = [], []
+    for n, line in enumerate(text.splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        try:
+            vals = [float(v) for v in line.split()]
+        except ValueError:
+            raise ValueError(f"{path}:{n}: not a covariance row (t and 36 numbers)") from None
+        if len(vals) != 37 or not np.all(np.isfinite(vals)):
+            raise ValueError(f"{path}:{n}: expected t and 36 finite numbers, got "
+                             f"{len(vals)} values")
+        c = np.array(vals[1:]).reshape(6, 6)[:2, :2]
+        if c[0, 0] < 0 or c[1, 1] < 0:
+            raise ValueError(f"{path}:{n}: negative x-y variance")
+        stamps.append(vals[0])
+        covs.append(0.5 * (c + c.T))
+    if not stamps:
+        raise ValueError(f"{path}: no covariance rows")
+    order = np.argsort(stamps, kind="stable")
+    t, cov = np.asarray(stamps)[order], np.asarray(covs)[order]
+    want = np.asarray(stamps_s, float)
+    i = np.clip(np.searchsorted(t, want), 1, max(len(t) - 1, 1))
+    j = np.where(np.abs(t[i - 1] - want) <= np.abs(t[np.minimum(i, len(t) - 1)] - want),
+                 i - 1, np.minimum(i, len(t) - 1))
+    missing = np.flatnonzero(np.abs(t[j] - want) > 1e-6)
+    if len(missing):
+        raise ValueError(f"{path}: no covariance at odometry stamp {want[missing[0]]:.9f} "
+                         f"({len(missing)} of {len(want)} stamps have none)")
+    return cov[j]
+
+
 def write_tum(path: str | Path, stamps_s, positions, quats_xyzw, header: str = "") -> None:
     """Write a TUM file atomically."""
     path = Path(path)

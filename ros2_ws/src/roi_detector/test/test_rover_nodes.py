@@ -94,6 +94,29 @@ def test_cli_ln_and_eval_on_tiny(tiny_bag, tmp_path):
             "--plot", str(tmp_path / "e.png"))
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "e.json").is_file() and (tmp_path / "e.png").stat().st_size > 1000
+    # The odometry's own covariance beside it (as rover_vo and globloc run write it):
+    # the nodes take it, in place of the drift model, and the file says so.
+    poses = np.loadtxt(odom, comments="#", ndmin=2)
+    cov = np.diag([9.0, 9.0, 1.0, 1e-3, 1e-3, 1e-3]).ravel()
+    (tmp_path / "vo_covariance.txt").write_text("".join(
+        f"{t:.9f} " + " ".join(f"{v:.6e}" for v in cov) + "\n" for t in poses[:, 0]))
+    ln_cov = tmp_path / "ln_cov.geojson"
+    r = run("ln", str(tiny_bag), "--odometry", str(odom), "--out", str(ln_cov), "--model",
+            "none", "--min-obs", "1")
+    assert r.returncode == 0, r.stderr
+    assert "vo_covariance.txt" in r.stdout
+    with_cov = read_geojson(ln_cov).records
+    assert len(with_cov) == len(ln.records)
+    # 16 m at 1 %: the drift model gives the nodes centimetres; the file, 3 m.
+    assert np.all(ln.records["cov_xx"] < 1.0) and np.all(with_cov["cov_xx"] > 1.0)
+    # A covariance file that does not cover the odometry: a clear error, no LN.
+    (tmp_path / "short_cov.txt").write_text(f"{poses[0, 0]:.9f} " + " ".join(
+        f"{v:.6e}" for v in cov) + "\n")
+    r = run("ln", str(tiny_bag), "--odometry", str(odom), "--covariance",
+            str(tmp_path / "short_cov.txt"), "--out", str(tmp_path / "y.geojson"),
+            "--model", "none")
+    assert r.returncode == 1 and "short_cov.txt: no covariance at odometry stamp" in r.stderr
+    assert not (tmp_path / "y.geojson").exists()
     # Bad input: a clear one-line error, no output file.
     r = run("ln", str(tiny_bag), "--odometry", str(tmp_path / "missing.tum"), "--out",
             str(tmp_path / "x.geojson"))

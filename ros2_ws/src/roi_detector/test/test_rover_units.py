@@ -4,7 +4,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from roi_detector.inputs import BadInput, PoseTrack, decode_image, read_tum, write_tum
+from roi_detector.inputs import (
+    BadInput,
+    PoseTrack,
+    decode_image,
+    read_pose_covariance,
+    read_tum,
+    write_tum,
+)
 from roi_detector.local_network import LnConfig, LocalNetwork, load_or_fresh
 from roi_detector.rover_candidates import RoverThresholds, measure_region
 from roi_detector.rover_pipeline import (
@@ -227,6 +234,34 @@ def test_pose_track_interpolates_and_reports_gaps(tmp_path):
     bad.write_text("0 1 2 3\n")
     with pytest.raises(ValueError, match=r"bad\.tum:1"):
         read_tum(bad)
+
+
+def test_pose_covariance_file_gives_the_xy_block_at_each_odometry_stamp(tmp_path):
+    """rover_vo's vo_covariance.txt: t and a 6x6 covariance per pose; the LN takes its
+    x-y block at each odometry stamp, and a file that does not cover the odometry, or a
+    malformed one, is refused naming the file."""
+    stamps = np.array([0.0, 0.5, 1.0])
+    rows = []
+    for k, t in enumerate(stamps):
+        c = np.diag([1.0 + k, 2.0 + k, 3.0, 4.0, 5.0, 6.0])
+        c[0, 1] = c[1, 0] = 0.1 * k
+        rows.append(f"{t:.9f} " + " ".join(f"{v:.6e}" for v in c.ravel()))
+    path = tmp_path / "vo_covariance.txt"
+    path.write_text("# t, pose covariance 6x6\n" + "\n".join(rows[::-1]) + "\n")
+    cov = read_pose_covariance(path, [0.5, 1.0 + 2e-7, 0.0])
+    np.testing.assert_allclose(cov, [[[2.0, 0.1], [0.1, 3.0]], [[3.0, 0.2], [0.2, 4.0]],
+                                     [[1.0, 0.0], [0.0, 2.0]]])
+    with pytest.raises(ValueError, match=r"vo_covariance\.txt: no covariance at odometry "
+                       r"stamp 0\.750000000 \(1 of 2"):
+        read_pose_covariance(path, [0.0, 0.75])
+    bad = tmp_path / "short.txt"
+    bad.write_text("0.0 1 2 3\n")
+    with pytest.raises(ValueError, match=r"short\.txt:1: expected t and 36"):
+        read_pose_covariance(bad, [0.0])
+    neg = tmp_path / "neg.txt"
+    neg.write_text("0.0 " + " ".join(["-1.0"] + ["0.0"] * 35) + "\n")
+    with pytest.raises(ValueError, match=r"neg\.txt:1: negative"):
+        read_pose_covariance(neg, [0.0])
 
 
 def test_rover_classifier_round_trip(tmp_path):

@@ -7,6 +7,9 @@
 ``global_pose.tum``        /global_pose, TUM (t x y z qx qy qz qw, base_link in ``map``)
 ``global_pose_cov.tsv``    its horizontal covariance per pose: t cov_xx cov_xy cov_yy (m^2)
 ``vo.tum``                 /vo/odometry, TUM (base_link in ``odom``)
+``vo_covariance.txt``      its pose covariance per pose: t and the 36 row-major entries
+                           ([x y z rx ry rz]; m^2, rad^2), as ``rover_vo odometry`` writes
+                           it (``roi_detector ln --odometry RUN/vo.tum`` reads it)
 ``alignment.tsv``          /global_alignment: t tx ty yaw (map -> odom; m, rad)
 ``matcher_events.tsv``     /matcher/status: t event reason ln_size inliers received
 ``local_network.csv``      the last /local_network (``odom`` frame): one ROI record a row
@@ -33,6 +36,7 @@ OUTPUTS = 'outputs'
 GLOBAL_POSE_TUM = 'global_pose.tum'
 GLOBAL_POSE_COV = 'global_pose_cov.tsv'
 VO_TUM = 'vo.tum'
+VO_COV = 'vo_covariance.txt'
 ALIGNMENT = 'alignment.tsv'
 EVENTS = 'matcher_events.tsv'
 LOCAL_NETWORK = 'local_network.csv'
@@ -119,7 +123,7 @@ def export_outputs(run_dir: Path) -> dict[str, int]:
     if not (bag / 'metadata.yaml').is_file():
         raise GloblocError(f'no outputs bag in {run_dir} (expected {bag}/metadata.yaml)')
     typestore = get_typestore(Stores.ROS2_JAZZY)
-    poses, covs, vo, alignment, events = [], [], [], [], []
+    poses, covs, vo, vo_cov, alignment, events = [], [], [], [], [], []
     last_ln = None
     undecodable = 0
     try:
@@ -139,6 +143,8 @@ def export_outputs(run_dir: Path) -> dict[str, int]:
                 elif conn.topic == '/vo/odometry':
                     vo.append(_tum_line(_stamp(msg.header), msg.pose.pose.position,
                                         msg.pose.pose.orientation))
+                    vo_cov.append(f'{_stamp(msg.header):.9f} '
+                                  + ' '.join(f'{v:.6e}' for v in msg.pose.covariance) + '\n')
                 elif conn.topic == '/global_alignment':
                     r, tr = msg.transform.rotation, msg.transform.translation
                     yaw = 2.0 * math.atan2(r.z, r.w)
@@ -165,12 +171,16 @@ def export_outputs(run_dir: Path) -> dict[str, int]:
                         covs))
     write_atomic(run_dir / VO_TUM,
                  _lines('# t x y z qx qy qz qw (/vo/odometry, odom frame, base_link)\n', vo))
+    write_atomic(run_dir / VO_COV,
+                 _lines('# t, pose covariance 6x6 row-major ([x y z rx ry rz] in odom; m^2, '
+                        'rad^2) (/vo/odometry)\n', vo_cov))
     write_atomic(run_dir / ALIGNMENT,
                  _lines('# t tx ty yaw (/global_alignment, map -> odom; m, rad)\n', alignment))
     write_atomic(run_dir / EVENTS,
                  _lines('# t\tevent\treason\tln_size\tinliers\treceived (/matcher/status; '
                         't: its LN\'s stamp, received: when the recorder got it)\n', events))
     written = {GLOBAL_POSE_TUM: len(poses), GLOBAL_POSE_COV: len(covs), VO_TUM: len(vo),
+               VO_COV: len(vo_cov),
                ALIGNMENT: len(alignment), EVENTS: len(events), 'undecodable': undecodable}
     if last_ln is not None:
         try:

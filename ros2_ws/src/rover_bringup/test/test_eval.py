@@ -258,6 +258,14 @@ def test_run_outputs_bag_is_exported_and_evaluated(tmp_path: Path):
     np.testing.assert_allclose(cov[0], [[0.04, 0.01], [0.01, 0.09]])
     written = export_outputs(run)
     assert written['undecodable'] == 1 and written['vo.tum'] == 600
+    # The odometry's covariance beside vo.tum, a row per pose at the same stamps (what
+    # roi_detector ln reads with the odometry).
+    assert written['vo_covariance.txt'] == 600
+    rows = np.loadtxt(run / 'vo_covariance.txt', comments='#', ndmin=2)
+    tum = np.loadtxt(run / 'vo.tum', comments='#', ndmin=2)
+    assert rows.shape == (600, 37)
+    np.testing.assert_array_equal(rows[:, 0], tum[:, 0])
+    np.testing.assert_allclose(rows[0, 1:].reshape(6, 6)[:2, :2], [[0.04, 0.01], [0.01, 0.09]])
 
 
 def test_cli_eval_json_and_errors(tmp_path: Path, globloc):
