@@ -25,6 +25,11 @@ local maximum compared with the fix's:
   knows beyond it is the pairs;
 * ``a better maximum near the truth``: the search or the refit stopped at a lesser one.
 
+It also asks whether each fix, right or false, says how far off it may be: the error of
+its alignment at the LN's newest true node (the one the rover is at; at every true node
+too) against the fix's covariance, inside 3 sigma or not (chi-square, 2 degrees of
+freedom, 11.83).
+
 Evaluation code: it reads the simulation's truth; the matcher does not.
 
 Usage::
@@ -32,6 +37,8 @@ Usage::
     python bench/darces_why.py thomas_strong --lns 100
     python bench/darces_why.py matern_1000 --lns 100 --json OUT.json
     python bench/darces_why.py matern_400 --lns 200 --misfits
+    python bench/darces_why.py matern_400 --lns 400 --misfits --complete-covariance \
+        --json bench/results/darces_why_misfits_matern_400_complete.json
 """
 
 from __future__ import annotations
@@ -131,6 +138,30 @@ def misfit(matcher: Matcher, result, sim, gn_pts: np.ndarray) -> dict[str, Any]:
             else "a better maximum near the truth"}
 
 
+#: chi-square, 2 degrees of freedom, 99.73 % (3 sigma)
+CHI2_2D_3SIGMA = 11.83
+
+
+def alignment_chi2(result, sim, gn_pts: np.ndarray) -> tuple[float, float]:
+    """The error of a fix's alignment at the LN's true nodes against its covariance:
+    chi-square (2 dof) at the newest true node (the largest drift sigma, where the rover
+    is) and the largest over the true nodes. Each node at its drift-free odom position
+    (the true alignment's inverse of its GN node), its predicted covariance J C J^T with
+    C the fix's (x, y, yaw) covariance."""
+    true = np.flatnonzero(sim.truth_gn >= 0)
+    g = gn_pts[sim.truth_gn[true]]
+    odom = sim.map_T_odom.inverse().apply(g)
+    t = result.map_T_odom
+    err = t.apply(odom) - g
+    c, s = np.cos(t.yaw), np.sin(t.yaw)
+    lever = np.column_stack([-s * odom[:, 0] - c * odom[:, 1], c * odom[:, 0] - s * odom[:, 1]])
+    jac = np.concatenate([np.broadcast_to(np.eye(2), (len(odom), 2, 2)), lever[:, :, None]],
+                         axis=2)
+    cov = jac @ result.covariance @ jac.transpose(0, 2, 1)
+    chi2 = np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[:, :, None])[:, :, 0])
+    return float(chi2[np.argmax(sim.sigma[true])]), float(chi2.max())
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("gn", help=f"family GN ({', '.join(FAMILY)})")
@@ -139,6 +170,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--clean", action="store_true", help="no outliers or label flips")
     p.add_argument("--misfits", action="store_true",
                    help="look at the false matches instead of the unfixed LNs")
+    p.add_argument("--complete-covariance", action="store_true",
+                   help="fixes report the complete-data covariance "
+                   "(MatchConfig.association_covariance False, before 2026-11-28)")
     p.add_argument("--json", type=Path, help="write the per-LN rows here")
     args = p.parse_args(argv)
     if args.gn not in FAMILY:
@@ -147,8 +181,10 @@ def main(argv: list[str] | None = None) -> int:
     extra = {} if args.clean else {"outliers": 0.3, "label_flips": 0.1}
     options = family_options(FAMILY[args.gn].density_per_km2, **extra)
     gn_pts, gn_labels = xy(gn.records), gn.records["label"]
-    matcher = _Recorder(gn)
+    matcher = _Recorder(gn, MatchConfig(association_covariance=not args.complete_covariance))
     rows = []
+    # Per fix (misfits mode): false match or not, chi-square at the newest / every node.
+    consistency: list[tuple[bool, float, float]] = []
     for k, sim in enumerate(iter_lns(gn, options, seed=args.seed, max_lns=args.lns)):
         matcher.log.clear()
         result = matcher.match(sim.records)
@@ -157,11 +193,14 @@ def main(argv: list[str] | None = None) -> int:
             if not result.is_fix:
                 continue
             error = transform_error(result.map_T_odom, sim, gn_pts)
+            newest, worst = alignment_chi2(result, sim, gn_pts)
+            consistency.append((error > oracle + CORRECT_M, newest, worst))
             if error <= oracle + CORRECT_M:
                 continue
             rows.append({"ln": k, "error_m": error, "oracle_m": oracle,
                          "reason": result.reason,
                          "p_false": float(result.false_match_probability),
+                         "chi2_newest": newest, "chi2_max": worst,
                          **misfit(matcher, result, sim, gn_pts)})
             continue
         if result.is_fix or oracle > CORRECT_M:
@@ -189,10 +228,23 @@ def main(argv: list[str] | None = None) -> int:
               and np.isfinite(r["p_false"])]
         span = f" (p_false {min(pf):.2g}-{max(pf):.2g})" if pf else ""
         print(f"  {category}: {n}{span}")
+    summary = {}
+    for name, false in (("right fixes", False), ("false matches", True)):
+        mine = np.array([c[1:] for c in consistency if c[0] == false]).reshape(-1, 2)
+        if not len(mine):
+            continue
+        inside = np.mean(mine <= CHI2_2D_3SIGMA, axis=0)
+        summary[name] = {"fixes": len(mine), "newest_inside_3sigma": float(inside[0]),
+                         "every_node_inside_3sigma": float(inside[1])}
+        print(f"  {name}: {len(mine)}, the alignment inside its 3 sigma at the newest node "
+              f"{inside[0]:.1%}, at every node {inside[1]:.1%}")
     if args.json:
         args.json.write_text(json.dumps({"gn": args.gn, "lns": args.lns, "seed": args.seed,
                                          "stress": not args.clean,
-                                         "misfits": args.misfits, "rows": rows},
+                                         "misfits": args.misfits,
+                                         "complete_covariance": args.complete_covariance,
+                                         "rows": rows,
+                                         "consistency": summary},
                                         indent=2) + "\n")
     return 0
 

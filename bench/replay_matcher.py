@@ -66,6 +66,7 @@ VARIANTS: dict[str, tuple[dict, bool]] = {
     "drift_screen": ({"drift_fit_mode": "screen"}, True),
     "top3": ({"spent_by_triangle": False, "min_chance_count": 0.0}, True),
     "nofloor": ({"min_chance_count": 0.0}, True),
+    "complete_cov": ({"association_covariance": False}, True),
 }
 #: variants that do not read the odometry covariance each node was observed with
 #: (darces_matcher.ln_drift): the records' covariance alone, as before 2026-11-26

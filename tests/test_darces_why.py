@@ -63,3 +63,33 @@ def test_a_misfit_is_weighed_against_the_maximum_next_to_the_truth(why):
     row = why.misfit(matcher, result, sim, xy(gn.records))
     assert row["category"] == "a better maximum near the truth"
     assert row["log_lik_near_truth"] > row["log_lik_fix"] + 1.0
+
+
+def test_a_fix_is_judged_inside_its_covariance_at_the_newest_node(why):
+    """chi-square of the alignment's error at the true nodes under the fix's (x, y, yaw)
+    covariance: 0 at the truth; a 1 m shift over a 0.5 m sigma is 4 at every node; a
+    yaw error weighs with the lever arm, so the newest node, the furthest, is the worst
+    unless the yaw's own variance covers it."""
+    from types import SimpleNamespace
+
+    from darces_matcher.gn_generator import family_gn
+    from darces_matcher.simulate import iter_lns
+    from roi_network.records import xy
+    from roi_network.transform import Rigid2D
+
+    gn = family_gn("poisson_85", seed=1)
+    sim = next(iter(iter_lns(gn, why.family_options(85.0), seed=7, max_lns=1)))
+    pts = xy(gn.records)
+    t = sim.map_T_odom
+    cov = np.diag([0.25, 0.25, 0.0])
+    at = lambda a: SimpleNamespace(map_T_odom=a, covariance=cov)  # noqa: E731
+    assert why.alignment_chi2(at(t), sim, pts) == pytest.approx((0.0, 0.0), abs=1e-9)
+    newest, worst = why.alignment_chi2(at(Rigid2D(t.yaw, t.tx + 1.0, t.ty)), sim, pts)
+    assert newest == pytest.approx(4.0, rel=1e-6) and worst == pytest.approx(4.0, rel=1e-6)
+    # 0.5 deg about the map origin: metres at the LN, far outside a 0.5 m sigma.
+    turned = Rigid2D(t.yaw + np.radians(0.5), t.tx, t.ty)
+    newest, worst = why.alignment_chi2(at(turned), sim, pts)
+    assert worst > why.CHI2_2D_3SIGMA and newest <= worst
+    cov = np.diag([0.25, 0.25, np.radians(0.5) ** 2])
+    newest, worst = why.alignment_chi2(at(turned), sim, pts)
+    assert worst <= why.CHI2_2D_3SIGMA

@@ -71,6 +71,19 @@ class MatchConfig:
             newest node with no GN counterpart paired with a GN rock 14.6 m off and
             pulled the tracked fit there, claiming 0.3 m at the rover; the filter took
             it and the run ended 16.6 m off.
+        association_covariance: the covariance reported with an EM fit (the global
+            search's fix, and the tracked fits without the drift refit) is widened to
+            cover the observed information's (Louis 1982,
+            :meth:`~darces_matcher.em_refit.EmModel.association_covariance`): the
+            complete-data information less what is missing for not knowing which rock
+            each node pairs with. The decision (odds, ``imprecise``) stays on the
+            complete-data covariance. In a clustered GN the maximum likelihood may sit
+            2-5 m from the truth with its pairs shifted by a rock each; on five
+            clustered GNs under stress (``bench/darces_why.py GN --misfits``) the
+            complete-data covariance held 96.7-99.2 % of the fixes within 3 sigma at the
+            newest node and 59-91 % of those misfits, this one 99.5-99.7 % and 75-100 %
+            (docs/matcher.md, fourteenth session).
+            False: the complete-data covariance (before 2026-11-28, fourteenth session).
         drift_fit: once localized, a fix's inlier pairs are fitted again under the LN's
             correlated drift (:mod:`~darces_matcher.drift_fit`: generalized least
             squares with the odometry chain's joint covariance relative to the newest
@@ -251,6 +264,7 @@ class MatchConfig:
     localized_anchor_newest: bool = True
     localized_keep_likelier: bool = True
     jackknife_covariance: bool = True
+    association_covariance: bool = True
     drift_fit: bool = True
     drift_fit_mode: str = "gls"
     drift_fit_first: bool = False

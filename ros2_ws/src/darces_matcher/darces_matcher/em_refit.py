@@ -317,6 +317,43 @@ class EmModel:
             keep = np.sort(order[first])
         return cand.rows[keep], cand.gn[keep], loglik, matched
 
+    def association_covariance(self, yaw: float, t: np.ndarray) -> np.ndarray:
+        """(x, y, yaw) covariance of ``map_T_odom`` at a fit (yaw rad, t m), with the
+        uncertainty of which GN node each LN node pairs with (Louis 1982: the observed
+        information is the complete-data information less the missing information).
+
+        The complete information is sum_i m_i J_i^T J_i / s_i^2 (each node by its
+        probability of a counterpart m_i, as :func:`~darces_matcher.refit.em_covariance`
+        weighs it); the missing information, per node, the variance over its possible
+        partners (its responsibilities, the outlier's score 0) of the complete-data score
+        J_i^T (g_k - T x_i) / s_i^2. A node whose sigma spans two rocks of a cluster pulls
+        the fit two ways at once: its information is discounted by how far apart they
+        pull. ``inf`` on the diagonal when the rest is not positive definite (the pairs
+        leave a direction undetermined).
+        """
+        cand = self.candidates(yaw, t, 0.0)
+        cand.set_tau(0.0)
+        resp, _ = self.responsibilities(yaw, *cand.centred(yaw, t), cand)
+        c, s = math.cos(yaw), math.sin(yaw)
+        x, y = self.pts[:, 0], self.pts[:, 1]
+        rot = np.column_stack([c * x - s * y, s * x + c * y])
+        # d(T x)/d(tx, ty, yaw) = [[1, 0, -ry], [0, 1, rx]], per node.
+        jac = np.zeros((len(self.pts), 2, 3))
+        jac[:, 0, 0] = jac[:, 1, 1] = 1.0
+        jac[:, 0, 2], jac[:, 1, 2] = -rot[:, 1], rot[:, 0]
+        matched = np.bincount(cand.rows, resp, minlength=len(self.pts))
+        complete = np.einsum("n,nai,naj->ij", matched / self.var, jac, jac)
+        residual = self.gn_pts[cand.gn] - (rot[cand.rows] + t)
+        score = np.einsum("kai,ka->ki", jac[cand.rows], residual) / self.var[cand.rows, None]
+        mean = np.zeros((len(self.pts), 3))
+        np.add.at(mean, cand.rows, resp[:, None] * score)
+        missing = np.einsum("k,ki,kj->ij", resp, score, score) - mean.T @ mean
+        observed = 0.5 * (complete - missing + (complete - missing).T)
+        ev = np.linalg.eigvalsh(observed)
+        if not (np.all(np.isfinite(ev)) and ev[0] > 1e-12 * max(ev[-1], 0.0) and ev[0] > 0):
+            return np.diag([np.inf, np.inf, np.inf])
+        return np.linalg.inv(observed)
+
 
 def em_refit(model: EmModel, yaw: float, t: np.ndarray, *, anneal_start_m: float,
              iterations: int) -> EmFit:

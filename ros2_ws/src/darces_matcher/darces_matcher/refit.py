@@ -21,7 +21,7 @@ from darces_matcher.em_refit import EmFit, EmModel, em_refit
 from darces_matcher.gn_index import GnIndex
 from darces_matcher.result import MatchResult
 from darces_matcher.timings import elapsed_ms
-from darces_matcher.vote import pose_covariance
+from darces_matcher.vote import covering_covariance, pose_covariance
 from roi_network.transform import Rigid2D
 
 if TYPE_CHECKING:
@@ -76,7 +76,9 @@ class Refit:
             spread = self._spread(pts, fit.yaw, covariance)
             if spread <= cfg.max_position_sigma_m:
                 result.map_T_odom = Rigid2D(fit.yaw, fit.t[0], fit.t[1])
-                result.covariance, result.position_sigma_m = covariance, spread
+                result.covariance = self._reported_covariance(pts, labels, var, fit,
+                                                              covariance)
+                result.position_sigma_m = spread
                 result.inliers = np.column_stack([kept[fit.ln], fit.gn]).astype(np.int64)
         ms = elapsed_ms(t0)
         result.timings_ms["em_refit"] = ms
@@ -105,24 +107,40 @@ class Refit:
             return result
         result.status, result.reason = "fix", "ok"
         result.map_T_odom = Rigid2D(fit.yaw, fit.t[0], fit.t[1])
-        result.covariance, result.position_sigma_m = covariance, spread
+        result.covariance = self._reported_covariance(pts, labels, var, fit, covariance)
+        result.position_sigma_m = spread
         result.inliers = np.column_stack([kept[fit.ln], fit.gn]).astype(np.int64)
         result.support = len(fit.ln)
         result.margin = result.support - result.runner_up
         result.log_odds, result.false_match_probability = verdict.log_odds, verdict.p_false
         return result
 
+    def _em_model(self, pts: np.ndarray, labels: np.ndarray, var: np.ndarray) -> EmModel:
+        """The mixture model of an LN (``odom`` positions, labels, per-axis variances)
+        against the GN (:class:`~darces_matcher.em_refit.EmModel`)."""
+        cfg = self.config
+        w = cfg.outlier_prior
+        return EmModel(self.index.tree, self._gn_labels, pts, labels, var,
+                       w / (1.0 - w) * self.gn_density,
+                       cfg.label_confusion if cfg.use_labels else 0.5)
+
     def _em_fit(self, pts: np.ndarray, labels: np.ndarray, var: np.ndarray, start: Rigid2D,
                 anneal_start_m: float) -> EmFit:
         """The annealed EM (:func:`~darces_matcher.em_refit.em_refit`) of an LN (``odom``
         positions, labels, per-axis variances) from the alignment ``start``."""
-        cfg = self.config
-        w = cfg.outlier_prior
-        model = EmModel(self.index.tree, self._gn_labels, pts, labels, var,
-                        w / (1.0 - w) * self.gn_density,
-                        cfg.label_confusion if cfg.use_labels else 0.5)
-        return em_refit(model, start.yaw, np.array([start.tx, start.ty]),
-                        anneal_start_m=anneal_start_m, iterations=cfg.em_iterations)
+        return em_refit(self._em_model(pts, labels, var), start.yaw,
+                        np.array([start.tx, start.ty]), anneal_start_m=anneal_start_m,
+                        iterations=self.config.em_iterations)
+
+    def _reported_covariance(self, pts: np.ndarray, labels: np.ndarray, var: np.ndarray,
+                             fit: EmFit, covariance: np.ndarray) -> np.ndarray:
+        """The covariance a fix reports: the complete-data one widened to cover the
+        association's (``MatchConfig.association_covariance``); where the pairs leave a
+        direction undetermined, the complete-data one as it is."""
+        if not self.config.association_covariance:
+            return covariance
+        louis = self._em_model(pts, labels, var).association_covariance(fit.yaw, fit.t)
+        return covering_covariance(covariance, louis)
 
     def _verdict(self, fit: EmFit, pts: np.ndarray, labels: np.ndarray, var: np.ndarray,
                  n_tested: float, alternatives: Sequence[float],

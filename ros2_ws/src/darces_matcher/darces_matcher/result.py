@@ -35,7 +35,9 @@ class MatchResult:
         margin: support - runner_up.
         position_sigma_m: largest predicted 1-sigma error per axis of a mapped LN node
             (of the newest node once localized, ``MatchConfig.localized_anchor_newest``)
-            under the fit's covariance, metres.
+            under the fit's complete-data covariance, the one the precision test judges,
+            metres. ``covariance`` covers it and may be wider (the association's,
+            ``MatchConfig.association_covariance``; the jackknife's once localized).
         n_triplets: control triplets tried.
         n_hypotheses: triangle hypotheses verified.
         timings_ms: wall time per stage, milliseconds.

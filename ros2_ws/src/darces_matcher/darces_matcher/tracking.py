@@ -119,6 +119,8 @@ class Tracking:
             status, reason = "no_fix", "imprecise"
         else:
             status, reason = "fix", "ok_tracked"
+        if status == "fix":
+            covariance = self._reported_covariance(pts, labels, var, fit, covariance)
         return MatchResult(
             status=status, reason=reason, map_T_odom=fitted, covariance=covariance,
             inliers=np.column_stack([kept[fit.ln], fit.gn]).astype(np.int64),

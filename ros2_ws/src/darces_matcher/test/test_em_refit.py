@@ -129,3 +129,39 @@ def test_a_fix_whose_likeliest_refit_explains_too_few_nodes_is_withheld(monkeypa
     result = odds.match(sim.records)
     assert (result.status, result.reason) == ("no_fix", "insufficient_support")
     assert result.false_match_probability > 0.5
+
+
+def _pair_scene(twin_m: float | None):
+    """Ten rocks 40 m apart on a line along x; with ``twin_m``, each has a twin that
+    far along y. An LN of the ten (sigma 1 m per axis) at the true alignment."""
+    rocks = np.column_stack([np.arange(10) * 40.0, np.zeros(10)])
+    gn = rocks if twin_m is None else np.vstack([rocks, rocks + np.array([0.0, twin_m])])
+    labels = np.ones(len(gn), dtype=np.int64)
+    truth = Rigid2D(0.3, 100.0, -20.0)
+    ln = truth.inverse().apply(rocks)
+    var = np.full(len(ln), 1.0)
+    model = EmModel(cKDTree(gn), labels, ln, np.ones(len(ln), dtype=np.int64), var,
+                    0.3 / 0.7 * 10 / 1e5, 0.1)
+    return model, truth
+
+
+def test_the_association_covariance_widens_where_rocks_share_a_node() -> None:
+    from darces_matcher.refit import em_covariance
+
+    # Isolated rocks: one partner each, nothing missing: the complete-data covariance.
+    model, truth = _pair_scene(None)
+    t = np.array([truth.tx, truth.ty])
+    fit = em_refit(model, truth.yaw, t, anneal_start_m=0.0, iterations=4)
+    complete = em_covariance(model.pts, model.var, fit)
+    louis = model.association_covariance(fit.yaw, fit.t)
+    np.testing.assert_allclose(louis, complete, rtol=0.05, atol=1e-9)
+    # Each rock with a twin 1.5 m across the line (1.5 sigma): every node may pair with
+    # either, so across the line the data say less than the complete data would.
+    model, truth = _pair_scene(1.5)
+    fit = em_refit(model, truth.yaw, t, anneal_start_m=0.0, iterations=4)
+    complete = em_covariance(model.pts, model.var, fit)
+    louis = model.association_covariance(fit.yaw, fit.t)
+    assert np.all(np.isfinite(louis))
+    # In the map, across the line is y (the alignment's translation is in map axes).
+    assert louis[1, 1] > 1.5 * complete[1, 1]
+    assert louis[0, 0] == pytest.approx(complete[0, 0], rel=0.2)

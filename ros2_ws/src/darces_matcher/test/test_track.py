@@ -248,16 +248,25 @@ def test_first_fix_judged_at_newest_judges_precision_where_the_rover_is(gn: RoiN
     from darces_matcher.simulate import SimOptions, iter_lns
     from darces_matcher.vote import predicted_variance
 
-    every = Matcher(gn, MatchConfig(first_fix_judged_at_newest=False))
-    newest = Matcher(gn)
-    assert newest.config.first_fix_judged_at_newest
+    # The complete-data covariance reported (the one the precision test judges), so
+    # that the sigma at the rover can be checked against it.
+    every = Matcher(gn, MatchConfig(first_fix_judged_at_newest=False,
+                                    association_covariance=False))
+    newest = Matcher(gn, MatchConfig(association_covariance=False))
+    assert MatchConfig().first_fix_judged_at_newest
     assert not MatchConfig.counts().first_fix_judged_at_newest
     assert not MatchConfig.original().first_fix_judged_at_newest
+    reporting = Matcher(gn)
     lower = 0
     for sim in iter_lns(gn, SimOptions(noise_fraction=0.0), seed=7, max_lns=4):
         rec, odom, _ = _bent_ln(gn, sim, 1.0)
         a, b = every.match(rec), newest.match(rec)
         assert a.is_fix and b.is_fix, (a.reason, b.reason)
+        # By default the same fix and precision test, its covariance covering the
+        # complete-data one (the association's uncertainty added).
+        c = reporting.match(rec)
+        assert c.is_fix and c.position_sigma_m == pytest.approx(b.position_sigma_m)
+        assert np.linalg.eigvalsh(c.covariance - b.covariance).min() >= -1e-9
         assert b.map_T_odom.yaw == pytest.approx(a.map_T_odom.yaw)
         at_rover = np.sqrt(predicted_variance(odom[-1:], b.map_T_odom.yaw, b.covariance).max())
         assert b.position_sigma_m == pytest.approx(at_rover, rel=1e-6)
