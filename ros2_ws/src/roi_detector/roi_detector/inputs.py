@@ -238,18 +238,19 @@ class OdometryBuffer:
         return self._track.at(t)
 
 
-def read_tum(path: str | Path, max_gap_s: float = 12.0) -> PoseTrack:
-    """A TUM trajectory file (``t x y z qx qy qz qw``, base_link in odom) as a PoseTrack.
+def _numeric_rows(path: Path, what: str, row: str, width: int) -> list[tuple[int, list[float]]]:
+    """(line number, values) of each row of a text file of ``width`` finite numbers per
+    row (``#`` comments and blank lines skipped).
 
     Raises:
-        ValueError: naming the file and line of the first malformed row.
+        ValueError: naming the file (and line) of an unreadable file, a malformed row
+            (``row`` says what one holds) or a file without rows (``what`` it holds).
     """
-    path = Path(path)
-    rows = []
     try:
         text = path.read_text()
     except OSError as exc:
-        raise ValueError(f"{path}: cannot read odometry ({exc.strerror})") from None
+        raise ValueError(f"{path}: cannot read {what} ({exc.strerror})") from None
+    rows = []
     for n, line in enumerate(text.splitlines(), 1):
         line = line.strip()
         if not line or line.startswith("#"):
@@ -257,13 +258,24 @@ def read_tum(path: str | Path, max_gap_s: float = 12.0) -> PoseTrack:
         try:
             vals = [float(v) for v in line.split()]
         except ValueError:
-            raise ValueError(f"{path}:{n}: not a TUM row (t x y z qx qy qz qw)") from None
-        if len(vals) != 8 or not np.all(np.isfinite(vals)):
-            raise ValueError(f"{path}:{n}: expected 8 finite numbers, got {len(vals)}")
-        rows.append(vals)
+            raise ValueError(f"{path}:{n}: not a row of {row}") from None
+        if len(vals) != width or not np.all(np.isfinite(vals)):
+            raise ValueError(f"{path}:{n}: expected {width} finite numbers ({row}), got "
+                             f"{len(vals)}")
+        rows.append((n, vals))
     if not rows:
-        raise ValueError(f"{path}: no poses")
-    a = np.array(rows)
+        raise ValueError(f"{path}: no {what}")
+    return rows
+
+
+def read_tum(path: str | Path, max_gap_s: float = 12.0) -> PoseTrack:
+    """A TUM trajectory file (``t x y z qx qy qz qw``, base_link in odom) as a PoseTrack.
+
+    Raises:
+        ValueError: naming the file and line of the first malformed row.
+    """
+    a = np.array([v for _, v in _numeric_rows(Path(path), "odometry poses",
+                                              "t x y z qx qy qz qw", 8)])
     a = a[np.argsort(a[:, 0], kind="stable")]
     return PoseTrack(a[:, 0], a[:, 1:4], a[:, 4:8], max_gap_s=max_gap_s)
 
@@ -285,36 +297,21 @@ def read_pose_covariance(path: str | Path, stamps_s) -> np.ndarray:
             covariance row (within 1 microsecond).
     """
     path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read the odometry covariance ({exc.strerror})"
-                         ) from None
     stamps, covs = [], []
-    for n, line in enumerate(text.splitlines(), 1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        try:
-            vals = [float(v) for v in line.split()]
-        except ValueError:
-            raise ValueError(f"{path}:{n}: not a covariance row (t and 36 numbers)") from None
-        if len(vals) != 37 or not np.all(np.isfinite(vals)):
-            raise ValueError(f"{path}:{n}: expected t and 36 finite numbers, got "
-                             f"{len(vals)} values")
+    for n, vals in _numeric_rows(path, "odometry covariance rows",
+                                 "t and a 6x6 pose covariance", 37):
         c = np.array(vals[1:]).reshape(6, 6)[:2, :2]
         if c[0, 0] < 0 or c[1, 1] < 0:
             raise ValueError(f"{path}:{n}: negative x-y variance")
         stamps.append(vals[0])
         covs.append(0.5 * (c + c.T))
-    if not stamps:
-        raise ValueError(f"{path}: no covariance rows")
     order = np.argsort(stamps, kind="stable")
     t, cov = np.asarray(stamps)[order], np.asarray(covs)[order]
     want = np.asarray(stamps_s, float)
-    i = np.clip(np.searchsorted(t, want), 1, max(len(t) - 1, 1))
-    j = np.where(np.abs(t[i - 1] - want) <= np.abs(t[np.minimum(i, len(t) - 1)] - want),
-                 i - 1, np.minimum(i, len(t) - 1))
+    # The nearest covariance row to each stamp: the one at or after it, or the one before.
+    after = np.clip(np.searchsorted(t, want), 0, len(t) - 1)
+    before = np.clip(after - 1, 0, len(t) - 1)
+    j = np.where(np.abs(t[before] - want) < np.abs(t[after] - want), before, after)
     missing = np.flatnonzero(np.abs(t[j] - want) > 1e-6)
     if len(missing):
         raise ValueError(f"{path}: no covariance at odometry stamp {want[missing[0]]:.9f} "

@@ -256,7 +256,7 @@ def test_pose_covariance_file_gives_the_xy_block_at_each_odometry_stamp(tmp_path
         read_pose_covariance(path, [0.0, 0.75])
     bad = tmp_path / "short.txt"
     bad.write_text("0.0 1 2 3\n")
-    with pytest.raises(ValueError, match=r"short\.txt:1: expected t and 36"):
+    with pytest.raises(ValueError, match=r"short\.txt:1: expected 37 finite numbers"):
         read_pose_covariance(bad, [0.0])
     neg = tmp_path / "neg.txt"
     neg.write_text("0.0 " + " ".join(["-1.0"] + ["0.0"] * 35) + "\n")
