@@ -61,7 +61,7 @@ from darces_matcher.eval_cli import CORRECT_M, oracle_error, transform_error
 from darces_matcher.gn_generator import FAMILY, family_gn
 from darces_matcher.matcher import MatchConfig, Matcher
 from darces_matcher.simulate import iter_lns
-from darces_matcher.vote import transform_points
+from darces_matcher.vote import alignment_jacobian, transform_points
 from roi_network.records import xy
 from roi_network.transform import Rigid2D
 
@@ -151,12 +151,8 @@ def alignment_chi2(result, sim, gn_pts: np.ndarray) -> tuple[float, float]:
     true = np.flatnonzero(sim.truth_gn >= 0)
     g = gn_pts[sim.truth_gn[true]]
     odom = sim.map_T_odom.inverse().apply(g)
-    t = result.map_T_odom
-    err = t.apply(odom) - g
-    c, s = np.cos(t.yaw), np.sin(t.yaw)
-    lever = np.column_stack([-s * odom[:, 0] - c * odom[:, 1], c * odom[:, 0] - s * odom[:, 1]])
-    jac = np.concatenate([np.broadcast_to(np.eye(2), (len(odom), 2, 2)), lever[:, :, None]],
-                         axis=2)
+    err = result.map_T_odom.apply(odom) - g
+    jac = alignment_jacobian(odom, result.map_T_odom.yaw)
     cov = jac @ result.covariance @ jac.transpose(0, 2, 1)
     chi2 = np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[:, :, None])[:, :, 0])
     return float(chi2[np.argmax(sim.sigma[true])]), float(chi2.max())

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
-from darces_matcher.vote import transform_points
+from darces_matcher.vote import alignment_jacobian, transform_points
 
 #: GN candidates per LN node in the E-step.
 _K = 6
@@ -334,16 +334,10 @@ class EmModel:
         cand = self.candidates(yaw, t, 0.0)
         cand.set_tau(0.0)
         resp, _ = self.responsibilities(yaw, *cand.centred(yaw, t), cand)
-        c, s = math.cos(yaw), math.sin(yaw)
-        x, y = self.pts[:, 0], self.pts[:, 1]
-        rot = np.column_stack([c * x - s * y, s * x + c * y])
-        # d(T x)/d(tx, ty, yaw) = [[1, 0, -ry], [0, 1, rx]], per node.
-        jac = np.zeros((len(self.pts), 2, 3))
-        jac[:, 0, 0] = jac[:, 1, 1] = 1.0
-        jac[:, 0, 2], jac[:, 1, 2] = -rot[:, 1], rot[:, 0]
+        jac = alignment_jacobian(self.pts, yaw)
         matched = np.bincount(cand.rows, resp, minlength=len(self.pts))
         complete = np.einsum("n,nai,naj->ij", matched / self.var, jac, jac)
-        residual = self.gn_pts[cand.gn] - (rot[cand.rows] + t)
+        residual = self.gn_pts[cand.gn] - transform_points(yaw, t, self.pts[cand.rows])
         score = np.einsum("kai,ka->ki", jac[cand.rows], residual) / self.var[cand.rows, None]
         mean = np.zeros((len(self.pts), 3))
         np.add.at(mean, cand.rows, resp[:, None] * score)

@@ -436,6 +436,17 @@ def covering_covariance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return 0.5 * (c + c.T)
 
 
+def alignment_jacobian(ln_pts: np.ndarray, yaw: float) -> np.ndarray:
+    """(N, 2, 3) derivative of each mapped LN node R(yaw) p + t with respect to the
+    alignment's (x, y, yaw): ``[[1, 0, -ry], [0, 1, rx]]`` with (rx, ry) = R(yaw) p."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    x, y = ln_pts[:, 0], ln_pts[:, 1]
+    jac = np.zeros((len(ln_pts), 2, 3))
+    jac[:, 0, 0] = jac[:, 1, 1] = 1.0
+    jac[:, 0, 2], jac[:, 1, 2] = -(s * x + c * y), c * x - s * y
+    return jac
+
+
 def predicted_variance(ln_pts: np.ndarray, yaw: float, cov: np.ndarray) -> np.ndarray:
     """Per-axis variance (m^2) of LN nodes mapped by a fit with (x, y, yaw) covariance."""
     c, s = math.cos(yaw), math.sin(yaw)
