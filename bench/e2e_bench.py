@@ -44,8 +44,9 @@ import numpy as np
 import psutil
 import yaml
 
+from roi_network.files import write_atomic
 from rover_bringup.evaluation import MAX_STAMP_DIFF_S, PAPER_FINAL_ERROR_M, read_tum
-from rover_bringup.run_outputs import LOCAL_NETWORK, VO_TUM, read_records_csv, write_atomic
+from rover_bringup.run_outputs import LOCAL_NETWORK, VO_TUM, read_records_csv
 
 RESULTS = Path(__file__).resolve().parent / "results"
 #: Metrics of the continuous estimate aggregated over bags.

@@ -74,8 +74,9 @@ def rgbd_odometry(bag: Path, out: Path, max_depth_m: float = 20.0, max_depth_dif
                   levels: int = 4, method: str = "rgbd") -> dict:
     import cv2
 
+    from roi_network.files import write_atomic
     from rover_vo.state import OdomState
-    from rover_vo.tum import write_atomic, write_tum
+    from rover_vo.tum import write_tum
 
     if not hasattr(cv2, "rgbd"):
         raise RuntimeError(f"cv2 from {cv2.__file__} has no rgbd module (needs {CONTRIB})")

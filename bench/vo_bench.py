@@ -30,8 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
+from roi_network.files import write_atomic
 from rover_vo.evaluation import evaluate, plot_trajectories
-from rover_vo.tum import read_tum_array, write_atomic
+from rover_vo.tum import read_tum_array
 
 RESULTS = Path(__file__).resolve().parent / "results"
 MODES = ("paper", "vo", "keyframes")

@@ -14,6 +14,7 @@ from atacama_sim.config import WorldConfig
 from roi_network.geojson import write_geojson
 from roi_network.network import MapFrame, RoiNetwork
 from roi_network.records import ROI_DTYPE
+from roi_network.trajectory import write_tum as write_tum_file
 
 
 def catalogue_records(catalogue: np.ndarray) -> np.ndarray:
@@ -39,9 +40,7 @@ def write_truth_rois(catalogue: np.ndarray, cfg: WorldConfig, origin: tuple[floa
 
 def write_tum(path: Path, t: np.ndarray, p: np.ndarray, q: np.ndarray) -> None:
     """TUM trajectory: ``t x y z qx qy qz qw`` per line (t: bag time = header stamp, s)."""
-    data = np.column_stack([t, p, q])
-    np.savetxt(path, data, fmt=["%.9f"] + ["%.6f"] * 3 + ["%.9f"] * 4,
-               header="t x y z qx qy qz qw (map frame, base_link)")
+    write_tum_file(path, t, p, q, header="t x y z qx qy qz qw (map frame, base_link)")
 
 
 def rover_params(rig: StereoRig, cfg: WorldConfig) -> dict[str, Any]:

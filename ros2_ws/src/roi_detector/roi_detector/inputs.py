@@ -16,6 +16,14 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation, Slerp
 
+# POSE_COVARIANCE_FILE and write_tum are this package's names for the shared ones.
+from roi_network.trajectory import (  # noqa: F401
+    POSE_COVARIANCE_FILE,
+    read_pose_covariance_rows,
+    read_tum_rows,
+    write_tum,
+)
+
 LEFT_IMAGE = "/stereo/left/image_raw/compressed"
 RIGHT_IMAGE = "/stereo/right/image_raw/compressed"
 LEFT_INFO = "/stereo/left/camera_info"
@@ -238,52 +246,15 @@ class OdometryBuffer:
         return self._track.at(t)
 
 
-def _numeric_rows(path: Path, what: str, row: str, width: int) -> list[tuple[int, list[float]]]:
-    """(line number, values) of each row of a text file of ``width`` finite numbers per
-    row (``#`` comments and blank lines skipped).
-
-    Raises:
-        ValueError: naming the file (and line) of an unreadable file, a malformed row
-            (``row`` says what one holds) or a file without rows (``what`` it holds).
-    """
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read {what} ({exc.strerror})") from None
-    rows = []
-    for n, line in enumerate(text.splitlines(), 1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        try:
-            vals = [float(v) for v in line.split()]
-        except ValueError:
-            raise ValueError(f"{path}:{n}: not a row of {row}") from None
-        if len(vals) != width or not np.all(np.isfinite(vals)):
-            raise ValueError(f"{path}:{n}: expected {width} finite numbers ({row}), got "
-                             f"{len(vals)}")
-        rows.append((n, vals))
-    if not rows:
-        raise ValueError(f"{path}: no {what}")
-    return rows
-
-
 def read_tum(path: str | Path, max_gap_s: float = 12.0) -> PoseTrack:
     """A TUM trajectory file (``t x y z qx qy qz qw``, base_link in odom) as a PoseTrack.
 
     Raises:
         ValueError: naming the file and line of the first malformed row.
     """
-    a = np.array([v for _, v in _numeric_rows(Path(path), "odometry poses",
-                                              "t x y z qx qy qz qw", 8)])
+    a = read_tum_rows(path)
     a = a[np.argsort(a[:, 0], kind="stable")]
     return PoseTrack(a[:, 0], a[:, 1:4], a[:, 4:8], max_gap_s=max_gap_s)
-
-
-#: The pose covariance file ``rover_vo odometry`` writes beside its ``vo.tum`` (and
-#: ``globloc run`` beside a run's): ``t`` and the 36 row-major entries of each pose's
-#: 6x6 covariance ([x y z rx ry rz] in odom; m^2, rad^2).
-POSE_COVARIANCE_FILE = "vo_covariance.txt"
 
 
 def read_pose_covariance(path: str | Path, stamps_s) -> np.ndarray:
@@ -296,17 +267,9 @@ def read_pose_covariance(path: str | Path, stamps_s) -> np.ndarray:
             not finite or has a negative variance, or the first odometry stamp with no
             covariance row (within 1 microsecond).
     """
-    path = Path(path)
-    stamps, covs = [], []
-    for n, vals in _numeric_rows(path, "odometry covariance rows",
-                                 "t and a 6x6 pose covariance", 37):
-        c = np.array(vals[1:]).reshape(6, 6)[:2, :2]
-        if c[0, 0] < 0 or c[1, 1] < 0:
-            raise ValueError(f"{path}:{n}: negative x-y variance")
-        stamps.append(vals[0])
-        covs.append(0.5 * (c + c.T))
-    order = np.argsort(stamps, kind="stable")
-    t, cov = np.asarray(stamps)[order], np.asarray(covs)[order]
+    t, cov = read_pose_covariance_rows(path)
+    order = np.argsort(t, kind="stable")
+    t, cov = t[order], cov[order][:, :2, :2]
     want = np.asarray(stamps_s, float)
     # The nearest covariance row to each stamp: the one at or after it, or the one before.
     after = np.clip(np.searchsorted(t, want), 0, len(t) - 1)
@@ -317,15 +280,3 @@ def read_pose_covariance(path: str | Path, stamps_s) -> np.ndarray:
         raise ValueError(f"{path}: no covariance at odometry stamp {want[missing[0]]:.9f} "
                          f"({len(missing)} of {len(want)} stamps have none)")
     return cov[j]
-
-
-def write_tum(path: str | Path, stamps_s, positions, quats_xyzw, header: str = "") -> None:
-    """Write a TUM file atomically."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    lines = [f"# {header}"] if header else []
-    for t, p, q in zip(stamps_s, positions, quats_xyzw, strict=True):
-        lines.append(f"{t:.9f} " + " ".join(f"{v:.6f}" for v in p) + " "
-                     + " ".join(f"{v:.9f}" for v in q))
-    tmp.write_text("\n".join(lines) + "\n")
-    tmp.replace(path)

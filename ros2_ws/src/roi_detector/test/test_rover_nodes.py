@@ -22,6 +22,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from roi_network.geojson import read_geojson
 from roi_network.pointcloud import from_pointcloud2, to_pointcloud2
 from roi_network.records import ROCK, empty_records
+from roi_network.trajectory import pose_covariance_row
 
 pytestmark = pytest.mark.ros
 
@@ -99,7 +100,7 @@ def test_cli_ln_and_eval_on_tiny(tiny_bag, tmp_path):
     poses = np.loadtxt(odom, comments="#", ndmin=2)
     cov = np.diag([9.0, 9.0, 1.0, 1e-3, 1e-3, 1e-3]).ravel()
     (tmp_path / "vo_covariance.txt").write_text("".join(
-        f"{t:.9f} " + " ".join(f"{v:.6e}" for v in cov) + "\n" for t in poses[:, 0]))
+        pose_covariance_row(t, cov) + "\n" for t in poses[:, 0]))
     ln_cov = tmp_path / "ln_cov.geojson"
     r = run("ln", str(tiny_bag), "--odometry", str(odom), "--out", str(ln_cov), "--model",
             "none", "--min-obs", "1")

@@ -7,8 +7,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from roi_network.files import write_atomic
 from rover_bringup.evaluation import evaluate, load_run, report_markdown, summary_lines
-from rover_bringup.run_outputs import write_atomic
 
 REPORT_JSON = 'report.json'
 REPORT_MD = 'report.md'

@@ -25,18 +25,23 @@ temporary file renamed), so a reader never sees half a file.
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
+from roi_network.files import write_atomic
+from roi_network.trajectory import (
+    POSE_COVARIANCE_FIELDS,
+    POSE_COVARIANCE_FILE,
+    pose_covariance_row,
+    tum_row,
+)
 from rover_bringup.errors import GloblocError
 
 OUTPUTS = 'outputs'
 GLOBAL_POSE_TUM = 'global_pose.tum'
 GLOBAL_POSE_COV = 'global_pose_cov.tsv'
 VO_TUM = 'vo.tum'
-VO_COV = 'vo_covariance.txt'
+VO_COV = POSE_COVARIANCE_FILE
 ALIGNMENT = 'alignment.tsv'
 EVENTS = 'matcher_events.tsv'
 LOCAL_NETWORK = 'local_network.csv'
@@ -44,25 +49,12 @@ _TOPICS = ('/global_pose', '/vo/odometry', '/global_alignment', '/matcher/status
            '/local_network')
 
 
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same directory."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f'.{path.name}.')
-    try:
-        with os.fdopen(fd, 'w') as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def _stamp(header) -> float:
     return header.stamp.sec + 1e-9 * header.stamp.nanosec
 
 
 def _tum_line(t: float, p, q) -> str:
-    return (f'{t:.9f} {p.x:.6f} {p.y:.6f} {p.z:.6f} '
-            f'{q.x:.9f} {q.y:.9f} {q.z:.9f} {q.w:.9f}\n')
+    return tum_row(t, (p.x, p.y, p.z), (q.x, q.y, q.z, q.w)) + '\n'
 
 
 def _lines(header: str, rows: Iterable[str]) -> str:
@@ -143,8 +135,8 @@ def export_outputs(run_dir: Path) -> dict[str, int]:
                 elif conn.topic == '/vo/odometry':
                     vo.append(_tum_line(_stamp(msg.header), msg.pose.pose.position,
                                         msg.pose.pose.orientation))
-                    vo_cov.append(f'{_stamp(msg.header):.9f} '
-                                  + ' '.join(f'{v:.6e}' for v in msg.pose.covariance) + '\n')
+                    vo_cov.append(pose_covariance_row(_stamp(msg.header),
+                                                      msg.pose.covariance) + '\n')
                 elif conn.topic == '/global_alignment':
                     r, tr = msg.transform.rotation, msg.transform.translation
                     yaw = 2.0 * math.atan2(r.z, r.w)
@@ -172,8 +164,7 @@ def export_outputs(run_dir: Path) -> dict[str, int]:
     write_atomic(run_dir / VO_TUM,
                  _lines('# t x y z qx qy qz qw (/vo/odometry, odom frame, base_link)\n', vo))
     write_atomic(run_dir / VO_COV,
-                 _lines('# t, pose covariance 6x6 row-major ([x y z rx ry rz] in odom; m^2, '
-                        'rad^2) (/vo/odometry)\n', vo_cov))
+                 _lines(f'# {POSE_COVARIANCE_FIELDS} (/vo/odometry)\n', vo_cov))
     write_atomic(run_dir / ALIGNMENT,
                  _lines('# t tx ty yaw (/global_alignment, map -> odom; m, rad)\n', alignment))
     write_atomic(run_dir / EVENTS,

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from roi_network.files import write_atomic
+from roi_network.trajectory import POSE_COVARIANCE_FILE
 from rover_vo.bag import BagError, read_messages, rover_params
 from rover_vo.config import (
     MODES,
@@ -30,7 +32,7 @@ from rover_vo.config import (
     read_ros_params,
 )
 from rover_vo.estimator import VoEstimator
-from rover_vo.tum import write_atomic, write_tum
+from rover_vo.tum import write_pose_covariance, write_tum
 
 
 def peak_rss_mb() -> float:
@@ -84,14 +86,6 @@ def run_odometry(bag_dir: str | Path, config: VoConfig, progress: bool = False) 
             "config": flat_parameters(est.cfg)}
 
 
-def write_covariance(path: Path, outputs: list) -> None:
-    """``t`` and the 36 row-major entries of each pose covariance ([x y z rx ry rz], odom)."""
-    lines = ["# t, pose covariance 6x6 row-major ([x y z rx ry rz] in odom; m^2, rad^2)"]
-    for o in outputs:
-        lines.append(f"{o.state.t:.9f} " + " ".join(f"{v:.6e}" for v in o.state.cov.ravel()))
-    write_atomic(path, "\n".join(lines) + "\n")
-
-
 def cmd_odometry(args: argparse.Namespace) -> int:
     bag = Path(args.bag_dir)
     if args.threads:
@@ -110,7 +104,8 @@ def cmd_odometry(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     write_tum(out / "vo.tum", [o.state for o in outputs],
               header=f"rover_vo {config.mode}: base_link in odom, from {bag}")
-    write_covariance(out / "vo_covariance.txt", outputs)
+    write_pose_covariance(out / POSE_COVARIANCE_FILE, [o.state for o in outputs],
+                          note=f"rover_vo {config.mode}")
     sources: dict[str, int] = {}
     for o in outputs:
         sources[o.source] = sources.get(o.source, 0) + 1

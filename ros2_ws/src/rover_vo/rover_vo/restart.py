@@ -15,9 +15,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from roi_network.files import keep_aside
+from roi_network.files import keep_aside, write_atomic
 from rover_vo.estimator import VoEstimator
-from rover_vo.tum import write_atomic
 
 
 def save_state(path: str | Path, snapshot: dict[str, Any]) -> None:

@@ -1,38 +1,38 @@
-"""TUM trajectory files (``t x y z qx qy qz qw``), written atomically."""
+"""rover_vo's states as the shared trajectory files (:mod:`roi_network.trajectory`): TUM
+poses and their pose covariance, written atomically."""
 
 from __future__ import annotations
 
-import os
 from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from roi_network.trajectory import (
+    POSE_COVARIANCE_FIELDS,
+    pose_covariance_row,
+    tum_row,
+    write_rows,
+)
 from rover_vo.state import OdomState
 
 
 def tum_line(state: OdomState) -> str:
     """One TUM line of ``odom_T_base``: stamp (s, 9 decimals), position (m), quaternion."""
-    q = Rotation.from_matrix(state.R).as_quat()
-    p = state.p
-    return (f"{state.t:.9f} {p[0]:.6f} {p[1]:.6f} {p[2]:.6f} "
-            f"{q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}")
-
-
-def write_atomic(path: str | Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename (no partial file)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
+    return tum_row(state.t, state.p, Rotation.from_matrix(state.R).as_quat())
 
 
 def write_tum(path: str | Path, states: Iterable[OdomState], header: str = "") -> None:
     """Write the states as a TUM file (base_link in odom), atomically."""
-    lines = [f"# {header}"] if header else []
-    lines += [tum_line(s) for s in states]
-    write_atomic(path, "\n".join(lines) + "\n")
+    write_rows(path, header, (tum_line(s) for s in states))
+
+
+def write_pose_covariance(path: str | Path, states: Iterable[OdomState], note: str = "") -> None:
+    """Write each state's pose covariance (:data:`~roi_network.trajectory.POSE_COVARIANCE_FILE`
+    format: ``t`` and its 36 row-major entries, [x y z rx ry rz] in odom), atomically."""
+    header = POSE_COVARIANCE_FIELDS + (f" ({note})" if note else "")
+    write_rows(path, header, (pose_covariance_row(s.t, s.cov) for s in states))
 
 
 def read_tum_array(path: str | Path) -> np.ndarray:
