@@ -59,12 +59,13 @@ def _installed_model() -> Path | None:
 
 def load_classifier(path: str | None, cfg: RoverConfig | None = None):
     """The rover model of ``path`` (default: the committed model) when ``cfg`` runs a
-    classifier (per_pair, or far rocks with ``classify_far_rocks``); else, or for
-    'none', None.
+    classifier (per_pair, or far or map rocks with ``classify_far_rocks`` /
+    ``classify_map_rocks``); else, or for 'none', None.
 
     per_pair uses the committed model if it holds the per-pair classifiers (else none:
-    every candidate kept); ``classify_far_rocks`` asks for a classifier, so a missing
-    one is an error; a model named by ``path`` must hold those of ``cfg``'s method.
+    every candidate kept); ``classify_far_rocks`` and ``classify_map_rocks`` ask for a
+    classifier, so a missing one is an error; a model named by ``path`` must hold those
+    of ``cfg``'s method.
 
     Raises:
         ValueError: an unreadable model, or none with the classifiers ``cfg`` needs.
@@ -77,9 +78,11 @@ def load_classifier(path: str | None, cfg: RoverConfig | None = None):
         return None
     model = Path(path) if path else _installed_model()
     if model is None:
-        if cfg.classifies_far_rocks:
-            raise ValueError(f"classify_far_rocks: no rover model (none at {DEFAULT_MODEL}; "
-                             "train one: make rover-model)")
+        for need, on in (("classify_far_rocks", cfg.classifies_far_rocks),
+                         ("classify_map_rocks", cfg.classifies_map_rocks)):
+            if on:
+                raise ValueError(f"{need}: no rover model (none at {DEFAULT_MODEL}; "
+                                 "train one: make rover-model)")
         return None
     clf = RoverClassifier.load(model)
     if not path and cfg.method == "per_pair" and not clf.per_pair:
@@ -172,6 +175,7 @@ def _cmd_ln(args) -> int:
     cfg = RoverConfig(method=args.method, tracker=TrackerConfig(min_obs=args.min_obs),
                       ln=LnConfig(min_obs=args.min_obs), far_rocks=args.far_rocks,
                       classify_far_rocks=args.classify_far_rocks,
+                      classify_map_rocks=args.classify_map_rocks,
                       far=FarRockConfig(classified=args.far_classified),
                       elevation_map=outcrop_rule(args.outcrops))
     cov_file = odometry_covariance_file(args.odometry, args.covariance)
@@ -202,14 +206,14 @@ def _cmd_eval(args) -> int:
 
 
 def _cmd_train(args) -> int:
-    from roi_detector.training import train_far_rock_model, train_rover_model
+    from roi_detector.training import train_rock_rovers, train_rover_model
 
     if args.method == "per_pair":
         summary = train_rover_model(args.bags, args.out, every=args.every, k=args.k)
     else:
-        summary = train_far_rock_model(args.bags, args.out, k=args.k,
-                                       population=args.population, jobs=args.jobs,
-                                       kind=args.kind, ignore_near_m=args.ignore_near)
+        summary = train_rock_rovers(args.bags, args.out, k=args.k,
+                                    population=args.population, jobs=args.jobs,
+                                    kind=args.kind, ignore_near_m=args.ignore_near)
     print(json.dumps(summary, indent=2))
     return 0
 
@@ -259,6 +263,11 @@ def main(argv: list[str] | None = None) -> int:
                    default=RoverConfig().classify_far_rocks,
                    help="far rocks: the model's far-rock Rock Rover decides them (the "
                    "paper's Sec. 4.3 classifier)")
+    p.add_argument("--classify-map-rocks", action=argparse.BooleanOptionalAction,
+                   default=RoverConfig().classify_map_rocks,
+                   help="elevation_map: the model's map-rock Rock Rover decides which of "
+                   "the map's rock regions are rocks (the paper's Sec. 4.3 classifier on "
+                   "the map's measurements)")
     p.add_argument("--far-classified", default=FarRockConfig().classified,
                    choices=FAR_POPULATIONS,
                    help="classified far rocks: the Rock Rover decides every measured track "

@@ -95,6 +95,12 @@ class RoiDetectorNode(Node):
             d(description="far rocks: the model's far-rock Rock Rover decides them "
               "(the paper's Sec. 4.3 classifier; see far_classified)"),
         ).value
+        classify_map = self.declare_parameter(
+            "classify_map_rocks", RoverConfig().classify_map_rocks,
+            d(description="elevation_map method: the model's map-rock Rock Rover decides "
+              "which of the map's rock regions are rocks (the paper's Sec. 4.3 classifier "
+              "on the map's measurements)"),
+        ).value
         far_classified = self.declare_parameter(
             "far_classified", FarRockConfig().classified,
             d(description=f"one of {FAR_POPULATIONS}: with classify_far_rocks, the Rock "
@@ -124,6 +130,7 @@ class RoiDetectorNode(Node):
             raise ValueError(f"parameter 'outcrops': {e}") from None
         cfg = RoverConfig(method=method, tracker=TrackerConfig(min_obs=int(min_obs)),
                           far_rocks=bool(far_rocks), classify_far_rocks=bool(classify_far),
+                          classify_map_rocks=bool(classify_map),
                           far=FarRockConfig(classified=str(far_classified)),
                           elevation_map=emap_cfg)
         classifier = load_classifier(model or None, cfg)

@@ -189,6 +189,9 @@ class ElevationMapConfig:
             error went from 0.38 to 0.20 m on atacama_1km_s1 (docs/roi_detector.md,
             Measured). The area and the other measurements are the footprint's either
             way.
+        map_rock_min_score: with a map-rock Rock Rover (``ElevationMap(rock_classifier=)``),
+            a rock is reported while its probability at its latest measurement is above
+            this.
     """
 
     cell_m: float = 0.1
@@ -229,6 +232,7 @@ class ElevationMapConfig:
     rock_footprint_fraction: float = 0.35
     rock_pale_seed_height_m: float = 0.45
     rock_centre: str = "upper"
+    map_rock_min_score: float = 0.5
 
     def __post_init__(self) -> None:
         if self.rock_centre not in ROCK_CENTRES:
@@ -257,6 +261,22 @@ def outcrop_rule(name: str, cfg: ElevationMapConfig | None = None) -> ElevationM
     return replace(cfg or ElevationMapConfig(), **OUTCROP_RULES[name])
 
 
+#: The features of a map rock region (:meth:`ElevationMap._rock_features`), the map-rock
+#: Rock Rover's input: its measurement (height, log area, relief ratio, log major axis,
+#: minor over major, cells over hull, the highest cell less its spread, the median spread
+#: across views, the median height over the rock's), its colour (median and 10th
+#: percentile relative brightness, dark share, the ring's brightness less its own, median
+#: relative saturation), its ground (observed share of the ring, the ring plane's
+#: residual spread and slope), the dark bumpy share of the cells 0.5-2.5 m around it,
+#: whether it is a pale region, and how it was observed (log of the most pairs, of the
+#: median pairs and of the median weight of its cells).
+MAP_ROCK_FEATURES: tuple[str, ...] = (
+    "height_m", "log_area_m2", "relief", "log_major_m", "minor_over_major", "hull_fill",
+    "peak_low_m", "spread_m", "median_over_height", "value", "value_p10", "dark_share",
+    "ring_contrast", "saturation", "ring_seen", "ring_roughness_m", "ring_slope",
+    "clutter_share", "pale", "log_pairs_max", "log_pairs_median", "log_weight_median")
+
+
 @dataclass
 class MapRoi:
     """An ROI of the elevation map (odom)."""
@@ -275,6 +295,11 @@ class MapRoi:
     n_pairs: int = 0
     odom_cov: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
     last_t: float = 0.0
+    #: A rock's :data:`MAP_ROCK_FEATURES` at its latest measurement (None: an outcrop,
+    #: or a record built elsewhere).
+    features: np.ndarray | None = None
+    #: The map-rock Rock Rover's probability at that measurement (NaN: not classified).
+    score: float = float("nan")
 
 
 class ElevationMap:
@@ -282,10 +307,16 @@ class ElevationMap:
 
     Args:
         cfg: parameters.
+        rock_classifier: the map-rock Rock Rover, (N, F) :data:`MAP_ROCK_FEATURES` ->
+            (N,) probability of a rock; each rock region measured is scored, and a rock
+            is reported while its latest score is above ``cfg.map_rock_min_score``
+            (:meth:`consistent`). None: the rules alone decide.
     """
 
-    def __init__(self, cfg: ElevationMapConfig = ElevationMapConfig()) -> None:
+    def __init__(self, cfg: ElevationMapConfig = ElevationMapConfig(),
+                 rock_classifier: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
         self.cfg = cfg
+        self.rock_classifier = rock_classifier
         self.n = round(cfg.window_m / cfg.cell_m)
         self.origin = None  # odom x, y of cell (0, 0)'s corner
         # Per cell, over the pairs that saw it: the sum of the pairs' weights, of weight *
@@ -431,7 +462,11 @@ class ElevationMap:
         val = None
         if c.rock_dark_value > 0 and self.nb.any():
             val = self.bv[si, sj] / np.maximum(self.nb[si, sj], 1)
-        out += self._rocks(rel, np.where(seen, rel - sd, 0.0), z, seen, off, val)
+        colour = None
+        if self.nb.any():
+            nb = np.maximum(self.nb[si, sj], 1)
+            colour = (self.bv[si, sj] / nb, self.bs[si, sj] / nb)
+        out += self._rocks(rel, np.where(seen, rel - sd, 0.0), z, seen, off, val, colour)
         if self.nb.any():
             out += self._outcrops(rel, ground, seen, si, sj, off)
         return out
@@ -479,7 +514,7 @@ class ElevationMap:
                       4 * float(np.sqrt(w[1])), 4 * float(np.sqrt(w[0])),
                       float(np.arctan2(v[1, 1], v[0, 1])), n_pairs=n_pairs)
 
-    def _rocks(self, rel, rel_low, z, seen, off, val=None) -> list[MapRoi]:
+    def _rocks(self, rel, rel_low, z, seen, off, val=None, colour=None) -> list[MapRoi]:
         c = self.cfg
         seeds = rel_low > c.rock_seed_height_m
         grow = rel > c.rock_grow_height_m
@@ -570,10 +605,78 @@ class ElevationMap:
             half = max(int(np.count_nonzero(upper)), 1) * c.cell_m**2
             relief = height / np.sqrt(4 * half / np.pi)
             if relief >= c.rock_min_relief_ratio:
+                r.features = self._rock_features(
+                    r, lab == k, ring_seen, pad, plane, above, rel, rel_low, seen, off,
+                    colour, relief, len(cells), bool(is_pale[k]))
+                if self.rock_classifier is not None:
+                    r.score = float(self.rock_classifier(r.features[None])[0])
                 out.append(r)
             trace("rock" if relief >= c.rock_min_relief_ratio else "flat", height_m=height,
                   area_m2=r.area_m2, relief=float(relief))
         return out
+
+    def _rock_features(self, r: MapRoi, reg_full: np.ndarray, ring_seen: np.ndarray,
+                       pad: tuple, plane: np.ndarray, above: np.ndarray, rel: np.ndarray,
+                       rel_low: np.ndarray, seen: np.ndarray, off: np.ndarray,
+                       colour: tuple | None, relief: float, n_cells: int,
+                       pale: bool) -> np.ndarray:
+        """The :data:`MAP_ROCK_FEATURES` of a rock region (window arrays; ``reg_full``
+        the region's mask over the window, ``ring_seen`` the observed ring over ``pad``,
+        ``colour`` the relative value and saturation maps or None)."""
+        c = self.cfg
+        val, sat = colour if colour is not None else (None, None)
+        reg = reg_full[pad]
+        i0, j0 = off
+        npairs = self.npairs[i0:i0 + rel.shape[0], j0:j0 + rel.shape[1]]
+        weight = self.w[i0:i0 + rel.shape[0], j0:j0 + rel.shape[1]]
+        sd = (rel - rel_low)[pad][reg]
+        nan = float("nan")
+        if val is not None:
+            v_reg = val[pad][reg]
+            v_ring = val[pad][ring_seen]
+            value = float(np.median(v_reg))
+            dark = float(np.mean(v_reg < c.rock_dark_value))
+            contrast = float(np.median(v_ring)) - value if len(v_ring) else nan
+            value_lo = float(np.percentile(v_reg, 10))
+        else:
+            value = dark = contrast = value_lo = nan
+        saturation = float(np.median(sat[pad][reg])) if sat is not None else nan
+        # The ground's roughness and slope under the ring's plane.
+        ij = np.argwhere(ring_seen)
+        zr = rel[pad][ring_seen]
+        resid = zr - (plane[0] * ij[:, 0] + plane[1] * ij[:, 1])
+        roughness = float(np.std(resid - np.median(resid)))
+        slope = float(np.hypot(plane[0], plane[1]) / c.cell_m)
+        # Clutter around it: the share of the observed cells 0.5-2.5 m outside the region
+        # that stand above the grow height and are dark (a field of small rocks, which
+        # the map can merge into one false rock, is a crowd of such cells).
+        near = round(0.5 / c.cell_m)
+        far = round(2.5 / c.cell_m)
+        rows, cols = np.nonzero(reg_full)
+        box = (slice(max(rows.min() - far, 0), rows.max() + far + 1),
+               slice(max(cols.min() - far, 0), cols.max() + far + 1))
+        rb = reg_full[box]
+        annulus = ndimage.binary_dilation(rb, iterations=far) & \
+            ~ndimage.binary_dilation(rb, iterations=near) & seen[box]
+        bumpy = rel[box] > c.rock_grow_height_m
+        if val is not None:
+            bumpy &= val[box] < (c.rock_dark_value or 0.55)
+        clutter = float(bumpy[annulus].mean()) if annulus.any() else 0.0
+        hull_fill = n_cells * c.cell_m**2 / max(r.area_m2, 1e-6)
+        feats = np.array([
+            r.height_m, np.log(r.area_m2), relief, np.log(max(r.major_m, 1e-3)),
+            r.minor_m / max(r.major_m, 1e-3), hull_fill, float(np.max(rel_low[pad][reg])),
+            float(np.median(sd)), float(np.percentile(above, 50)) / max(r.height_m, 1e-3),
+            value, value_lo, dark, contrast, saturation,
+            float(ring_seen.sum()) / max(float(ndimage.binary_dilation(
+                reg, iterations=5).sum() - reg.sum()), 1.0),
+            roughness, slope, clutter, float(pale),
+            np.log1p(float(npairs[pad][reg].max())), np.log1p(float(np.median(npairs[pad][reg]))),
+            np.log1p(float(np.median(weight[pad][reg]))),
+        ], np.float32)
+        # A map without colour leaves the colour features undefined: 0, as the classifier
+        # reads them (a model is trained on maps with colour).
+        return np.nan_to_num(feats, nan=0.0)
 
     def _trace_region(self, cells: np.ndarray, verdict: str, /, **measured) -> None:
         """Report a rock region (cell indices in the window) to :attr:`trace`, if set."""
@@ -666,16 +769,20 @@ class ElevationMap:
         # is cut at their border once the rover has passed it.
         if r.label != OUTCROP or r.area_m2 >= best.area_m2:
             for name in ("xy", "z", "area_m2", "height_m", "major_m", "minor_m",
-                         "angle_rad", "odom_cov", "last_t", "n_pairs"):
+                         "angle_rad", "odom_cov", "last_t", "n_pairs", "features", "score"):
                 setattr(best, name, getattr(r, name))
         best.rounds, best.examined = r.rounds, r.examined
         return best.id
 
     def consistent(self) -> list[MapRoi]:
         """The ROIs the map reports: found in at least ``min_rounds`` rounds and
-        ``min_hit_ratio`` of the rounds that examined their cells."""
-        return [r for r in self.rois if r.rounds >= self.cfg.min_rounds
-                and r.rounds >= self.cfg.min_hit_ratio * r.examined]
+        ``min_hit_ratio`` of the rounds that examined their cells, and, a rock scored by
+        the map-rock Rock Rover, scoring above ``map_rock_min_score`` at its latest
+        measurement."""
+        c = self.cfg
+        return [r for r in self.rois if r.rounds >= c.min_rounds
+                and r.rounds >= c.min_hit_ratio * r.examined
+                and not r.score <= c.map_rock_min_score]
 
     def to_records(self, rois: list[MapRoi] | None = None) -> np.ndarray:
         """ROI records (odom) of ``rois`` (default: :meth:`consistent`) with covariance:
@@ -691,7 +798,8 @@ class ElevationMap:
             rec[i]["x"], rec[i]["y"], rec[i]["z"] = r.xy[0], r.xy[1], r.z
             rec[i]["area_m2"], rec[i]["height_m"] = r.area_m2, r.height_m
             rec[i]["major_m"], rec[i]["minor_m"] = r.major_m, r.minor_m
-            rec[i]["angle_rad"], rec[i]["score"] = r.angle_rad, 1.0
+            rec[i]["angle_rad"] = r.angle_rad
+            rec[i]["score"] = r.score if np.isfinite(r.score) else 1.0
             rec[i]["cov_xx"] = s2 + r.odom_cov[0, 0]
             rec[i]["cov_xy"] = r.odom_cov[0, 1]
             rec[i]["cov_yy"] = s2 + r.odom_cov[1, 1]

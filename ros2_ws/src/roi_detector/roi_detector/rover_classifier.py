@@ -36,6 +36,10 @@ CLASSIFIER_NAMES = {ROCK: "rock_rover", OUTCROP: "outcrop_rover"}
 #: The elevation_map method's: Rock Rover on the far rocks' candidates
 #: (:func:`roi_detector.far_rocks.far_rock_features`).
 FAR_ROCK_CLASSIFIER = "far_rock_rover"
+#: The name of the map rocks' Rock Rover in a rover model (elevation_map method): it
+#: decides which rock regions of the elevation map are rocks, on their
+#: :data:`~roi_detector.elevation_map.MAP_ROCK_FEATURES`.
+MAP_ROCK_CLASSIFIER = "map_rock_rover"
 
 
 def _region(c: Candidate) -> Region:
@@ -107,6 +111,15 @@ class RoverClassifier:
         """The model holds the far rocks' Rock Rover."""
         return FAR_ROCK_CLASSIFIER in self.classifiers
 
+    @property
+    def map_rocks(self) -> bool:
+        """The model holds the map rocks' Rock Rover."""
+        return MAP_ROCK_CLASSIFIER in self.classifiers
+
+    def map_rock_proba(self, x: np.ndarray) -> np.ndarray:
+        """(N,) probability that map rock regions of features ``x`` are rocks."""
+        return self.classifiers[MAP_ROCK_CLASSIFIER].predict_proba(x)
+
     def far_rock_proba(self, x: np.ndarray) -> np.ndarray:
         """(N,) Rock Rover vote share of far-rock candidates' features."""
         return self.classifiers[FAR_ROCK_CLASSIFIER].predict_proba(x)
@@ -136,10 +149,12 @@ class RoverClassifier:
 
         classifiers, meta = load_classifiers(path)
         per_pair = [n for n in CLASSIFIER_NAMES.values() if n in classifiers]
-        if FAR_ROCK_CLASSIFIER not in classifiers and len(per_pair) < len(CLASSIFIER_NAMES):
+        if FAR_ROCK_CLASSIFIER not in classifiers and MAP_ROCK_CLASSIFIER not in classifiers \
+                and len(per_pair) < len(CLASSIFIER_NAMES):
             raise ModelFileError(
                 f"{path}: not a rover model (holds {sorted(classifiers)}; expected "
-                f"'{FAR_ROCK_CLASSIFIER}' and/or {sorted(CLASSIFIER_NAMES.values())})")
+                f"'{FAR_ROCK_CLASSIFIER}', '{MAP_ROCK_CLASSIFIER}' and/or "
+                f"{sorted(CLASSIFIER_NAMES.values())})")
         if 0 < len(per_pair) < len(CLASSIFIER_NAMES):
             raise ModelFileError(f"{path}: per_pair classifiers incomplete (holds {per_pair})")
         prov = meta.get("provenance", {})

@@ -67,12 +67,16 @@ class RoverConfig:
             thresholds (``far.classified``). On by default since 2026-11-26 (evening): on
             the four evaluation bags it raises the LN's rock precision from 79 % to 93 %
             and its counted rocks from 43 to 46 of 75 (docs/roi_detector.md).
+        classify_map_rocks: elevation_map method: the rover model's map-rock Rock Rover
+            decides which of the map's rock regions (those the height, area, ring and
+            relief rules pass) are rocks (``ElevationMap(rock_classifier=)``).
     """
 
     method: str = "elevation_map"
     elevation_map: ElevationMapConfig = field(default_factory=ElevationMapConfig)
     far_rocks: bool = True
     classify_far_rocks: bool = True
+    classify_map_rocks: bool = True
     far: FarRockConfig = field(default_factory=FarRockConfig)
     stereo: StereoConfig = field(default_factory=StereoConfig)
     thresholds: RoverThresholds = field(default_factory=RoverThresholds)
@@ -86,10 +90,16 @@ class RoverConfig:
         return self.method == "elevation_map" and self.far_rocks and self.classify_far_rocks
 
     @property
+    def classifies_map_rocks(self) -> bool:
+        """The map rocks' Rock Rover decides the elevation map's rock regions."""
+        return self.method == "elevation_map" and self.classify_map_rocks
+
+    @property
     def runs_classifier(self) -> bool:
-        """A rover model has a part in this configuration (per_pair, or far rocks
+        """A rover model has a part in this configuration (per_pair, or far or map rocks
         classified)."""
-        return self.method == "per_pair" or self.classifies_far_rocks
+        return self.method == "per_pair" or self.classifies_far_rocks or \
+            self.classifies_map_rocks
 
 
 METHODS = ("elevation_map", "per_pair")
@@ -249,6 +259,10 @@ def check_model(classifier: RoverClassifier | None, cfg: RoverConfig) -> None:
     if cfg.classifies_far_rocks and not classifier.far_rocks:
         raise ValueError(f"{where}: no far-rock Rock Rover to classify far rocks with "
                          "(train it: roi_detector train)")
+    if cfg.classifies_map_rocks and not classifier.map_rocks:
+        raise ValueError(f"{where}: no map-rock Rock Rover to classify the map's rocks "
+                         "with (train it: roi_detector train; or --no-classify-map-rocks, "
+                         "node parameter classify_map_rocks: false)")
 
 
 def far_classifier(classifier: RoverClassifier | None, cfg: RoverConfig):
@@ -257,6 +271,14 @@ def far_classifier(classifier: RoverClassifier | None, cfg: RoverConfig):
     if classifier is None or not cfg.classifies_far_rocks or not classifier.far_rocks:
         return None
     return classifier.far_rock_proba
+
+
+def map_rock_classifier(classifier: RoverClassifier | None, cfg: RoverConfig):
+    """The map rocks' Rock Rover (probability of features) when ``cfg`` classifies map
+    rocks and the model holds one, else None."""
+    if classifier is None or not cfg.classifies_map_rocks or not classifier.map_rocks:
+        return None
+    return classifier.map_rock_proba
 
 
 #: Far rocks' track ids are offset by this in ROI records (the map's ROIs count from 1).
@@ -348,8 +370,9 @@ class DriveMapper:
         ln: the LN to extend (default: a new one).
         classifier: the rover model whose far-rock Rock Rover decides the far rocks
             with ``cfg.classify_far_rocks`` (the pairs' blobs must then carry
-            their appearance: the RoverDetector given the same model and config); None:
-            the rules alone.
+            their appearance: the RoverDetector given the same model and config), and
+            whose map-rock Rock Rover decides the map's rocks with
+            ``cfg.classify_map_rocks``; None: the rules alone.
     """
 
     def __init__(self, cfg: RoverConfig = RoverConfig(), ln: LocalNetwork | None = None,
@@ -357,7 +380,7 @@ class DriveMapper:
         self.cfg = cfg
         self.classifier = classifier
         self.tracker = Tracker(cfg.tracker)
-        self.map = ElevationMap(cfg.elevation_map)
+        self.map = ElevationMap(cfg.elevation_map, map_rock_classifier(classifier, cfg))
         self.far = FarRockTracker(cfg.far, far_classifier(classifier, cfg))
         self.ln = ln if ln is not None else LocalNetwork(cfg.ln)
         self._tracks = empty_records(0)

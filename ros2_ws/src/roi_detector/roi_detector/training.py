@@ -6,7 +6,9 @@ that ROI's class; otherwise it is a negative.
 
 - elevation_map method (default): the far rocks' Rock Rover, on every measured far track
   (or every far-rock candidate) of a drive run with the truth trajectory as odometry
-  (:func:`far_rock_samples`).
+  (:func:`far_rock_samples`); and, from the same drive, the map rocks' Rock Rover, on
+  every rock region of the elevation map found in at least ``min_rounds`` detection
+  rounds, at its latest measurement (:func:`map_rock_samples`).
 - per_pair method: Rock Rover and Outcrop Rover, on every candidate of every
   ``every``-th stereo pair (:func:`labelled_candidates`).
 """
@@ -20,10 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from roi_detector.classifier import BinaryClassifier, ClassifierConfig
+from roi_detector.elevation_map import MAP_ROCK_FEATURES
 from roi_detector.far_rocks import FAR_KINDS, FAR_POPULATIONS, far_feature_names
 from roi_detector.inputs import BadInput, load_rover_params, read_stereo_frames
 from roi_detector.rover_classifier import (
     FAR_ROCK_CLASSIFIER,
+    MAP_ROCK_CLASSIFIER,
     features_of,
     save_rover_model,
     train_classifiers,
@@ -129,28 +133,51 @@ def far_rock_samples(bag_dir: str, log=print, population: str = "measured") -> d
 
     Returns:
         dict with ``x`` (N, F) float32, ``y`` (N,) 0/1, ``candidate`` (N,) bool,
-        ``xy_map`` (N, 2), ``near_rock_m`` (N,) (:func:`near_rock_distance`).
+        ``xy_map`` (N, 2), ``near_rock_m`` (N,) (:func:`near_rock_distance`); and the
+        same drive's map rocks (:func:`map_rock_samples`) as ``map_x``, ``map_y``.
     """
     if population not in FAR_POPULATIONS:
         raise ValueError(f"population: unknown '{population}' (one of {FAR_POPULATIONS})")
     from roi_detector.evaluation import match_nodes, true_nodes
 
-    # No classifier: every track is measured and described, whatever a model would say.
-    mapper = DriveMapper(RoverConfig(far_rocks=True, classify_far_rocks=False))
+    # No classifier: every track is measured and described, and every map rock reported,
+    # whatever a model would say.
+    mapper = DriveMapper(RoverConfig(far_rocks=True, classify_far_rocks=False,
+                                     classify_map_rocks=False))
     truth, _ = drive_with_truth_odometry(bag_dir, mapper, log, describe=True)
     tracks = [r for r in mapper.far.measured if r.features is not None
               and (r.candidate or population == "measured")]
     n_feat = len(far_feature_names())
+    map_x, map_y = map_rock_samples(mapper.map, truth)
     if not tracks:
         return {"x": np.zeros((0, n_feat), np.float32), "y": np.zeros(0, np.uint8),
                 "candidate": np.zeros(0, bool), "xy_map": np.zeros((0, 2)),
-                "near_rock_m": np.zeros(0)}
+                "near_rock_m": np.zeros(0), "map_x": map_x, "map_y": map_y}
     rec = far_rock_records(tracks)
     pts, j = match_nodes(rec, truth)
     y = true_nodes(rec, truth.rois, j, ROCK).astype(np.uint8)
     return {"x": np.stack([r.features for r in tracks]), "y": y,
             "candidate": np.array([r.candidate for r in tracks]), "xy_map": pts[:, :2],
-            "near_rock_m": near_rock_distance(pts[:, :2], truth)}
+            "near_rock_m": near_rock_distance(pts[:, :2], truth),
+            "map_x": map_x, "map_y": map_y}
+
+
+def map_rock_samples(emap, truth: Truth) -> tuple[np.ndarray, np.ndarray]:
+    """The rock regions of a drive's elevation map (an :class:`ElevationMap` filled with
+    the truth trajectory as odometry) found in at least ``min_rounds`` detection rounds:
+    their :data:`~roi_detector.elevation_map.MAP_ROCK_FEATURES` at their latest
+    measurement (N, F) and whether each matches a truth rock (N,) 0/1 (DESIGN.md's
+    rule, the LN's placement)."""
+    from roi_detector.evaluation import match_nodes, true_nodes
+
+    rocks = [r for r in emap.rois if r.label == ROCK and r.features is not None
+             and r.rounds >= emap.cfg.min_rounds]
+    if not rocks:
+        return np.zeros((0, len(MAP_ROCK_FEATURES)), np.float32), np.zeros(0, np.uint8)
+    rec = emap.to_records(rocks)
+    _, j = match_nodes(rec, truth)
+    return (np.stack([r.features for r in rocks]).astype(np.float32),
+            true_nodes(rec, truth.rois, j, ROCK).astype(np.uint8))
 
 
 def near_rock_distance(xy_map: np.ndarray, truth: Truth) -> np.ndarray:
@@ -198,20 +225,21 @@ def _far_samples_quiet(bag: str, population: str) -> dict:
     return far_rock_samples(bag, lambda m: None, population)
 
 
-def train_far_rock_model(bags: list[str], out: str, k: int = 5, log=print,
-                         population: str = "measured", jobs: int = 1,
-                         kind: str = "gradient_boosting",
-                         ignore_near_m: float = IGNORE_NEAR_M) -> dict:
-    """Train the far rocks' Rock Rover (``kind``: boosted trees, or the paper's PCA + kNN
-    with ``k`` neighbours) on the far tracks (``population``, see :data:`FAR_POPULATIONS`)
-    of ``bags`` (``jobs`` bags at a time, each in its own process), less the false ones
-    within ``ignore_near_m`` of a truth rock (:func:`trained_on`), and write it to
-    ``out``."""
+def train_rock_rovers(bags: list[str], out: str, k: int = 5, log=print,
+                      population: str = "measured", jobs: int = 1,
+                      kind: str = "gradient_boosting",
+                      ignore_near_m: float = IGNORE_NEAR_M) -> dict:
+    """Train the elevation_map method's two Rock Rovers (``kind``: boosted trees, or the
+    paper's PCA + kNN with ``k`` neighbours) on the drives of ``bags`` (``jobs`` bags at a
+    time, each in its own process) and write both to ``out``: the far rocks' on the far
+    tracks (``population``, see :data:`FAR_POPULATIONS`) less the false ones within
+    ``ignore_near_m`` of a truth rock (:func:`trained_on`); the map rocks' on the map's
+    rock regions (:func:`map_rock_samples`)."""
     if kind not in FAR_KINDS:
         raise ValueError(f"kind: unknown '{kind}' (one of {FAR_KINDS})")
     trained_on(np.zeros(0), np.zeros(0), ignore_near_m)  # a bad distance fails here
     t0 = time.perf_counter()
-    x, y, ignored = [], [], 0
+    x, y, mx, my, ignored = [], [], [], [], 0
     if jobs > 1:
         from concurrent.futures import ProcessPoolExecutor
 
@@ -221,7 +249,10 @@ def train_far_rock_model(bags: list[str], out: str, k: int = 5, log=print,
         samples = [far_rock_samples(bag, log, population) for bag in bags]
     for bag, data in zip(bags, samples, strict=True):
         log(f"{bag}: {len(data['y'])} far tracks ({population}), {int(data['y'].sum())} "
-            f"rocks; {int(data['candidate'].sum())} candidates")
+            f"rocks; {int(data['candidate'].sum())} candidates; {len(data['map_y'])} map "
+            f"rock regions, {int(data['map_y'].sum())} rocks")
+        mx.append(data["map_x"])
+        my.append(data["map_y"])
         keep = trained_on(data["y"], data["near_rock_m"], ignore_near_m)
         ignored += int((~keep).sum())
         x.append(data["x"][keep])
@@ -234,16 +265,24 @@ def train_far_rock_model(bags: list[str], out: str, k: int = 5, log=print,
                          "and non-rocks: nothing to train on")
     clf = BinaryClassifier(FAR_ROCK_CLASSIFIER, far_feature_names(),
                            ClassifierConfig(n_components=8, k=k, kind=kind)).fit(xa, ya)
+    mxa, mya = np.concatenate(mx), np.concatenate(my)
+    if len(np.unique(mya)) < 2:
+        raise ValueError(f"map rock regions of {bags}: {len(mya)} samples, not both rocks "
+                         "and non-rocks: nothing to train on")
+    map_clf = BinaryClassifier(MAP_ROCK_CLASSIFIER, MAP_ROCK_FEATURES,
+                               ClassifierConfig(n_components=8, k=k, kind=kind)).fit(mxa, mya)
     summary = {"method": "elevation_map", "bags": [str(Path(b).resolve()) for b in bags],
                "seeds": _seeds(bags), "kind": kind, "k": k,
                "threshold": RoverConfig().far.min_score,
                "population": population, "samples": len(ya), "rocks": int(ya.sum()),
                "negatives": int((ya == 0).sum()), "ignore_near_m": ignore_near_m,
                "ignored_near_rocks": ignored,
+               "map_rock_samples": len(mya), "map_rocks": int(mya.sum()),
+               "map_rock_threshold": RoverConfig().elevation_map.map_rock_min_score,
                "train_s": round(time.perf_counter() - t0, 1),
                "command": f"roi_detector train {' '.join(bags)} --out {out} "
                           f"--population {population} --kind {kind} "
                           f"--ignore-near {ignore_near_m:g}"}
     Path(out).parent.mkdir(parents=True, exist_ok=True)
-    save_rover_model(out, {FAR_ROCK_CLASSIFIER: clf}, summary)
+    save_rover_model(out, {FAR_ROCK_CLASSIFIER: clf, MAP_ROCK_CLASSIFIER: map_clf}, summary)
     return summary

@@ -5,6 +5,7 @@ import pytest
 
 from roi_detector.elevation_map import (
     AVERAGED_OUTCROPS,
+    MAP_ROCK_FEATURES,
     ElevationMap,
     ElevationMapConfig,
     ground_surface,
@@ -438,3 +439,32 @@ def test_outcrop_rules_by_name_in_the_library_and_the_cli(monkeypatch):
         assert seen[-1] == outcrop_rule(name) and name in OUTCROP_RULES
     with pytest.raises(SystemExit):  # argparse names the choices
         cli.main(["ln", "BAG", "--odometry", "o.tum", "--out", "ln", "--outcrops", "x"])
+
+
+def test_the_map_rock_rover_decides_which_rock_regions_are_reported():
+    pts = _scene()
+    app = _dark_where_raised(pts)
+    seen = []
+
+    def rover(score):
+        def proba(x):
+            seen.append(x)
+            return np.full(len(x), score)
+        return proba
+
+    emap = ElevationMap(ElevationMapConfig(detect_every=2), rock_classifier=rover(0.9))
+    _drive(emap, pts, appearance=app)
+    rec = emap.to_records()
+    assert len(rec) == 1 and rec["label"][0] == ROCK and rec["score"][0] == pytest.approx(0.9)
+    # Every rock region measured is scored on its finite features, the ones named.
+    x = np.concatenate(seen)
+    assert x.shape[1] == len(MAP_ROCK_FEATURES) and np.isfinite(x).all()
+    f = dict(zip(MAP_ROCK_FEATURES, emap.rois[0].features, strict=True))
+    assert f["height_m"] == pytest.approx(rec["height_m"][0])
+    assert f["dark_share"] > 0.5 and f["value"] < 0.55 and f["ring_contrast"] > 0.3
+    # Refused (at or below map_rock_min_score), the region stays in the map, unreported.
+    emap = ElevationMap(ElevationMapConfig(detect_every=2), rock_classifier=rover(0.5))
+    _drive(emap, pts, appearance=app)
+    assert len(emap.rois) == 1 and len(emap.to_records()) == 0
+    # Without a classifier the rules alone decide, score 1.
+    assert _found(pts)["score"].tolist() == [1.0]

@@ -337,10 +337,14 @@ def test_a_far_rock_model_serves_the_elevation_map_and_only_it(tmp_path):
     assert model.far_rocks and not model.per_pair
     probe = np.array([[3.0], [-3.0]], np.float32) * np.ones(len(names), np.float32)
     assert model.far_rock_proba(probe).tolist() == [1.0, 0.0]
-    classify = RoverConfig()  # on by default
+    classify = RoverConfig(classify_map_rocks=False)  # far rocks classified, by default
     assert DriveMapper(classify, classifier=model).far.classifier is not None
+    # The defaults classify the map's rocks too: a model without their Rock Rover is
+    # refused by name.
+    with pytest.raises(ValueError, match=r"far\.npz.*map-rock"):
+        load_classifier(str(path), RoverConfig())
     # Turned off: no model is loaded, the far rocks keep to the rules.
-    rules = RoverConfig(classify_far_rocks=False)
+    rules = RoverConfig(classify_far_rocks=False, classify_map_rocks=False)
     assert load_classifier(str(path), rules) is None
     assert DriveMapper(rules, classifier=model).far.classifier is None
     assert not RoverDetector([0.0] * 6 + [1.0], model, rules).describe_blobs
@@ -365,6 +369,43 @@ def test_a_far_rock_model_serves_the_elevation_map_and_only_it(tmp_path):
         "rock_orbital", names, ClassifierConfig(k=3)).fit(x, y)}, {})
     with pytest.raises(ModelFileError, match=r"other\.npz.*rock_orbital"):
         RoverClassifier.load(other)
+
+
+def test_the_map_rocks_rock_rover_is_loaded_and_given_to_the_map(tmp_path):
+    """A model holding both Rock Rovers (what ``roi_detector train`` writes): the map
+    gets the map rocks' and scores its rock regions' features with it; off, the map's
+    rules decide alone."""
+    from roi_detector.classifier import BinaryClassifier, ClassifierConfig
+    from roi_detector.cli import load_classifier
+    from roi_detector.elevation_map import MAP_ROCK_FEATURES
+    from roi_detector.far_rocks import far_feature_names
+    from roi_detector.rover_classifier import (
+        FAR_ROCK_CLASSIFIER,
+        MAP_ROCK_CLASSIFIER,
+        RoverClassifier,
+        save_rover_model,
+    )
+    from roi_detector.rover_pipeline import DriveMapper, RoverConfig
+
+    rng = np.random.default_rng(5)
+    clfs = {}
+    for name, names in ((FAR_ROCK_CLASSIFIER, far_feature_names()),
+                        (MAP_ROCK_CLASSIFIER, MAP_ROCK_FEATURES)):
+        f = rng.normal(0, 1, 60)
+        x = (f[:, None] + rng.normal(0, 0.1, (60, len(names)))).astype(np.float32)
+        clfs[name] = BinaryClassifier(name, names, ClassifierConfig(kind="gradient_boosting")
+                                      ).fit(x, (f > 0).astype(np.uint8))
+    path = tmp_path / "both.npz"
+    save_rover_model(path, clfs, {"method": "elevation_map"})
+    model = load_classifier(str(path), RoverConfig())
+    assert isinstance(model, RoverClassifier) and model.map_rocks and model.far_rocks
+    probe = np.array([[3.0], [-3.0]], np.float32) * np.ones(len(MAP_ROCK_FEATURES), np.float32)
+    p = model.map_rock_proba(probe)
+    assert p[0] > 0.9 and p[1] < 0.1
+    mapper = DriveMapper(RoverConfig(), classifier=model)
+    assert mapper.map.rock_classifier is not None
+    assert DriveMapper(RoverConfig(classify_map_rocks=False),
+                       classifier=model).map.rock_classifier is None
 
 
 def test_records_in_view_rotates_into_base_link():
@@ -413,23 +454,26 @@ def test_the_committed_rover_model_is_the_far_rocks_rock_rover_of_training_seeds
 
 
 def test_far_rock_training_refuses_an_unknown_kind(tmp_path):
-    from roi_detector.training import train_far_rock_model
+    from roi_detector.training import train_rock_rovers
 
     with pytest.raises(ValueError, match=r"kind.*'svm'"):
-        train_far_rock_model(["no/such/bag"], str(tmp_path / "m.npz"), kind="svm")
+        train_rock_rovers(["no/such/bag"], str(tmp_path / "m.npz"), kind="svm")
     assert not (tmp_path / "m.npz").exists()
 
 
 def test_classifying_far_rocks_without_a_model_is_an_error(monkeypatch):
-    """classify_far_rocks asks for the far rocks' Rock Rover: no model is a clear error,
-    not far rocks silently left to the rules."""
+    """classify_far_rocks and classify_map_rocks ask for their Rock Rovers: no model is a
+    clear error naming the setting, not rocks silently left to the rules."""
     import roi_detector.cli as cli
     from roi_detector.rover_pipeline import RoverConfig
 
     monkeypatch.setattr(cli, "_installed_model", lambda: None)
     with pytest.raises(ValueError, match="classify_far_rocks: no rover model"):
         cli.load_classifier(None, RoverConfig())  # the default classifies far rocks
-    assert cli.load_classifier(None, RoverConfig(classify_far_rocks=False)) is None
+    with pytest.raises(ValueError, match="classify_map_rocks: no rover model"):
+        cli.load_classifier(None, RoverConfig(classify_far_rocks=False))
+    assert cli.load_classifier(None, RoverConfig(classify_far_rocks=False,
+                                                 classify_map_rocks=False)) is None
 
 
 def test_far_rock_training_leaves_out_false_tracks_beside_a_rock():
