@@ -91,10 +91,12 @@ orbital-model: training-bags orbital-training-worlds
 	$(RUN_ENV) orbital_gn train $(TRAIN_BAGS) $(ORBITAL_TRAIN_WORLDS) --recipe improved \
 	  --out $(ORBITAL_MODEL_NO_SUN)
 
-# Re-train the committed rover model: the far rocks' Rock Rover (the elevation_map
-# method's classifier, used with classify_far_rocks), on every far track measured in the
-# quick bags of ROVER_TRAIN_SEEDS (120-190 per bag, 8-19 of them rocks; about 4 min to
-# generate and 3 min to run each, two at a time).
+# Re-train the committed rover model: the elevation_map method's two Rock Rovers, the
+# far rocks' (used with classify_far_rocks), on every far track measured in the quick
+# bags of ROVER_TRAIN_SEEDS (120-190 per bag, 8-19 of them rocks), and the map rocks'
+# (used with classify_map_rocks), on the map's rock regions of the same drives (3-17 per
+# bag, 0-4 of them false); about 4 min to generate and 3 min to run each bag, two at a
+# time.
 # `roi_detector train ... --method per_pair` trains the paper's per-pair Rock Rover and
 # Outcrop Rover instead (not committed).
 ROVER_MODEL := $(WS)/src/roi_detector/roi_detector/models/rover.npz
