@@ -457,15 +457,15 @@ class ElevationMap:
         rel = np.where(seen, z - ground, 0.0)
         out: list[MapRoi] = []
         off = np.array([si.start, sj.start])
-        # Rock seeds stand high in every view: the mean less one spread across views (a
-        # stereo mismatch of one view is a high spread, not a rock).
-        val = None
-        if c.rock_dark_value > 0 and self.nb.any():
-            val = self.bv[si, sj] / np.maximum(self.nb[si, sj], 1)
+        # The relative value and saturation of the cells: the rocks' dark test reads the
+        # value, the map rocks' features both.
         colour = None
         if self.nb.any():
             nb = np.maximum(self.nb[si, sj], 1)
             colour = (self.bv[si, sj] / nb, self.bs[si, sj] / nb)
+        val = colour[0] if colour is not None and c.rock_dark_value > 0 else None
+        # Rock seeds stand high in every view: the mean less one spread across views (a
+        # stereo mismatch of one view is a high spread, not a rock).
         out += self._rocks(rel, np.where(seen, rel - sd, 0.0), z, seen, off, val, colour)
         if self.nb.any():
             out += self._outcrops(rel, ground, seen, si, sj, off)

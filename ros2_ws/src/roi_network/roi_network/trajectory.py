@@ -62,12 +62,17 @@ def write_tum(path: str | Path, stamps_s, positions, quats_xyzw, header: str = "
                                                     strict=True)))
 
 
+def pose_covariance_header(note: str = "") -> str:
+    """The header line of a pose covariance file (without ``# ``): what its rows hold,
+    then ``note`` (their source) in parentheses."""
+    return POSE_COVARIANCE_FIELDS + (f" ({note})" if note else "")
+
+
 def write_pose_covariance(path: str | Path, stamps_s, covs, note: str = "") -> None:
     """A pose covariance file (:data:`POSE_COVARIANCE_FILE`) of (N, 6, 6) or (N, 36)
     covariances at ``stamps_s``; ``note`` is appended to the header (their source)."""
-    header = POSE_COVARIANCE_FIELDS + (f" ({note})" if note else "")
-    write_rows(path, header, (pose_covariance_row(t, c) for t, c in zip(stamps_s, covs,
-                                                                         strict=True)))
+    rows = (pose_covariance_row(t, c) for t, c in zip(stamps_s, covs, strict=True))
+    write_rows(path, pose_covariance_header(note), rows)
 
 
 def numeric_rows(path: str | Path, what: str, row: str,

@@ -30,8 +30,8 @@ from pathlib import Path
 
 from roi_network.files import write_atomic
 from roi_network.trajectory import (
-    POSE_COVARIANCE_FIELDS,
     POSE_COVARIANCE_FILE,
+    pose_covariance_header,
     pose_covariance_row,
     tum_row,
 )
@@ -164,7 +164,7 @@ def export_outputs(run_dir: Path) -> dict[str, int]:
     write_atomic(run_dir / VO_TUM,
                  _lines('# t x y z qx qy qz qw (/vo/odometry, odom frame, base_link)\n', vo))
     write_atomic(run_dir / VO_COV,
-                 _lines(f'# {POSE_COVARIANCE_FIELDS} (/vo/odometry)\n', vo_cov))
+                 _lines(f'# {pose_covariance_header("/vo/odometry")}\n', vo_cov))
     write_atomic(run_dir / ALIGNMENT,
                  _lines('# t tx ty yaw (/global_alignment, map -> odom; m, rad)\n', alignment))
     write_atomic(run_dir / EVENTS,

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from roi_network.files import write_atomic
-from roi_network.trajectory import POSE_COVARIANCE_FILE
+from roi_network.trajectory import POSE_COVARIANCE_FILE, write_pose_covariance
 from rover_vo.bag import BagError, read_messages, rover_params
 from rover_vo.config import (
     MODES,
@@ -32,7 +32,7 @@ from rover_vo.config import (
     read_ros_params,
 )
 from rover_vo.estimator import VoEstimator
-from rover_vo.tum import write_pose_covariance, write_tum
+from rover_vo.tum import write_tum
 
 
 def peak_rss_mb() -> float:
@@ -104,8 +104,8 @@ def cmd_odometry(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     write_tum(out / "vo.tum", [o.state for o in outputs],
               header=f"rover_vo {config.mode}: base_link in odom, from {bag}")
-    write_pose_covariance(out / POSE_COVARIANCE_FILE, [o.state for o in outputs],
-                          note=f"rover_vo {config.mode}")
+    write_pose_covariance(out / POSE_COVARIANCE_FILE, [o.state.t for o in outputs],
+                          [o.state.cov for o in outputs], note=f"rover_vo {config.mode}")
     sources: dict[str, int] = {}
     for o in outputs:
         sources[o.source] = sources.get(o.source, 0) + 1

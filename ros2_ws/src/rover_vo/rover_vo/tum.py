@@ -1,5 +1,5 @@
-"""rover_vo's states as the shared trajectory files (:mod:`roi_network.trajectory`): TUM
-poses and their pose covariance, written atomically."""
+"""rover_vo's states as TUM files (:mod:`roi_network.trajectory`'s format), written
+atomically."""
 
 from __future__ import annotations
 
@@ -9,12 +9,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from roi_network.trajectory import (
-    POSE_COVARIANCE_FIELDS,
-    pose_covariance_row,
-    tum_row,
-    write_rows,
-)
+from roi_network.trajectory import tum_row, write_rows
 from rover_vo.state import OdomState
 
 
@@ -26,13 +21,6 @@ def tum_line(state: OdomState) -> str:
 def write_tum(path: str | Path, states: Iterable[OdomState], header: str = "") -> None:
     """Write the states as a TUM file (base_link in odom), atomically."""
     write_rows(path, header, (tum_line(s) for s in states))
-
-
-def write_pose_covariance(path: str | Path, states: Iterable[OdomState], note: str = "") -> None:
-    """Write each state's pose covariance (:data:`~roi_network.trajectory.POSE_COVARIANCE_FILE`
-    format: ``t`` and its 36 row-major entries, [x y z rx ry rz] in odom), atomically."""
-    header = POSE_COVARIANCE_FIELDS + (f" ({note})" if note else "")
-    write_rows(path, header, (pose_covariance_row(s.t, s.cov) for s in states))
 
 
 def read_tum_array(path: str | Path) -> np.ndarray:
