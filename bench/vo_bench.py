@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from roi_network.files import write_atomic
+from roi_network.trajectory import read_pose_covariance_rows, read_tum_rows
 from rover_vo.evaluation import evaluate, plot_trajectories
-from rover_vo.tum import read_tum_array
 
 RESULTS = Path(__file__).resolve().parent / "results"
 MODES = ("paper", "vo", "keyframes")
@@ -127,9 +127,9 @@ def covariance_honesty(run: Path, truth: Path) -> dict:
     """
     from scipy.spatial.transform import Rotation
 
-    est = read_tum_array(run / "vo.tum")
-    cov = read_tum_array(run / "vo_covariance.txt")
-    ref = read_tum_array(truth)
+    est = read_tum_rows(run / "vo.tum")
+    _, cov = read_pose_covariance_rows(run / "vo_covariance.txt")
+    ref = read_tum_rows(truth)
     idx = np.clip(np.searchsorted(ref[:, 0], est[:, 0] - 1e-4), 0, len(ref) - 1)
     ref = ref[idx]
     keep = np.abs(ref[:, 0] - est[:, 0]) < 0.02
@@ -139,7 +139,7 @@ def covariance_honesty(run: Path, truth: Path) -> dict:
     A = R0r @ R0e.T  # odom -> map rotation with the first poses aligned
     p = (est[:, 1:4] - est[0, 1:4]) @ A.T + ref[0, 1:4]
     err = (p - ref[:, 1:4])[:, :2]
-    C = cov[:, 1:].reshape(-1, 6, 6)[:, :3, :3]
+    C = cov[:, :3, :3]
     C = (A @ C @ A.T)[:, :2, :2]
     ok = np.linalg.det(C) > 1e-12
     nees = np.einsum("ni,nij,nj->n", err[ok], np.linalg.inv(C[ok]), err[ok])

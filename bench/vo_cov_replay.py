@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from roi_network.trajectory import read_tum_rows
 from rover_vo.state import OdomState, step_noise, systematic_prior
-from rover_vo.tum import read_tum_array
 
 RUNS = Path(__file__).resolve().parent / "results" / "vo_runs"
 
@@ -68,8 +68,8 @@ def honesty(est: np.ndarray, ref: np.ndarray, covs: np.ndarray) -> dict:
 
 
 def load(bag: Path, method: str) -> tuple[np.ndarray, np.ndarray]:
-    est = read_tum_array(RUNS / bag.name / method / "vo.tum")
-    ref = read_tum_array(bag / "truth" / "trajectory.tum")
+    est = read_tum_rows(RUNS / bag.name / method / "vo.tum")
+    ref = read_tum_rows(bag / "truth" / "trajectory.tum")
     idx = np.clip(np.searchsorted(ref[:, 0], est[:, 0] - 1e-4), 0, len(ref) - 1)
     ref = ref[idx]
     keep = np.abs(ref[:, 0] - est[:, 0]) < 0.02

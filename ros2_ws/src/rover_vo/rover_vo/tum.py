@@ -6,7 +6,6 @@ from __future__ import annotations
 from collections.abc import Iterable
 from pathlib import Path
 
-import numpy as np
 from scipy.spatial.transform import Rotation
 
 from roi_network.trajectory import tum_row, write_rows
@@ -22,7 +21,3 @@ def write_tum(path: str | Path, states: Iterable[OdomState], header: str = "") -
     """Write the states as a TUM file (base_link in odom), atomically."""
     write_rows(path, header, (tum_line(s) for s in states))
 
-
-def read_tum_array(path: str | Path) -> np.ndarray:
-    """(N, 8) array of a TUM file (comments skipped)."""
-    return np.loadtxt(path, comments="#", ndmin=2)

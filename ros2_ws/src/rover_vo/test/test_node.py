@@ -16,8 +16,8 @@ from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
+from roi_network.trajectory import read_tum_rows
 from rover_vo import messages as m
-from rover_vo.tum import read_tum_array
 
 pytestmark = pytest.mark.ros
 RELIABLE = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
@@ -91,7 +91,7 @@ def test_node_on_tiny_bag_agrees_with_offline(tiny_bag, clean_run, ros_env, tmp_
     cli = subprocess.run([_exe("rover_vo"), "odometry", str(tiny_bag), "--out", str(out_dir)],
                          capture_output=True, text=True, check=False, timeout=120)
     assert cli.returncode == 0, cli.stderr
-    tum = read_tum_array(out_dir / "vo.tum")
+    tum = read_tum_rows(out_dir / "vo.tum")
     assert len(tum) == len(odom)
     positions = np.array([[o.pose.pose.position.x, o.pose.pose.position.y,
                            o.pose.pose.position.z] for o in odom])
