@@ -47,6 +47,12 @@ def test_node_on_tiny_bag_agrees_with_offline(tiny_bag, clean_run, ros_env, tmp_
         status: list[DiagnosticArray] = []
         sub_node.create_subscription(Odometry, "/vo/odometry", odom.append, RELIABLE)
         sub_node.create_subscription(DiagnosticArray, "/vo/status", status.append, RELIABLE)
+        # The node publishes its first pose on the first stereo pair: this listener must
+        # have matched its publishers before the bag plays, or that pose is not delivered.
+        deadline = time.monotonic() + 60
+        while (min(sub_node.count_publishers(t) for t in ("/vo/odometry", "/vo/status")) < 1
+               and time.monotonic() < deadline and node.poll() is None):
+            executor.spin_once(timeout_sec=0.1)
         player = subprocess.Popen(
             [_exe("globloc"), "play", str(tiny_bag), "--rate", "2", "--wait-subscribers", "30",
              "--topics", *m.INPUT_TOPICS], env=ros_env, stdout=subprocess.PIPE,
