@@ -51,7 +51,8 @@ THRESHOLDS = (0.3, 0.5, 0.7)
 
 def samples(bag: str, cache: Path) -> dict:
     """The bag's measured far tracks (cached), with the counted truth rock each true one
-    finds (-1: none) and whether it passes the geometric tests."""
+    finds (-1: none) and whether it passes the geometric tests; and its map rock regions
+    (``map_x``, ``map_y``) when the cache holds them (caches written since 2026-11-28)."""
     from roi_detector.far_rocks import FarRockConfig, far_feature_names
     from roi_detector.training import far_rock_samples, near_rock_distance
     from roi_detector.truth import Truth, match_to_truth
@@ -60,7 +61,8 @@ def samples(bag: str, cache: Path) -> dict:
     path = cache / f"{Path(bag).name}.npz"
     if path.is_file():
         with np.load(path) as z:
-            data = {k: z[k] for k in ("x", "y", "candidate", "xy_map")}
+            data = {k: z[k] for k in ("x", "y", "candidate", "xy_map", "map_x", "map_y")
+                    if k in z}
     else:
         data = far_rock_samples(bag, lambda m: print(f"{bag}: {m}", file=sys.stderr),
                                 "measured")

@@ -43,37 +43,25 @@ from far_classifier_bench import samples
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
-def _map_samples(bag: str, cache: Path) -> tuple[np.ndarray, np.ndarray]:
-    """The bag's map rock regions (features, labels) from its cached samples."""
-    with np.load(cache / f"{Path(bag).name}.npz") as z:
-        return z["map_x"], z["map_y"]
-
-
 def _load(bag: str, cache: Path) -> dict:
     data = samples(bag, cache)
-    data["map_x"], data["map_y"] = _map_samples(bag, cache)
+    if "map_x" not in data:
+        raise SystemExit(f"{cache / Path(bag).name}.npz: a cache without the map's rock "
+                         "regions (written before 2026-11-28); delete it to sample the bag "
+                         "again")
     return data
 
 
 def fit(data: list[dict]):
-    """Both Rock Rovers, trained as ``roi_detector train`` trains them."""
-    from roi_detector.classifier import BinaryClassifier, ClassifierConfig
-    from roi_detector.elevation_map import MAP_ROCK_FEATURES
-    from roi_detector.far_rocks import far_feature_names
-    from roi_detector.rover_classifier import FAR_ROCK_CLASSIFIER, MAP_ROCK_CLASSIFIER
-    from roi_detector.training import IGNORE_NEAR_M, trained_on
+    """Both Rock Rovers, trained as ``roi_detector train`` trains them
+    (:func:`roi_detector.training.fit_rock_rovers` on the far tracks it keeps)."""
+    from roi_detector.training import IGNORE_NEAR_M, fit_rock_rovers, trained_on
 
     keep = [trained_on(d["y"], d["near_rock_m"], IGNORE_NEAR_M) for d in data]
-    x = np.concatenate([d["x"][m] for d, m in zip(data, keep, strict=True)])
-    y = np.concatenate([d["y"][m] for d, m in zip(data, keep, strict=True)])
-    ok = np.isfinite(x).all(axis=1)
-    cfg = ClassifierConfig(n_components=8, k=5, kind="gradient_boosting")
-    far = BinaryClassifier(FAR_ROCK_CLASSIFIER, far_feature_names(), cfg).fit(x[ok], y[ok])
-    mx = np.concatenate([d["map_x"] for d in data])
-    my = np.concatenate([d["map_y"] for d in data])
-    rocks = BinaryClassifier(MAP_ROCK_CLASSIFIER, MAP_ROCK_FEATURES, cfg).fit(mx, my)
-    return far, rocks, {"far_samples": int(ok.sum()), "far_rocks": int(y[ok].sum()),
-                        "map_samples": len(my), "map_rocks": int(my.sum())}
+    return fit_rock_rovers(np.concatenate([d["x"][m] for d, m in zip(data, keep, strict=True)]),
+                           np.concatenate([d["y"][m] for d, m in zip(data, keep, strict=True)]),
+                           np.concatenate([d["map_x"] for d in data]),
+                           np.concatenate([d["map_y"] for d in data]))
 
 
 def judge(far, rocks, d: dict) -> dict:

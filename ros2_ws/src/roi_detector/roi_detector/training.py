@@ -225,6 +225,36 @@ def _far_samples_quiet(bag: str, population: str) -> dict:
     return far_rock_samples(bag, lambda m: None, population)
 
 
+def fit_rock_rovers(far_x: np.ndarray, far_y: np.ndarray, map_x: np.ndarray,
+                    map_y: np.ndarray, k: int = 5, kind: str = "gradient_boosting",
+                    where: str = "the drives") -> tuple:
+    """The two Rock Rovers fitted on their samples: the far rocks' on the far tracks
+    ``far_x``, ``far_y`` (those with a non-finite feature left out), the map rocks' on the
+    map's rock regions ``map_x``, ``map_y``.
+
+    Returns:
+        (far rocks' classifier, map rocks' classifier, counts: ``far_samples``,
+        ``far_rocks``, ``map_samples``, ``map_rocks``).
+
+    Raises:
+        ValueError: either sample set lacks rocks or non-rocks (``where`` names the
+            drives).
+    """
+    finite = np.isfinite(far_x).all(axis=1)
+    far_x, far_y = far_x[finite], far_y[finite]
+    if len(np.unique(far_y)) < 2:
+        raise ValueError(f"far-rock candidates of {where}: {len(far_y)} samples, not both "
+                         "rocks and non-rocks: nothing to train on")
+    if len(np.unique(map_y)) < 2:
+        raise ValueError(f"map rock regions of {where}: {len(map_y)} samples, not both rocks "
+                         "and non-rocks: nothing to train on")
+    cfg = ClassifierConfig(n_components=8, k=k, kind=kind)
+    far = BinaryClassifier(FAR_ROCK_CLASSIFIER, far_feature_names(), cfg).fit(far_x, far_y)
+    rocks = BinaryClassifier(MAP_ROCK_CLASSIFIER, MAP_ROCK_FEATURES, cfg).fit(map_x, map_y)
+    return far, rocks, {"far_samples": len(far_y), "far_rocks": int(far_y.sum()),
+                        "map_samples": len(map_y), "map_rocks": int(map_y.sum())}
+
+
 def train_rock_rovers(bags: list[str], out: str, k: int = 5, log=print,
                       population: str = "measured", jobs: int = 1,
                       kind: str = "gradient_boosting",
@@ -257,27 +287,16 @@ def train_rock_rovers(bags: list[str], out: str, k: int = 5, log=print,
         ignored += int((~keep).sum())
         x.append(data["x"][keep])
         y.append(data["y"][keep])
-    xa, ya = np.concatenate(x), np.concatenate(y)
-    finite = np.isfinite(xa).all(axis=1)
-    xa, ya = xa[finite], ya[finite]
-    if len(np.unique(ya)) < 2:
-        raise ValueError(f"far-rock candidates of {bags}: {len(ya)} samples, not both rocks "
-                         "and non-rocks: nothing to train on")
-    clf = BinaryClassifier(FAR_ROCK_CLASSIFIER, far_feature_names(),
-                           ClassifierConfig(n_components=8, k=k, kind=kind)).fit(xa, ya)
-    mxa, mya = np.concatenate(mx), np.concatenate(my)
-    if len(np.unique(mya)) < 2:
-        raise ValueError(f"map rock regions of {bags}: {len(mya)} samples, not both rocks "
-                         "and non-rocks: nothing to train on")
-    map_clf = BinaryClassifier(MAP_ROCK_CLASSIFIER, MAP_ROCK_FEATURES,
-                               ClassifierConfig(n_components=8, k=k, kind=kind)).fit(mxa, mya)
+    clf, map_clf, n = fit_rock_rovers(np.concatenate(x), np.concatenate(y),
+                                      np.concatenate(mx), np.concatenate(my), k, kind,
+                                      where=str(bags))
     summary = {"method": "elevation_map", "bags": [str(Path(b).resolve()) for b in bags],
                "seeds": _seeds(bags), "kind": kind, "k": k,
                "threshold": RoverConfig().far.min_score,
-               "population": population, "samples": len(ya), "rocks": int(ya.sum()),
-               "negatives": int((ya == 0).sum()), "ignore_near_m": ignore_near_m,
-               "ignored_near_rocks": ignored,
-               "map_rock_samples": len(mya), "map_rocks": int(mya.sum()),
+               "population": population, "samples": n["far_samples"],
+               "rocks": n["far_rocks"], "negatives": n["far_samples"] - n["far_rocks"],
+               "ignore_near_m": ignore_near_m, "ignored_near_rocks": ignored,
+               "map_rock_samples": n["map_samples"], "map_rocks": n["map_rocks"],
                "map_rock_threshold": RoverConfig().elevation_map.map_rock_min_score,
                "train_s": round(time.perf_counter() - t0, 1),
                "command": f"roi_detector train {' '.join(bags)} --out {out} "

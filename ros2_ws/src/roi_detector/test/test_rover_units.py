@@ -461,6 +461,31 @@ def test_far_rock_training_refuses_an_unknown_kind(tmp_path):
     assert not (tmp_path / "m.npz").exists()
 
 
+def test_both_rock_rovers_are_fitted_on_their_samples_and_refuse_one_class():
+    from roi_detector.elevation_map import MAP_ROCK_FEATURES
+    from roi_detector.far_rocks import far_feature_names
+    from roi_detector.rover_classifier import FAR_ROCK_CLASSIFIER
+    from roi_detector.training import fit_rock_rovers
+
+    rng = np.random.default_rng(3)
+    nf, nm = len(far_feature_names()), len(MAP_ROCK_FEATURES)
+    far_y = np.r_[np.ones(20), np.zeros(40)].astype(np.uint8)
+    far_x = rng.normal(size=(60, nf)) + far_y[:, None] * 3.0
+    far_x[0, 2] = np.nan  # a degenerate track is left out of training
+    map_y = np.r_[np.ones(30), np.zeros(10)].astype(np.uint8)
+    map_x = rng.normal(size=(40, nm)) + map_y[:, None] * 3.0
+    far, rocks, n = fit_rock_rovers(far_x, far_y, map_x, map_y)
+    assert n == {"far_samples": 59, "far_rocks": 19, "map_samples": 40, "map_rocks": 30}
+    assert far.name == FAR_ROCK_CLASSIFIER and rocks.feature_names == MAP_ROCK_FEATURES
+    # Separable samples: each classifier tells its own training classes apart.
+    assert (rocks.predict_proba(map_x) > 0.5).tolist() == (map_y == 1).tolist()
+    assert (far.predict_proba(far_x[1:]) > 0.5).tolist() == (far_y[1:] == 1).tolist()
+    with pytest.raises(ValueError, match="map rock regions of s9: 10 samples, not both"):
+        fit_rock_rovers(far_x, far_y, map_x[:10], np.ones(10, np.uint8), where="s9")
+    with pytest.raises(ValueError, match="far-rock candidates of s9"):
+        fit_rock_rovers(far_x[20:], far_y[20:], map_x, map_y, where="s9")
+
+
 def test_classifying_far_rocks_without_a_model_is_an_error(monkeypatch):
     """classify_far_rocks and classify_map_rocks ask for their Rock Rovers: no model is a
     clear error naming the setting, not rocks silently left to the rules."""
