@@ -75,14 +75,20 @@ def write_pose_covariance(path: str | Path, stamps_s, covs, note: str = "") -> N
     write_rows(path, pose_covariance_header(note), rows)
 
 
-def numeric_rows(path: str | Path, what: str, row: str,
-                 width: int) -> list[tuple[int, list[float]]]:
+def numeric_rows(path: str | Path, what: str, row: str, width: int,
+                 allow_empty: bool = False) -> list[tuple[int, list[float]]]:
     """(line number, values) of each row of a text file of ``width`` finite numbers per
-    row (``#`` comments and blank lines skipped).
+    row, separated by white space (tabs included) or commas (``#`` comments and blank
+    lines skipped).
+
+    Args:
+        allow_empty: a file without rows gives [] (a run that published nothing) instead
+            of an error.
 
     Raises:
         ValueError: naming the file (and line) of an unreadable file, a malformed row
-            (``row`` says what one holds) or a file without rows (``what`` it holds).
+            (``row`` says what one holds) or, unless ``allow_empty``, a file without rows
+            (``what`` it holds).
     """
     path = Path(path)
     try:
@@ -95,26 +101,28 @@ def numeric_rows(path: str | Path, what: str, row: str,
         if not line or line.startswith("#"):
             continue
         try:
-            vals = [float(v) for v in line.split()]
+            vals = [float(v) for v in line.replace(",", " ").split()]
         except ValueError:
             raise ValueError(f"{path}:{n}: not a row of {row}") from None
         if len(vals) != width or not np.all(np.isfinite(vals)):
             raise ValueError(f"{path}:{n}: expected {width} finite numbers ({row}), got "
                              f"{len(vals)}")
         rows.append((n, vals))
-    if not rows:
+    if not rows and not allow_empty:
         raise ValueError(f"{path}: no {what}")
     return rows
 
 
-def read_tum_rows(path: str | Path) -> np.ndarray:
-    """(N, 8) rows of a TUM file, in file order.
+def read_tum_rows(path: str | Path, allow_empty: bool = False) -> np.ndarray:
+    """(N, 8) rows of a TUM file, in file order ((0, 8) for a file without rows when
+    ``allow_empty``).
 
     Raises:
         ValueError: naming the file (and line) of the first malformed row, or a file with
-            no pose.
+            no pose (unless ``allow_empty``).
     """
-    return np.array([v for _, v in numeric_rows(path, "poses", TUM_FIELDS, 8)])
+    rows = numeric_rows(path, "poses", TUM_FIELDS, 8, allow_empty)
+    return np.array([v for _, v in rows], float).reshape(-1, 8)
 
 
 def read_pose_covariance_rows(path: str | Path) -> tuple[np.ndarray, np.ndarray]:

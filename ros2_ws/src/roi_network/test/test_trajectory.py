@@ -41,6 +41,9 @@ def test_bad_rows_name_the_file_and_line(tmp_path):
     bad.write_text("# nothing\n")
     with pytest.raises(ValueError, match=r"bad\.tum: no poses"):
         read_tum_rows(bad)
+    assert read_tum_rows(bad, allow_empty=True).shape == (0, 8)  # a run with no pose
+    bad.write_text("1,0,0,0,0,0,0,1\n2\t0\t0\t0\t0\t0\t0\t1\n")  # commas, tabs
+    assert read_tum_rows(bad)[:, 0].tolist() == [1.0, 2.0]
     cov = tmp_path / "cov.txt"
     c = np.eye(6)
     c[1, 1] = -0.5

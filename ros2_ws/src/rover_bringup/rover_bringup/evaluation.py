@@ -26,7 +26,6 @@ evo's SE(3)-aligned APE of the visual odometry (the drift the localization corre
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -34,6 +33,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from roi_network.trajectory import numeric_rows, read_tum_rows
 from rover_bringup.errors import GloblocError
 from rover_bringup.gn_check import check_truth_frame
 from rover_bringup.run_outputs import (
@@ -67,35 +67,27 @@ TARGETS = {
 
 
 def read_tum(path: Path) -> np.ndarray:
-    """A TUM file as an (N, 8) array (t x y z qx qy qz qw); (0, 8) when it has no rows.
+    """A TUM file as an (N, 8) array (t x y z qx qy qz qw); (0, 8) when it has no rows
+    (a run that published no pose).
 
     Raises:
-        GloblocError: Unreadable, or a row that is not 8 numbers (the message names the
-            file and the line).
+        GloblocError: Unreadable, or a row that is not 8 finite numbers (the message names
+            the file and the line).
     """
-    return _read_table(path, 8)
-
-
-def _read_table(path: Path, columns: int) -> np.ndarray:
-    rows = []
     try:
-        lines = path.read_text().splitlines()
-    except OSError as exc:
-        raise GloblocError(f'cannot read {path}: {exc.strerror or exc}') from None
-    for n, line in enumerate(lines, 1):
-        line = line.strip()
-        if not line or line.startswith('#'):
-            continue
-        parts = line.replace(',', ' ').split()
-        try:
-            values = [float(v) for v in parts]
-        except ValueError:
-            values = []
-        if len(values) != columns or not all(math.isfinite(v) for v in values):
-            raise GloblocError(f'{path}, line {n}: expected {columns} finite numbers, got '
-                               f'{line[:80]!r}')
-        rows.append(values)
-    return np.array(rows, dtype=float).reshape(-1, columns)
+        return read_tum_rows(path, allow_empty=True)
+    except ValueError as exc:
+        raise GloblocError(str(exc)) from None
+
+
+def _read_table(path: Path, columns: int, row: str) -> np.ndarray:
+    """(N, ``columns``) rows of one of the run's tables (``row`` says what a row holds);
+    (0, ``columns``) for a table without rows; GloblocError naming the file and line."""
+    try:
+        rows = numeric_rows(path, "rows", row, columns, allow_empty=True)
+    except ValueError as exc:
+        raise GloblocError(str(exc)) from None
+    return np.array([v for _, v in rows], float).reshape(-1, columns)
 
 
 def read_events(path: Path) -> list[tuple[float, str, float | None]]:
@@ -188,7 +180,7 @@ def load_run(run_dir: Path, bag_dir: Path | None = None) -> RunData:
     estimate = read_tum(run_dir / GLOBAL_POSE_TUM)
     covariance = None
     if (cov_path := run_dir / GLOBAL_POSE_COV).is_file():
-        cov = _read_table(cov_path, 4)
+        cov = _read_table(cov_path, 4, 't cov_xx cov_xy cov_yy')
         if len(cov) == len(estimate) and np.allclose(cov[:, 0], estimate[:, 0], atol=1e-6):
             covariance = np.stack([np.c_[cov[:, 1], cov[:, 2]], np.c_[cov[:, 2], cov[:, 3]]],
                                   axis=1)
@@ -199,8 +191,8 @@ def load_run(run_dir: Path, bag_dir: Path | None = None) -> RunData:
     estimate = estimate[order]
     covariance = covariance[order] if covariance is not None else None
     vo = read_tum(run_dir / VO_TUM) if (run_dir / VO_TUM).is_file() else None
-    alignment = (_read_table(run_dir / ALIGNMENT, 4) if (run_dir / ALIGNMENT).is_file()
-                 else np.zeros((0, 4)))
+    alignment = (_read_table(run_dir / ALIGNMENT, 4, 't tx ty yaw')
+                 if (run_dir / ALIGNMENT).is_file() else np.zeros((0, 4)))
     return RunData(run_dir, bag_dir, estimate, covariance, truth, vo,
                    read_events(run_dir / EVENTS), alignment, _not_run(run_dir))
 

@@ -186,7 +186,13 @@ def test_bad_inputs_are_one_line_errors(tmp_path: Path):
     with pytest.raises(GloblocError, match=r'neither global_pose\.tum nor outputs/'):
         load_run(run)
     (run / 'global_pose.tum').write_text('1 2 3\n')
-    with pytest.raises(GloblocError, match=r'global_pose.tum, line 1: expected 8'):
+    with pytest.raises(GloblocError, match=r'global_pose\.tum:1: expected 8'):
+        load_run(run)
+    # A run that published no pose reads as no pose; a malformed table names its line.
+    (run / 'global_pose.tum').write_text('# t x y z qx qy qz qw\n')
+    assert load_run(run).estimate.shape == (0, 8)
+    (run / 'alignment.tsv').write_text('# t tx ty yaw\n1.0\t2.0\t3.0\t0.1\n2.0\tnan\t3.0\t0.1\n')
+    with pytest.raises(GloblocError, match=r'alignment\.tsv:3: expected 4 finite numbers'):
         load_run(run)
     (bag / 'truth' / 'trajectory.tum').unlink()
     with pytest.raises(GloblocError, match='no ground truth'):
