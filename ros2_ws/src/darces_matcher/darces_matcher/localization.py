@@ -44,6 +44,7 @@ from scipy.spatial.transform import Rotation
 
 from darces_matcher.ln_drift import PLANAR, planar_covariance
 from darces_matcher.result import MatchResult
+from darces_matcher.vote import alignment_jacobian
 from roi_network.transform import Rigid2D, wrap_angle
 
 Event = Literal["first_fix", "refined", "held", "switched", "kept", "none"]
@@ -195,14 +196,8 @@ def fit_with_covariance(
     t = Rigid2D.fit(src, dst)
     res = t.apply(src) - dst
     sigma2 = max(float((res**2).sum()) / max(2 * len(src) - 3, 1), sigma_floor_m**2)
-    c, s = np.cos(t.yaw), np.sin(t.yaw)
-    # d(R p + t)/d(tx, ty, yaw) = [I, dR/dyaw p] for every point.
-    lever = np.c_[-s * src[:, 0] - c * src[:, 1], c * src[:, 0] - s * src[:, 1]]
-    info = np.zeros((3, 3))
-    info[:2, :2] = len(src) * np.eye(2)
-    info[:2, 2] = info[2, :2] = lever.sum(axis=0)
-    info[2, 2] = float((lever**2).sum())
-    return t, sigma2 * np.linalg.inv(info)
+    jac = alignment_jacobian(np.asarray(src, dtype=float), t.yaw)
+    return t, sigma2 * np.linalg.inv(np.einsum("nai,naj->ij", jac, jac))
 
 
 @dataclass
@@ -463,12 +458,9 @@ def compose_pose(
     r6 = np.eye(6)
     r6[:2, :2] = t.rotation
     cov = r6 @ np.asarray(covariance, dtype=float).reshape(6, 6) @ r6.T
-    # Alignment covariance: d(map xy)/d(tx, ty, yaw) = [I, dR/dyaw @ p_odom].
-    p = np.asarray(position[:2], dtype=float)
-    dr = np.array([[-np.sin(t.yaw), -np.cos(t.yaw)], [np.cos(t.yaw), -np.sin(t.yaw)]])
+    # Alignment covariance through d(map xy)/d(tx, ty, yaw) of the odom position.
     jac = np.zeros((6, 3))
-    jac[:2, :2] = np.eye(2)
-    jac[:2, 2] = dr @ p
+    jac[:2] = alignment_jacobian(np.asarray(position[:2], dtype=float)[None], t.yaw)[0]
     jac[5, 2] = 1.0  # map yaw = alignment yaw + odom yaw
     cov += jac @ alignment.covariance @ jac.T
     return pos, rot.as_quat(), cov
