@@ -177,7 +177,8 @@ def _cmd_ln(args) -> int:
                       classify_far_rocks=args.classify_far_rocks,
                       classify_map_rocks=args.classify_map_rocks,
                       far=FarRockConfig(classified=args.far_classified),
-                      elevation_map=outcrop_rule(args.outcrops))
+                      elevation_map=outcrop_rule(args.outcrops),
+                      working_fx_px=args.working_fx)
     cov_file = odometry_covariance_file(args.odometry, args.covariance)
     ln, stats = build_ln(args.bag, args.odometry, args.model, cfg, args.every, args.drift,
                          odometry_cov=cov_file)
@@ -278,6 +279,12 @@ def main(argv: list[str] | None = None) -> int:
                    help="elevation_map: the outcrop rule: per observed cell (default), or on "
                    "the colour averaged over 0.2 m (finds more outcrops seen from afar, "
                    "and more grey regions that are not: docs/roi_detector.md)")
+    p.add_argument("--working-fx", type=float, default=RoverConfig().working_fx_px,
+                   metavar="PX",
+                   help="the angular resolution the detector works at, as a focal length in "
+                   "pixels: finer stereo pairs are resampled to it (the pixel parameters and "
+                   "the committed Rock Rovers are set at it; default %(default)g; 0: as they "
+                   "come)")
     p.add_argument("--covariance", default=None, metavar="FILE",
                    help="the odometry's pose covariance (t and 36 numbers per odometry stamp, "
                    f"as rover_vo writes it; default: {POSE_COVARIANCE_FILE} beside the "

@@ -114,6 +114,12 @@ class RoiDetectorNode(Node):
               "per observed cell (default) or on the colour averaged over 0.2 m "
               "(roi_detector.elevation_map.AVERAGED_OUTCROPS)"),
         ).value
+        working_fx = self.declare_parameter(
+            "working_fx_px", RoverConfig().working_fx_px,
+            d(description="the angular resolution the detector works at, as a focal length "
+              "in pixels: finer stereo pairs are resampled to it (the pixel parameters and "
+              "the committed Rock Rovers are set at it); 0: pairs as they come"),
+        ).value
         if len(extrinsic) != 7 or not any(extrinsic):
             raise ValueError("parameter 'base_to_left_camera' is not set (pass the bag's "
                              "rover.yaml as a params file)")
@@ -132,7 +138,7 @@ class RoiDetectorNode(Node):
                           far_rocks=bool(far_rocks), classify_far_rocks=bool(classify_far),
                           classify_map_rocks=bool(classify_map),
                           far=FarRockConfig(classified=str(far_classified)),
-                          elevation_map=emap_cfg)
+                          elevation_map=emap_cfg, working_fx_px=float(working_fx))
         classifier = load_classifier(model or None, cfg)
         self.bad = BadInput(lambda m: self.get_logger().warning(m))
         self.detector = RoverDetector(extrinsic, classifier, cfg, self.bad)

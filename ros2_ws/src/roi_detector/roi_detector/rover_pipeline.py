@@ -70,6 +70,16 @@ class RoverConfig:
         classify_map_rocks: elevation_map method: the rover model's map-rock Rock Rover
             decides which of the map's rock regions (those the height, area, ring and
             relief rules pass) are rocks (``ElevationMap(rock_classifier=)``).
+        working_fx_px: the angular resolution the detector works at, as a focal length
+            (pixels per radian at the image centre): a rectified pair whose left focal
+            length is finer is resampled to it (:func:`at_working_resolution`), one
+            coarser is used as it is; 0 keeps every pair as it comes. Every pixel
+            parameter (the stereo search range, blob sizes, gates, ray residuals) and the
+            committed Rock Rovers, whose features include pixel-scale texture and ray
+            residuals, were set on the simulator's 640 x 480, 70 deg camera (fx 457 px).
+            On a 1024 x 768, 60 deg camera (fx 887 px) without it, the far rocks' Rock
+            Rover took 11 of 13 far tracks it kept for rocks wrongly (docs/roi_detector.md,
+            seventeenth session). A rover model records the value it was trained at.
     """
 
     method: str = "elevation_map"
@@ -83,6 +93,7 @@ class RoverConfig:
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     ln: LnConfig = field(default_factory=LnConfig)
     outcrops: bool = True
+    working_fx_px: float = 460.0
 
     @property
     def classifies_far_rocks(self) -> bool:
@@ -103,6 +114,31 @@ class RoverConfig:
 
 
 METHODS = ("elevation_map", "per_pair")
+#: A pair is resampled only when its focal length exceeds the working one by more than
+#: this factor (the simulator's 457 px camera stays as it is under the default 460).
+RESAMPLE_ABOVE = 1.02
+
+
+def at_working_resolution(frame: StereoFrame, working_fx_px: float) -> StereoFrame:
+    """``frame`` resampled (area averaging) so that its left focal length is
+    ``working_fx_px``, with its calibration scaled to match (``K`` and ``P`` by the
+    pixel-centre convention of ``cv2.resize``: x' = (x + 0.5) s - 0.5); the frame itself
+    when it is no finer than that (or ``working_fx_px`` is 0). The pair stays rectified:
+    both images are scaled alike, and the right projection's ``fx * baseline`` with them.
+    """
+    fx = float(frame.left_k[0])
+    if working_fx_px <= 0 or fx <= RESAMPLE_ABOVE * working_fx_px:
+        return frame
+    h, w = frame.left.shape[:2]
+    size = (max(1, round(w * working_fx_px / fx)), max(1, round(h * working_fx_px / fx)))
+    sx, sy = size[0] / w, size[1] / h
+    scale = np.array([[sx, 0.0, 0.5 * sx - 0.5], [0.0, sy, 0.5 * sy - 0.5], [0.0, 0.0, 1.0]])
+    k = scale @ np.asarray(frame.left_k, float).reshape(3, 3)
+    p = scale @ np.asarray(frame.right_p, float).reshape(3, 4)
+    return StereoFrame(frame.stamp_ns,
+                       cv2.resize(frame.left, size, interpolation=cv2.INTER_AREA),
+                       cv2.resize(frame.right, size, interpolation=cv2.INTER_AREA),
+                       k.ravel(), p.ravel())
 
 
 @dataclass
@@ -164,7 +200,10 @@ class RoverDetector:
         return self.camera
 
     def observe(self, frame: StereoFrame) -> PairObservation:
-        """The pair's contribution under the configured method (see the module)."""
+        """The pair's contribution under the configured method (see the module), at the
+        working resolution (``RoverConfig.working_fx_px``; :attr:`camera` is then the
+        working camera)."""
+        frame = at_working_resolution(frame, self.cfg.working_fx_px)
         if self.cfg.method == "per_pair":
             return PairObservation(records=detections_to_records(self.detect(frame)))
         camera = self._camera(frame)
@@ -201,7 +240,9 @@ class RoverDetector:
         return disparity(left, right, st)[::2, ::2]
 
     def candidates(self, frame: StereoFrame) -> tuple[list[Candidate], dict | None]:
-        """Candidates above the rover thresholds (unclassified) and the metric images."""
+        """Candidates above the rover thresholds (unclassified) and the metric images, at
+        the working resolution."""
+        frame = at_working_resolution(frame, self.cfg.working_fx_px)
         camera = self._camera(frame)
         left = cv2.cvtColor(frame.left, cv2.COLOR_BGR2GRAY)
         right = cv2.cvtColor(frame.right, cv2.COLOR_BGR2GRAY)
@@ -222,6 +263,7 @@ class RoverDetector:
 
     def detect(self, frame: StereoFrame) -> list[Candidate]:
         """Classified detections of one pair (candidates the classifiers accept)."""
+        frame = at_working_resolution(frame, self.cfg.working_fx_px)
         cands, metrics = self.candidates(frame)
         if self.classifier is None or not cands:
             for c in cands:
@@ -249,10 +291,19 @@ def detections_to_records(dets: list[Candidate]) -> np.ndarray:
 
 
 def check_model(classifier: RoverClassifier | None, cfg: RoverConfig) -> None:
-    """Raise ValueError when a rover model lacks what ``cfg``'s method runs."""
+    """Raise ValueError when a rover model lacks what ``cfg``'s method runs, or was
+    trained at another working resolution (a model that does not record one, as those
+    before 2026-11-28, seventeenth session, was trained at the default)."""
     if classifier is None:
         return
     where = classifier.meta.get("path", "the rover model")
+    trained_fx = classifier.meta.get("provenance", {}).get("working_fx_px")
+    if cfg.runs_classifier and trained_fx is not None and \
+            abs(float(trained_fx) - cfg.working_fx_px) > 0.02 * max(float(trained_fx), 1.0):
+        raise ValueError(f"{where}: trained at a working resolution of {float(trained_fx):g} "
+                         f"px (focal length), the detector works at {cfg.working_fx_px:g} "
+                         f"px: its features would not mean the same (retrain it at this "
+                         f"resolution, or set working_fx_px to {float(trained_fx):g})")
     if cfg.method == "per_pair" and not classifier.per_pair:
         raise ValueError(f"{where}: no Rock Rover / Outcrop Rover for the per_pair method "
                          "(train them: roi_detector train --method per_pair)")

@@ -36,6 +36,7 @@ from roi_detector.rover_pipeline import (
     DriveMapper,
     RoverConfig,
     RoverDetector,
+    at_working_resolution,
     far_rock_records,
 )
 from roi_detector.truth import Truth, match_to_truth
@@ -63,6 +64,8 @@ def labelled_candidates(bag_dir: str, feature_sets: tuple[str, ...], every: int 
     xs: dict[str, list] = {fs: [] for fs in feature_sets}
     labels, stamps = [], []
     for frame in read_stereo_frames(bag_dir, bad, every=every):
+        # The features are taken from the image the candidates were found in.
+        frame = at_working_resolution(frame, cfg.working_fx_px)
         cands, metrics = det.candidates(frame)
         if not cands:
             continue
@@ -98,6 +101,7 @@ def train_rover_model(bags: list[str], out: str, every: int = 2, k: int = 5,
     summary = {"method": "per_pair", "bags": [str(Path(b).resolve()) for b in bags],
                "seeds": _seeds(bags),
                "every": every, "k": k, "feature_set": feature_set, "threshold": 0.5,
+               "working_fx_px": RoverConfig().working_fx_px,
                "samples": len(ya), "rocks": int((ya == 1).sum()),
                "outcrops": int((ya == 2).sum()), "negatives": int((ya == 0).sum()),
                "train_s": round(time.perf_counter() - t0, 1),
@@ -293,7 +297,8 @@ def train_rock_rovers(bags: list[str], out: str, k: int = 5, log=print,
     summary = {"method": "elevation_map", "bags": [str(Path(b).resolve()) for b in bags],
                "seeds": _seeds(bags), "kind": kind, "k": k,
                "threshold": RoverConfig().far.min_score,
-               "population": population, "samples": n["far_samples"],
+               "population": population, "working_fx_px": RoverConfig().working_fx_px,
+               "samples": n["far_samples"],
                "rocks": n["far_rocks"], "negatives": n["far_samples"] - n["far_rocks"],
                "ignore_near_m": ignore_near_m, "ignored_near_rocks": ignored,
                "map_rock_samples": n["map_samples"], "map_rocks": n["map_rocks"],

@@ -530,3 +530,78 @@ def test_near_rock_distance_measures_to_rocks_only():
     assert np.allclose(d, [9.0, 5.0])
     none = SimpleNamespace(rois=rois[rois["label"] == OUTCROP])
     assert np.isinf(near_rock_distance(np.array([[0.0, 0.0]]), none)).all()
+
+
+def test_a_finer_camera_is_resampled_to_the_working_resolution_and_stays_calibrated():
+    """A pair whose focal length is finer than ``working_fx_px`` is resampled to it, its
+    K and P scaled so that a point of the scene projects where it lands in the resampled
+    image and the baseline is kept; one at or under it comes back as it is."""
+    from roi_detector.inputs import StereoFrame
+    from roi_detector.rover_pipeline import at_working_resolution
+
+    w, h, fx = 1024, 768, 887.0
+    k = [fx, 0, 511.5, 0, fx, 383.5, 0, 0, 1]
+    p = [fx, 0, 511.5, -fx * 0.3, 0, fx, 383.5, 0, 0, 0, 1, 0]
+    left = np.zeros((h, w, 3), np.uint8)
+    cam = StereoCamera.from_camera_info(k, p, w, h, EXTRINSIC)
+    ground = np.array([[6.0, 0.8, 0.0]])
+    (u, v), = cam.project_base(ground)[0]
+    left[int(v) - 8:int(v) + 8, int(u) - 8:int(u) + 8] = 255  # a bright square there
+    frame = StereoFrame(1, left, left.copy(), np.array(k), np.array(p))
+
+    out = at_working_resolution(frame, 457.0)
+    assert out.left.shape[1] == round(w * 457.0 / fx) and out.right.shape == out.left.shape
+    small = StereoCamera.from_camera_info(out.left_k, out.right_p, out.left.shape[1],
+                                          out.left.shape[0], EXTRINSIC)
+    assert small.fx == pytest.approx(457.0, rel=2e-3)
+    assert small.baseline_m == pytest.approx(0.3)
+    # The point projects where the scaled image puts its pixel ...
+    sx, sy = out.left.shape[1] / w, out.left.shape[0] / h
+    (us, vs), = small.project_base(ground)[0]
+    assert us == pytest.approx((u + 0.5) * sx - 0.5, abs=1e-6)
+    assert vs == pytest.approx((v + 0.5) * sy - 0.5, abs=1e-6)
+    # ... and where the square drawn around it lands (intensity centroid).
+    wgt = out.left[..., 0].astype(float)
+    ys, xs = np.mgrid[:wgt.shape[0], :wgt.shape[1]]
+    cx, cy = (wgt * xs).sum() / wgt.sum(), (wgt * ys).sum() / wgt.sum()
+    assert cx == pytest.approx((int(u) - 0.5 + 0.5) * sx - 0.5, abs=0.05)
+    assert cy == pytest.approx((int(v) - 0.5 + 0.5) * sy - 0.5, abs=0.05)
+    # The simulator's own camera (457 px) and a switched-off working resolution: untouched.
+    assert at_working_resolution(frame, 0.0) is frame
+    assert at_working_resolution(frame, 900.0) is frame
+
+
+def test_a_model_trained_at_another_working_resolution_is_refused(tmp_path):
+    """The rover model records the working resolution its features were taken at; a
+    detector at another one refuses it, naming both, and one that records none (models
+    before the field) is taken as trained at the default."""
+    from roi_detector.classifier import BinaryClassifier, ClassifierConfig
+    from roi_detector.elevation_map import MAP_ROCK_FEATURES
+    from roi_detector.far_rocks import far_feature_names
+    from roi_detector.rover_classifier import (
+        FAR_ROCK_CLASSIFIER,
+        MAP_ROCK_CLASSIFIER,
+        RoverClassifier,
+        save_rover_model,
+    )
+    from roi_detector.rover_pipeline import RoverConfig, RoverDetector
+
+    rng = np.random.default_rng(3)
+    clfs = {}
+    for name, names in ((FAR_ROCK_CLASSIFIER, far_feature_names()),
+                        (MAP_ROCK_CLASSIFIER, MAP_ROCK_FEATURES)):
+        x = rng.normal(0, 1, (40, len(names))).astype(np.float32)
+        clfs[name] = BinaryClassifier(name, names, ClassifierConfig(kind="gradient_boosting")
+                                      ).fit(x, (x[:, 0] > 0).astype(np.uint8))
+    for fx, ok in ((None, True), (460.0, True), (887.0, False)):
+        path = tmp_path / f"m{fx}.npz"
+        save_rover_model(path, clfs, {"method": "elevation_map"} |
+                         ({} if fx is None else {"working_fx_px": fx}))
+        model = RoverClassifier.load(path)
+        if ok:
+            RoverDetector(EXTRINSIC, model, RoverConfig())
+        else:
+            with pytest.raises(ValueError, match=r"m887\.0\.npz: trained at a working "
+                               r"resolution of 887 px .* works at 460 px"):
+                RoverDetector(EXTRINSIC, model, RoverConfig())
+            RoverDetector(EXTRINSIC, model, RoverConfig(working_fx_px=887.0))
