@@ -1,4 +1,5 @@
-"""``atacama_sim generate --preset {atacama_1km,quick,tiny} --seed N --out bags/NAME``."""
+"""``atacama_sim generate --preset {atacama_1km,quick,tiny} --seed N --out bags/NAME
+[--set SECTION.FIELD=VALUE ...]``."""
 
 from __future__ import annotations
 
@@ -25,18 +26,28 @@ def main(argv: list[str] | None = None) -> int:
     gen.add_argument("--orbital-only", action="store_true",
                      help="the orbital image, truth and world.yaml only: no traverse, no "
                           "rosbag (training data for orbital_gn train)")
+    gen.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE",
+                     help="override one field of the preset's configuration (repeatable; "
+                     "a YAML value: e.g. camera.width=1024 camera.hfov_deg=60 "
+                     "route.length_m=600 imu.gravity=3.721); world.yaml records the result")
     gen.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
 
-    overrides: dict = {}
+    try:
+        overrides = parse_overrides(args.set)
+    except ValueError as exc:
+        parser.error(str(exc))
     if args.crs:
         overrides.setdefault("site", {})["crs"] = args.crs
     if args.site_lonlat:
         overrides.setdefault("site", {})["site_lonlat"] = tuple(args.site_lonlat)
     if args.crs and args.crs.upper().startswith("IAU_2015:499") and not args.site_lonlat:
         overrides["site"]["site_lonlat"] = (-24.55, 18.2)  # Oxia Planum, Mars
-        overrides["imu"] = {"gravity": 3.721}
-    cfg = make_config(args.preset, args.seed, overrides)
+        overrides.setdefault("imu", {}).setdefault("gravity", 3.721)
+    try:
+        cfg = make_config(args.preset, args.seed, overrides)
+    except (KeyError, TypeError, ValueError) as exc:
+        parser.error(f"--set: {exc}")
     from atacama_sim.generate import generate  # deferred: heavy imports
 
     stats = generate(cfg, args.out, progress=not args.no_progress,
@@ -44,6 +55,35 @@ def main(argv: list[str] | None = None) -> int:
     summary = {k: stats[k] for k in ("rois", "route", "timing_s", "render_s_per_stereo_frame")}
     print(json.dumps(summary, indent=1))
     return 0
+
+
+def parse_overrides(items: list[str]) -> dict:
+    """Nested overrides for :func:`~atacama_sim.config.make_config` from
+    ``SECTION.FIELD=VALUE`` strings (VALUE read as YAML: numbers, lists, strings).
+
+    Raises:
+        ValueError: naming an item that is not of that form.
+    """
+    import yaml
+
+    out: dict = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        path = key.strip().split(".")
+        if not sep or len(path) < 2 or not all(path):
+            raise ValueError(f"--set {item!r}: expected SECTION.FIELD=VALUE (e.g. "
+                             "camera.width=1024)")
+        try:
+            parsed = yaml.safe_load(value)
+        except yaml.YAMLError as exc:
+            raise ValueError(f"--set {item!r}: the value is not YAML ({exc})") from None
+        node = out
+        for part in path[:-1]:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ValueError(f"--set {item!r}: {part} is set as a value and a section")
+        node[path[-1]] = parsed
+    return out
 
 
 if __name__ == "__main__":

@@ -237,10 +237,22 @@ def _override(obj: Any, values: dict[str, Any]) -> None:
         if not hasattr(obj, key):
             raise KeyError(f"unknown config field '{key}' in {type(obj).__name__}")
         current = getattr(obj, key)
-        if dataclasses.is_dataclass(current) and isinstance(value, dict):
+        if dataclasses.is_dataclass(current):
+            if not isinstance(value, dict):
+                raise TypeError(f"{type(obj).__name__}.{key} is a section: give its fields")
             _override(current, value)
-        else:
-            setattr(obj, key, type(current)(value) if isinstance(current, tuple) else value)
+            continue
+        number = (int, float)
+        if isinstance(current, number) and not isinstance(current, bool) and \
+                (not isinstance(value, number) or isinstance(value, bool)
+                 or (isinstance(current, int) and not float(value).is_integer())):
+            raise TypeError(f"{type(obj).__name__}.{key}: expected "
+                            f"{type(current).__name__}, got {value!r}")
+        if isinstance(current, tuple) and not isinstance(value, list | tuple):
+            raise TypeError(f"{type(obj).__name__}.{key}: expected a list, got {value!r}")
+        if isinstance(current, tuple | int | float) and not isinstance(current, bool):
+            value = type(current)(value)
+        setattr(obj, key, value)
 
 
 def make_config(preset: str = "atacama_1km", seed: int = 1,

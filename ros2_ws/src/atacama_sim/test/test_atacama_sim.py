@@ -463,3 +463,30 @@ def test_orbital_only_writes_the_same_orbital_products_and_no_traverse(
                  "--no-progress", "--out", str(tmp_path / "cli")]) == 0
     assert (tmp_path / "cli" / "orbital.tif").is_file()
     assert not (tmp_path / "cli" / "rosbag").exists()
+
+
+def test_set_overrides_a_preset_field_and_refuses_bad_ones(tmp_path: Path, capsys) -> None:
+    """``--set SECTION.FIELD=VALUE`` changes that field of the preset (world.yaml records
+    it, the rig in rover.yaml follows); a malformed item, an unknown field or a value of
+    the wrong type stops the command with a message naming it, before anything is
+    written."""
+    from atacama_sim.cli import main, parse_overrides
+
+    assert parse_overrides(["camera.width=1024", "route.rois_target=[3, 8]"]) == \
+        {"camera": {"width": 1024}, "route": {"rois_target": [3, 8]}}
+    out = tmp_path / "set"
+    assert main(["generate", "--preset", "tiny", "--seed", str(SEED), "--orbital-only",
+                 "--no-progress", "--out", str(out), "--set", "camera.baseline_m=0.3",
+                 "--set", "orbital.gsd_m=0.5"]) == 0
+    config = yaml.safe_load((out / "world.yaml").read_text())["config"]
+    assert config["camera"]["baseline_m"] == 0.3 and config["orbital"]["gsd_m"] == 0.5
+    for item, message in (("camerawidth=5", "expected SECTION.FIELD=VALUE"),
+                          ("camera.nope=1", "unknown config field 'nope' in CameraConfig"),
+                          ("camera.width=abc", "CameraConfig.width: expected int"),
+                          ("camera=5", "expected SECTION.FIELD=VALUE")):
+        bad = tmp_path / "bad"
+        with pytest.raises(SystemExit):
+            main(["generate", "--preset", "tiny", "--orbital-only", "--no-progress",
+                  "--out", str(bad), "--set", item])
+        assert message in capsys.readouterr().err
+        assert not bad.exists()
