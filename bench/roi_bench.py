@@ -14,6 +14,7 @@ Usage (from the repository root, after ``source env.sh``)::
 
     python bench/roi_bench.py --name eval bags/atacama_1km_s1 bags/atacama_1km_s2
     python bench/roi_bench.py --name recipes --every 2 --recipes bags/quick
+    python bench/roi_bench.py --name cameras_other --as-they-come bags/quick_cam1024_s7
 """
 
 from __future__ import annotations
@@ -153,6 +154,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="BAG_NAME=GN.geojson: also match the LN against this (detected) GN")
     ap.add_argument("--recipes", action="store_true",
                     help="also the paper's per_pair method (and its Hessian rock mask)")
+    ap.add_argument("--as-they-come", action="store_true",
+                    help="also the detector on the stereo pairs as they come (working_fx_px "
+                    "0), beside the default, which resamples a camera finer than its "
+                    "working resolution")
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args(argv)
     if args.threads == 1:
@@ -169,6 +174,9 @@ def main(argv: list[str] | None = None) -> int:
                     ("per_pair_paper_rock_mask", RoverConfig(
                         method="per_pair", thresholds=RoverThresholds(rock_method="hessian")),
                      args.model)]
+    if args.as_they_come:
+        configs.append(("elevation_map_as_they_come", RoverConfig(working_fx_px=0.0),
+                        args.model))
     vo = dict(v.split("=", 1) for v in args.vo)
     gns = dict(v.split("=", 1) for v in args.gn)
     work = RESULTS / f"roi_{args.name}_work"

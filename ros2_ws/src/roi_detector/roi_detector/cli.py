@@ -214,7 +214,8 @@ def _cmd_train(args) -> int:
     else:
         summary = train_rock_rovers(args.bags, args.out, k=args.k,
                                     population=args.population, jobs=args.jobs,
-                                    kind=args.kind, ignore_near_m=args.ignore_near)
+                                    kind=args.kind, ignore_near_m=args.ignore_near,
+                                    working_fx_px=args.working_fx)
     print(json.dumps(summary, indent=2))
     return 0
 
@@ -319,6 +320,11 @@ def main(argv: list[str] | None = None) -> int:
                    help="elevation_map: leave out of training the far tracks labelled false "
                    f"within M m of a truth rock (default {IGNORE_NEAR_M:g}: train on every "
                    "track)")
+    p.add_argument("--working-fx", type=float, default=RoverConfig().working_fx_px,
+                   metavar="PX",
+                   help="elevation_map: the working resolution the samples are taken at (as "
+                   "roi_detector ln --working-fx; the model records it and a detector at "
+                   "another refuses it; default %(default)g)")
     p.set_defaults(func=_cmd_train)
     p = sub.add_parser("truth-odometry", help="truth trajectory re-expressed in odom (TUM)")
     p.add_argument("bag")

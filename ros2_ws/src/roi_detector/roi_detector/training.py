@@ -129,7 +129,8 @@ def drive_with_truth_odometry(bag_dir: str, mapper: DriveMapper, log=print,
     return truth, stats
 
 
-def far_rock_samples(bag_dir: str, log=print, population: str = "measured") -> dict:
+def far_rock_samples(bag_dir: str, log=print, population: str = "measured",
+                     working_fx_px: float = RoverConfig().working_fx_px) -> dict:
     """The far tracks of a drive (truth trajectory as the odometry, every pair): every
     candidate (the rules passed) or every measured track (``population``), with its
     :func:`~roi_detector.far_rocks.far_rock_features`, whether it matches a truth rock,
@@ -147,7 +148,7 @@ def far_rock_samples(bag_dir: str, log=print, population: str = "measured") -> d
     # No classifier: every track is measured and described, and every map rock reported,
     # whatever a model would say.
     mapper = DriveMapper(RoverConfig(far_rocks=True, classify_far_rocks=False,
-                                     classify_map_rocks=False))
+                                     classify_map_rocks=False, working_fx_px=working_fx_px))
     truth, _ = drive_with_truth_odometry(bag_dir, mapper, log, describe=True)
     tracks = [r for r in mapper.far.measured if r.features is not None
               and (r.candidate or population == "measured")]
@@ -225,8 +226,8 @@ def _seeds(bags: list[str]) -> list:
     return seeds
 
 
-def _far_samples_quiet(bag: str, population: str) -> dict:
-    return far_rock_samples(bag, lambda m: None, population)
+def _far_samples_quiet(bag: str, population: str, working_fx_px: float) -> dict:
+    return far_rock_samples(bag, lambda m: None, population, working_fx_px)
 
 
 def fit_rock_rovers(far_x: np.ndarray, far_y: np.ndarray, map_x: np.ndarray,
@@ -262,7 +263,8 @@ def fit_rock_rovers(far_x: np.ndarray, far_y: np.ndarray, map_x: np.ndarray,
 def train_rock_rovers(bags: list[str], out: str, k: int = 5, log=print,
                       population: str = "measured", jobs: int = 1,
                       kind: str = "gradient_boosting",
-                      ignore_near_m: float = IGNORE_NEAR_M) -> dict:
+                      ignore_near_m: float = IGNORE_NEAR_M,
+                      working_fx_px: float = RoverConfig().working_fx_px) -> dict:
     """Train the elevation_map method's two Rock Rovers (``kind``: boosted trees, or the
     paper's PCA + kNN with ``k`` neighbours) on the drives of ``bags`` (``jobs`` bags at a
     time, each in its own process) and write both to ``out``: the far rocks' on the far
@@ -278,9 +280,10 @@ def train_rock_rovers(bags: list[str], out: str, k: int = 5, log=print,
         from concurrent.futures import ProcessPoolExecutor
 
         with ProcessPoolExecutor(jobs) as pool:
-            samples = list(pool.map(_far_samples_quiet, bags, [population] * len(bags)))
+            samples = list(pool.map(_far_samples_quiet, bags, [population] * len(bags),
+                                    [working_fx_px] * len(bags)))
     else:
-        samples = [far_rock_samples(bag, log, population) for bag in bags]
+        samples = [far_rock_samples(bag, log, population, working_fx_px) for bag in bags]
     for bag, data in zip(bags, samples, strict=True):
         log(f"{bag}: {len(data['y'])} far tracks ({population}), {int(data['y'].sum())} "
             f"rocks; {int(data['candidate'].sum())} candidates; {len(data['map_y'])} map "
@@ -297,7 +300,7 @@ def train_rock_rovers(bags: list[str], out: str, k: int = 5, log=print,
     summary = {"method": "elevation_map", "bags": [str(Path(b).resolve()) for b in bags],
                "seeds": _seeds(bags), "kind": kind, "k": k,
                "threshold": RoverConfig().far.min_score,
-               "population": population, "working_fx_px": RoverConfig().working_fx_px,
+               "population": population, "working_fx_px": working_fx_px,
                "samples": n["far_samples"],
                "rocks": n["far_rocks"], "negatives": n["far_samples"] - n["far_rocks"],
                "ignore_near_m": ignore_near_m, "ignored_near_rocks": ignored,
@@ -306,7 +309,7 @@ def train_rock_rovers(bags: list[str], out: str, k: int = 5, log=print,
                "train_s": round(time.perf_counter() - t0, 1),
                "command": f"roi_detector train {' '.join(bags)} --out {out} "
                           f"--population {population} --kind {kind} "
-                          f"--ignore-near {ignore_near_m:g}"}
+                          f"--ignore-near {ignore_near_m:g} --working-fx {working_fx_px:g}"}
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     save_rover_model(out, {FAR_ROCK_CLASSIFIER: clf, MAP_ROCK_CLASSIFIER: map_clf}, summary)
     return summary
