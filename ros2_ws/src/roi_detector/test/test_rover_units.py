@@ -371,23 +371,14 @@ def test_a_far_rock_model_serves_the_elevation_map_and_only_it(tmp_path):
         RoverClassifier.load(other)
 
 
-def test_the_map_rocks_rock_rover_is_loaded_and_given_to_the_map(tmp_path):
-    """A model holding both Rock Rovers (what ``roi_detector train`` writes): the map
-    gets the map rocks' and scores its rock regions' features with it; off, the map's
-    rules decide alone."""
+def _two_rock_rovers(rng: np.random.Generator) -> dict:
+    """Both Rock Rovers (far and map rocks, boosted trees) fitted on random features whose
+    common factor says rock (> 0) or not, as ``roi_detector train`` writes them."""
     from roi_detector.classifier import BinaryClassifier, ClassifierConfig
-    from roi_detector.cli import load_classifier
     from roi_detector.elevation_map import MAP_ROCK_FEATURES
     from roi_detector.far_rocks import far_feature_names
-    from roi_detector.rover_classifier import (
-        FAR_ROCK_CLASSIFIER,
-        MAP_ROCK_CLASSIFIER,
-        RoverClassifier,
-        save_rover_model,
-    )
-    from roi_detector.rover_pipeline import DriveMapper, RoverConfig
+    from roi_detector.rover_classifier import FAR_ROCK_CLASSIFIER, MAP_ROCK_CLASSIFIER
 
-    rng = np.random.default_rng(5)
     clfs = {}
     for name, names in ((FAR_ROCK_CLASSIFIER, far_feature_names()),
                         (MAP_ROCK_CLASSIFIER, MAP_ROCK_FEATURES)):
@@ -395,6 +386,19 @@ def test_the_map_rocks_rock_rover_is_loaded_and_given_to_the_map(tmp_path):
         x = (f[:, None] + rng.normal(0, 0.1, (60, len(names)))).astype(np.float32)
         clfs[name] = BinaryClassifier(name, names, ClassifierConfig(kind="gradient_boosting")
                                       ).fit(x, (f > 0).astype(np.uint8))
+    return clfs
+
+
+def test_the_map_rocks_rock_rover_is_loaded_and_given_to_the_map(tmp_path):
+    """A model holding both Rock Rovers (what ``roi_detector train`` writes): the map
+    gets the map rocks' and scores its rock regions' features with it; off, the map's
+    rules decide alone."""
+    from roi_detector.cli import load_classifier
+    from roi_detector.elevation_map import MAP_ROCK_FEATURES
+    from roi_detector.rover_classifier import RoverClassifier, save_rover_model
+    from roi_detector.rover_pipeline import DriveMapper, RoverConfig
+
+    clfs = _two_rock_rovers(np.random.default_rng(5))
     path = tmp_path / "both.npz"
     save_rover_model(path, clfs, {"method": "elevation_map"})
     model = load_classifier(str(path), RoverConfig())
@@ -575,24 +579,10 @@ def test_a_model_trained_at_another_working_resolution_is_refused(tmp_path):
     """The rover model records the working resolution its features were taken at; a
     detector at another one refuses it, naming both, and one that records none (models
     before the field) is taken as trained at the default."""
-    from roi_detector.classifier import BinaryClassifier, ClassifierConfig
-    from roi_detector.elevation_map import MAP_ROCK_FEATURES
-    from roi_detector.far_rocks import far_feature_names
-    from roi_detector.rover_classifier import (
-        FAR_ROCK_CLASSIFIER,
-        MAP_ROCK_CLASSIFIER,
-        RoverClassifier,
-        save_rover_model,
-    )
+    from roi_detector.rover_classifier import RoverClassifier, save_rover_model
     from roi_detector.rover_pipeline import RoverConfig, RoverDetector
 
-    rng = np.random.default_rng(3)
-    clfs = {}
-    for name, names in ((FAR_ROCK_CLASSIFIER, far_feature_names()),
-                        (MAP_ROCK_CLASSIFIER, MAP_ROCK_FEATURES)):
-        x = rng.normal(0, 1, (40, len(names))).astype(np.float32)
-        clfs[name] = BinaryClassifier(name, names, ClassifierConfig(kind="gradient_boosting")
-                                      ).fit(x, (x[:, 0] > 0).astype(np.uint8))
+    clfs = _two_rock_rovers(np.random.default_rng(3))
     for fx, ok in ((None, True), (460.0, True), (887.0, False)):
         path = tmp_path / f"m{fx}.npz"
         save_rover_model(path, clfs, {"method": "elevation_map"} |
