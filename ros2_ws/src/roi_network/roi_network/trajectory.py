@@ -113,6 +113,14 @@ def numeric_rows(path: str | Path, what: str, row: str, width: int,
     return rows
 
 
+def numeric_table(path: str | Path, what: str, row: str, width: int,
+                  allow_empty: bool = False) -> np.ndarray:
+    """The rows of :func:`numeric_rows` as an (N, ``width``) array, in file order ((0,
+    ``width``) for a file without rows when ``allow_empty``); same errors."""
+    rows = numeric_rows(path, what, row, width, allow_empty)
+    return np.array([v for _, v in rows], float).reshape(-1, width)
+
+
 def read_tum_rows(path: str | Path, allow_empty: bool = False) -> np.ndarray:
     """(N, 8) rows of a TUM file, in file order ((0, 8) for a file without rows when
     ``allow_empty``).
@@ -121,8 +129,7 @@ def read_tum_rows(path: str | Path, allow_empty: bool = False) -> np.ndarray:
         ValueError: naming the file (and line) of the first malformed row, or a file with
             no pose (unless ``allow_empty``).
     """
-    rows = numeric_rows(path, "poses", TUM_FIELDS, 8, allow_empty)
-    return np.array([v for _, v in rows], float).reshape(-1, 8)
+    return numeric_table(path, "poses", TUM_FIELDS, 8, allow_empty)
 
 
 def read_pose_covariance_rows(path: str | Path) -> tuple[np.ndarray, np.ndarray]:

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from roi_network.trajectory import numeric_rows, read_tum_rows
+from roi_network.trajectory import TUM_FIELDS, numeric_table
 from rover_bringup.errors import GloblocError
 from rover_bringup.gn_check import check_truth_frame
 from rover_bringup.run_outputs import (
@@ -74,20 +74,16 @@ def read_tum(path: Path) -> np.ndarray:
         GloblocError: Unreadable, or a row that is not 8 finite numbers (the message names
             the file and the line).
     """
-    try:
-        return read_tum_rows(path, allow_empty=True)
-    except ValueError as exc:
-        raise GloblocError(str(exc)) from None
+    return _read_table(path, 8, TUM_FIELDS)
 
 
 def _read_table(path: Path, columns: int, row: str) -> np.ndarray:
-    """(N, ``columns``) rows of one of the run's tables (``row`` says what a row holds);
-    (0, ``columns``) for a table without rows; GloblocError naming the file and line."""
+    """(N, ``columns``) rows of one of the run's files (``row`` says what a row holds);
+    (0, ``columns``) for a file without rows; GloblocError naming the file and line."""
     try:
-        rows = numeric_rows(path, "rows", row, columns, allow_empty=True)
+        return numeric_table(path, "rows", row, columns, allow_empty=True)
     except ValueError as exc:
         raise GloblocError(str(exc)) from None
-    return np.array([v for _, v in rows], float).reshape(-1, columns)
 
 
 def read_events(path: Path) -> list[tuple[float, str, float | None]]:
