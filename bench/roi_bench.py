@@ -158,6 +158,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="also the detector on the stereo pairs as they come (working_fx_px "
                     "0), beside the default, which resamples a camera finer than its "
                     "working resolution")
+    ap.add_argument("--outcrop-rover", action="store_true",
+                    help="also the map's outcrops decided by the model's Outcrop Rover on the "
+                    "averaged_wide rule's candidates, beside the default")
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args(argv)
     if args.threads == 1:
@@ -165,6 +168,7 @@ def main(argv: list[str] | None = None) -> int:
     import cv2
 
     cv2.setNumThreads(args.threads)
+    from roi_detector.elevation_map import outcrop_rule
     from roi_detector.rover_candidates import RoverThresholds
     from roi_detector.rover_pipeline import RoverConfig
 
@@ -174,6 +178,10 @@ def main(argv: list[str] | None = None) -> int:
                     ("per_pair_paper_rock_mask", RoverConfig(
                         method="per_pair", thresholds=RoverThresholds(rock_method="hessian")),
                      args.model)]
+    if args.outcrop_rover:
+        configs.append(("elevation_map_outcrop_rover", RoverConfig(
+            classify_map_outcrops=True, elevation_map=outcrop_rule("averaged_wide")),
+            args.model))
     if args.as_they_come:
         configs.append(("elevation_map_as_they_come", RoverConfig(working_fx_px=0.0),
                         args.model))

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from roi_detector.elevation_map import OUTCROP_RULES, outcrop_rule
+from roi_detector.elevation_map import DEFAULT_OUTCROP_RULE, OUTCROP_RULES, outcrop_rule
 from roi_detector.far_rocks import FAR_KINDS, FAR_POPULATIONS, FarRockConfig
 from roi_detector.inputs import (
     POSE_COVARIANCE_FILE,
@@ -79,7 +79,8 @@ def load_classifier(path: str | None, cfg: RoverConfig | None = None):
     model = Path(path) if path else _installed_model()
     if model is None:
         for need, on in (("classify_far_rocks", cfg.classifies_far_rocks),
-                         ("classify_map_rocks", cfg.classifies_map_rocks)):
+                         ("classify_map_rocks", cfg.classifies_map_rocks),
+                         ("classify_map_outcrops", cfg.classifies_map_outcrops)):
             if on:
                 raise ValueError(f"{need}: no rover model (none at {DEFAULT_MODEL}; "
                                  "train one: make rover-model)")
@@ -176,6 +177,7 @@ def _cmd_ln(args) -> int:
                       ln=LnConfig(min_obs=args.min_obs), far_rocks=args.far_rocks,
                       classify_far_rocks=args.classify_far_rocks,
                       classify_map_rocks=args.classify_map_rocks,
+                      classify_map_outcrops=args.classify_map_outcrops,
                       far=FarRockConfig(classified=args.far_classified),
                       elevation_map=outcrop_rule(args.outcrops),
                       working_fx_px=args.working_fx)
@@ -215,7 +217,9 @@ def _cmd_train(args) -> int:
         summary = train_rock_rovers(args.bags, args.out, k=args.k,
                                     population=args.population, jobs=args.jobs,
                                     kind=args.kind, ignore_near_m=args.ignore_near,
-                                    working_fx_px=args.working_fx)
+                                    working_fx_px=args.working_fx,
+                                    outcrops=args.outcrops, cache=args.cache,
+                                    outcrop_kind=args.outcrop_kind)
     print(json.dumps(summary, indent=2))
     return 0
 
@@ -241,7 +245,7 @@ def main(argv: list[str] | None = None) -> int:
         return node_main(["roi_detector", *argv])
     # Here, past the node's branch: the roi_detector node (which also imports this
     # module, for load_classifier) has no use for the training code, which reads truth.
-    from roi_detector.training import IGNORE_NEAR_M
+    from roi_detector.training import IGNORE_NEAR_M, OUTCROP_KIND, OUTCROP_TRAINING_RULE
 
     ap = argparse.ArgumentParser(prog="roi_detector", description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -270,13 +274,18 @@ def main(argv: list[str] | None = None) -> int:
                    help="elevation_map: the model's map-rock Rock Rover decides which of "
                    "the map's rock regions are rocks (the paper's Sec. 4.3 classifier on "
                    "the map's measurements)")
+    p.add_argument("--classify-map-outcrops", action=argparse.BooleanOptionalAction,
+                   default=RoverConfig().classify_map_outcrops,
+                   help="elevation_map: the model's map outcrops' Outcrop Rover decides which "
+                   "of the map's outcrop regions are outcrops (the paper's Sec. 4.3 "
+                   "classifier; the model records the --outcrops rule it was trained on)")
     p.add_argument("--far-classified", default=FarRockConfig().classified,
                    choices=FAR_POPULATIONS,
                    help="classified far rocks: the Rock Rover decides every measured track "
                    "that passes the geometric tests, in place of the size thresholds "
                    "(measured, default), or the candidates the rules pass (the paper's "
                    "order)")
-    p.add_argument("--outcrops", default="per_cell", choices=tuple(OUTCROP_RULES),
+    p.add_argument("--outcrops", default=DEFAULT_OUTCROP_RULE, choices=tuple(OUTCROP_RULES),
                    help="elevation_map: the outcrop rule: per observed cell (default), or on "
                    "the colour averaged over 0.2 m (finds more outcrops seen from afar, "
                    "and more grey regions that are not: docs/roi_detector.md)")
@@ -325,6 +334,17 @@ def main(argv: list[str] | None = None) -> int:
                    help="elevation_map: the working resolution the samples are taken at (as "
                    "roi_detector ln --working-fx; the model records it and a detector at "
                    "another refuses it; default %(default)g)")
+    p.add_argument("--outcrops", default=OUTCROP_TRAINING_RULE, choices=tuple(OUTCROP_RULES),
+                   help="elevation_map: the outcrop rule whose candidates the map outcrops' "
+                   "Outcrop Rover is trained on (the model records it; a map with another "
+                   "rule refuses it; default %(default)s)")
+    p.add_argument("--outcrop-kind", default=OUTCROP_KIND, choices=FAR_KINDS,
+                   help="elevation_map: the map outcrops' Outcrop Rover as the paper's PCA + "
+                   "kNN (default) or boosted trees")
+    p.add_argument("--cache", default=None, metavar="DIR",
+                   help="elevation_map: keep each drive's samples in DIR/<bag name>.npz and "
+                   "read them from there when taken with the same settings (empty it when "
+                   "the detector changes)")
     p.set_defaults(func=_cmd_train)
     p = sub.add_parser("truth-odometry", help="truth trajectory re-expressed in odom (TUM)")
     p.add_argument("bag")

@@ -26,7 +26,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, PointCloud2
 
-from roi_detector.elevation_map import OUTCROP_RULES, outcrop_rule
+from roi_detector.elevation_map import DEFAULT_OUTCROP_RULE, OUTCROP_RULES, outcrop_rule
 from roi_detector.far_rocks import FAR_POPULATIONS, FarRockConfig
 from roi_detector.inputs import BadInput, OdometryBuffer, StereoFrame, decode_image
 from roi_detector.rover_pipeline import (
@@ -101,6 +101,12 @@ class RoiDetectorNode(Node):
               "which of the map's rock regions are rocks (the paper's Sec. 4.3 classifier "
               "on the map's measurements)"),
         ).value
+        classify_outcrops = self.declare_parameter(
+            "classify_map_outcrops", RoverConfig().classify_map_outcrops,
+            d(description="elevation_map method: the model's map outcrops' Outcrop Rover "
+              "decides which of the map's outcrop regions are outcrops (the paper's Sec. "
+              "4.3 classifier; the model records the outcrops rule it was trained on)"),
+        ).value
         far_classified = self.declare_parameter(
             "far_classified", FarRockConfig().classified,
             d(description=f"one of {FAR_POPULATIONS}: with classify_far_rocks, the Rock "
@@ -109,7 +115,7 @@ class RoiDetectorNode(Node):
               "(the paper's order)"),
         ).value
         outcrops = self.declare_parameter(
-            "outcrops", "per_cell",
+            "outcrops", DEFAULT_OUTCROP_RULE,
             d(description=f"one of {tuple(OUTCROP_RULES)}: elevation_map's outcrop rule, "
               "per observed cell (default) or on the colour averaged over 0.2 m "
               "(roi_detector.elevation_map.AVERAGED_OUTCROPS)"),
@@ -137,6 +143,7 @@ class RoiDetectorNode(Node):
         cfg = RoverConfig(method=method, tracker=TrackerConfig(min_obs=int(min_obs)),
                           far_rocks=bool(far_rocks), classify_far_rocks=bool(classify_far),
                           classify_map_rocks=bool(classify_map),
+                          classify_map_outcrops=bool(classify_outcrops),
                           far=FarRockConfig(classified=str(far_classified)),
                           elevation_map=emap_cfg, working_fx_px=float(working_fx))
         classifier = load_classifier(model or None, cfg)

@@ -192,6 +192,9 @@ class ElevationMapConfig:
         map_rock_min_score: with a map-rock Rock Rover (``ElevationMap(rock_classifier=)``),
             a rock is reported while its probability at its latest measurement is above
             this.
+        map_outcrop_min_score: with a map outcrops' Outcrop Rover
+            (``ElevationMap(outcrop_classifier=)``), an outcrop is reported while its
+            probability at its kept measurement is above this.
     """
 
     cell_m: float = 0.1
@@ -233,6 +236,7 @@ class ElevationMapConfig:
     rock_pale_seed_height_m: float = 0.45
     rock_centre: str = "upper"
     map_rock_min_score: float = 0.5
+    map_outcrop_min_score: float = 0.5
 
     def __post_init__(self) -> None:
         if self.rock_centre not in ROCK_CENTRES:
@@ -248,9 +252,33 @@ class ElevationMapConfig:
 AVERAGED_OUTCROPS: dict = dict(outcrop_colour_sigma_m=0.2, outcrop_max_saturation=0.5,
                                outcrop_min_value=0.55, outcrop_opening=1,
                                outcrop_min_cells_fraction=0.5)
+#: The averaged colour's candidates for the map outcrops' Outcrop Rover: saturation < 0.6,
+#: where the averaged rule alone took gravel patches for outcrops (on 8 training bags 21
+#: of 26 counted outcrops found, at 24 of 51 true nodes; docs/roi_detector.md,
+#: 2026-11-26, late); the classifier decides (``RoverConfig.classify_map_outcrops``).
+AVERAGED_WIDE_OUTCROPS: dict = {**AVERAGED_OUTCROPS, "outcrop_max_saturation": 0.6}
 #: The outcrop rules by name (``roi_detector ln --outcrops``, the node's ``outcrops``
-#: parameter): ``per_cell``, the default; ``averaged``, :data:`AVERAGED_OUTCROPS`.
-OUTCROP_RULES: dict[str, dict] = {"per_cell": {}, "averaged": AVERAGED_OUTCROPS}
+#: parameter): ``per_cell``, the default; ``averaged``, :data:`AVERAGED_OUTCROPS`;
+#: ``averaged_wide``, :data:`AVERAGED_WIDE_OUTCROPS`.
+PER_CELL_OUTCROPS: dict = dict(outcrop_colour_sigma_m=0.0, outcrop_max_saturation=0.6,
+                               outcrop_min_value=0.8, outcrop_opening=2,
+                               outcrop_min_cells_fraction=1.0)
+OUTCROP_RULES: dict[str, dict] = {"per_cell": PER_CELL_OUTCROPS, "averaged": AVERAGED_OUTCROPS,
+                                  "averaged_wide": AVERAGED_WIDE_OUTCROPS}
+#: The outcrop rule of the rover pipeline's default configuration (``RoverConfig``, the
+#: CLI's and the node's ``outcrops``).
+DEFAULT_OUTCROP_RULE = "per_cell"
+#: The fields of :class:`ElevationMapConfig` that make an outcrop rule: a map outcrops'
+#: Outcrop Rover records them, and is refused by a map whose rule differs.
+OUTCROP_RULE_FIELDS: tuple[str, ...] = (
+    "outcrop_max_saturation", "outcrop_min_value", "outcrop_min_area_m2",
+    "outcrop_colour_sigma_m", "outcrop_opening", "outcrop_min_cells_fraction",
+    "max_outcrop_height_m")
+
+
+def outcrop_rule_of(cfg: ElevationMapConfig) -> dict:
+    """The :data:`OUTCROP_RULE_FIELDS` of ``cfg``."""
+    return {k: getattr(cfg, k) for k in OUTCROP_RULE_FIELDS}
 
 
 def outcrop_rule(name: str, cfg: ElevationMapConfig | None = None) -> ElevationMapConfig:
@@ -277,6 +305,23 @@ MAP_ROCK_FEATURES: tuple[str, ...] = (
     "clutter_share", "pale", "log_pairs_max", "log_pairs_median", "log_weight_median")
 
 
+#: The features of a map outcrop region (:meth:`ElevationMap._outcrop_features`), the map
+#: outcrops' Outcrop Rover's input: its footprint (log area of the hull, cells over hull,
+#: log major axis, minor over major), its relief (95th percentile and median height above
+#: the ground, the spread of its heights, the share of its cells with a height observed),
+#: its colour per cell (median, 10th and 90th percentile relative saturation and value),
+#: the soil around it (the ring 0.3-1.5 m outside: its median saturation and value less
+#: the region's), the rocks in and around it (the share of its cells, and of the ring's,
+#: that stand above the rocks' grow height and are dark), and how it was observed (log of
+#: the most and the median pairs that saw its cells, of the median colour samples).
+MAP_OUTCROP_FEATURES: tuple[str, ...] = (
+    "log_area_m2", "hull_fill", "log_major_m", "minor_over_major", "height_m",
+    "height_median_m", "height_spread_m", "seen_share", "saturation", "saturation_p10",
+    "saturation_p90", "value", "value_p10", "value_p90", "ring_saturation_contrast",
+    "ring_value_contrast", "rock_share", "ring_rock_share", "log_pairs_max",
+    "log_pairs_median", "log_samples_median")
+
+
 @dataclass
 class MapRoi:
     """An ROI of the elevation map (odom)."""
@@ -295,10 +340,11 @@ class MapRoi:
     n_pairs: int = 0
     odom_cov: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
     last_t: float = 0.0
-    #: A rock's :data:`MAP_ROCK_FEATURES` at its latest measurement (None: an outcrop,
-    #: or a record built elsewhere).
+    #: A rock's :data:`MAP_ROCK_FEATURES` at its latest measurement, an outcrop's
+    #: :data:`MAP_OUTCROP_FEATURES` at its kept one (None: a record built elsewhere).
     features: np.ndarray | None = None
-    #: The map-rock Rock Rover's probability at that measurement (NaN: not classified).
+    #: The map rocks' Rock Rover's probability at that measurement, or the map outcrops'
+    #: Outcrop Rover's (NaN: not classified).
     score: float = float("nan")
 
 
@@ -311,12 +357,19 @@ class ElevationMap:
             (N,) probability of a rock; each rock region measured is scored, and a rock
             is reported while its latest score is above ``cfg.map_rock_min_score``
             (:meth:`consistent`). None: the rules alone decide.
+        outcrop_classifier: the map outcrops' Outcrop Rover, (N, F)
+            :data:`MAP_OUTCROP_FEATURES` -> (N,) probability of an outcrop; an outcrop
+            is reported while the score of its kept measurement is above
+            ``cfg.map_outcrop_min_score``. None: the rules alone decide.
     """
 
     def __init__(self, cfg: ElevationMapConfig = ElevationMapConfig(),
-                 rock_classifier: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
+                 rock_classifier: Callable[[np.ndarray], np.ndarray] | None = None,
+                 outcrop_classifier: Callable[[np.ndarray], np.ndarray] | None = None
+                 ) -> None:
         self.cfg = cfg
         self.rock_classifier = rock_classifier
+        self.outcrop_classifier = outcrop_classifier
         self.n = round(cfg.window_m / cfg.cell_m)
         self.origin = None  # odom x, y of cell (0, 0)'s corner
         # Per cell, over the pairs that saw it: the sum of the pairs' weights, of weight *
@@ -745,8 +798,55 @@ class ElevationMap:
                 continue
             r = self._measure(OUTCROP, cells, off, float(np.nanmedian(ground[sl][reg])), height)
             if r is not None and r.area_m2 >= c.outcrop_min_area_m2:
+                r.features = self._outcrop_features(r, lab == k, rel, seen, si, sj)
+                if self.outcrop_classifier is not None:
+                    r.score = float(self.outcrop_classifier(r.features[None])[0])
                 out.append(r)
         return out
+
+    def _outcrop_features(self, r: MapRoi, reg_full: np.ndarray, rel: np.ndarray,
+                          seen: np.ndarray, si: slice, sj: slice) -> np.ndarray:
+        """The :data:`MAP_OUTCROP_FEATURES` of an outcrop region (``reg_full`` its mask
+        over the window ``si``, ``sj``; ``rel`` the height above the ground there)."""
+        c = self.cfg
+        nb = self.nb[si, sj]
+        have = nb > 0
+        sat = self.bs[si, sj] / np.maximum(nb, 1)
+        val = self.bv[si, sj] / np.maximum(nb, 1)
+        rows, cols = np.nonzero(reg_full)
+        far = round(1.5 / c.cell_m)
+        box = (slice(max(rows.min() - far, 0), rows.max() + far + 1),
+               slice(max(cols.min() - far, 0), cols.max() + far + 1))
+        reg = reg_full[box]
+        ring = ndimage.binary_dilation(reg, iterations=far) & \
+            ~ndimage.binary_dilation(reg, iterations=round(0.3 / c.cell_m))
+        rs, rv, rh, rsn = (a[box] for a in (sat, val, rel, seen))
+        hv = have[box]
+        in_c = reg & hv
+        ring_c = ring & hv
+        nan = float("nan")
+
+        def pct(a, q):
+            return float(np.percentile(a, q)) if len(a) else nan
+
+        s_in, v_in = rs[in_c], rv[in_c]
+        h_in = rh[reg & rsn]
+        rocky = (rh > c.rock_grow_height_m) & rsn & (rv < (c.rock_dark_value or 0.55))
+        npairs = self.npairs[si, sj][box][reg]
+        feats = np.array([
+            np.log(max(r.area_m2, 1e-3)), reg.sum() * c.cell_m**2 / max(r.area_m2, 1e-6),
+            np.log(max(r.major_m, 1e-3)), r.minor_m / max(r.major_m, 1e-3), r.height_m,
+            pct(h_in, 50), float(np.std(h_in)) if len(h_in) else nan,
+            float((reg & rsn).sum()) / max(float(reg.sum()), 1.0),
+            pct(s_in, 50), pct(s_in, 10), pct(s_in, 90),
+            pct(v_in, 50), pct(v_in, 10), pct(v_in, 90),
+            pct(rs[ring_c], 50) - pct(s_in, 50), pct(rv[ring_c], 50) - pct(v_in, 50),
+            float(rocky[reg].mean()), float(rocky[ring & rsn].mean()) if (ring & rsn).any()
+            else 0.0,
+            np.log1p(float(npairs.max())), np.log1p(float(np.median(npairs))),
+            np.log1p(float(np.median(nb[box][in_c]))) if in_c.any() else 0.0,
+        ], np.float32)
+        return np.nan_to_num(feats, nan=0.0)
 
     def _associate(self, r: MapRoi) -> int:
         """Merge ``r`` into the ROI it coincides with, or add it; returns its id."""
@@ -778,11 +878,13 @@ class ElevationMap:
         """The ROIs the map reports: found in at least ``min_rounds`` rounds and
         ``min_hit_ratio`` of the rounds that examined their cells, and, a rock scored by
         the map-rock Rock Rover, scoring above ``map_rock_min_score`` at its latest
-        measurement."""
+        measurement, an outcrop scored by the map outcrops' Outcrop Rover, above
+        ``map_outcrop_min_score`` at its kept one."""
         c = self.cfg
+        floor = {ROCK: c.map_rock_min_score, OUTCROP: c.map_outcrop_min_score}
         return [r for r in self.rois if r.rounds >= c.min_rounds
                 and r.rounds >= c.min_hit_ratio * r.examined
-                and not r.score <= c.map_rock_min_score]
+                and not r.score <= floor[r.label]]
 
     def to_records(self, rois: list[MapRoi] | None = None) -> np.ndarray:
         """ROI records (odom) of ``rois`` (default: :meth:`consistent`) with covariance:

@@ -40,6 +40,10 @@ FAR_ROCK_CLASSIFIER = "far_rock_rover"
 #: decides which rock regions of the elevation map are rocks, on their
 #: :data:`~roi_detector.elevation_map.MAP_ROCK_FEATURES`.
 MAP_ROCK_CLASSIFIER = "map_rock_rover"
+#: The name of the map outcrops' Outcrop Rover in a rover model (elevation_map method): it
+#: decides which outcrop regions of the elevation map are outcrops, on their
+#: :data:`~roi_detector.elevation_map.MAP_OUTCROP_FEATURES`.
+MAP_OUTCROP_CLASSIFIER = "map_outcrop_rover"
 
 
 def _region(c: Candidate) -> Region:
@@ -116,6 +120,15 @@ class RoverClassifier:
         """The model holds the map rocks' Rock Rover."""
         return MAP_ROCK_CLASSIFIER in self.classifiers
 
+    @property
+    def map_outcrops(self) -> bool:
+        """The model holds the map outcrops' Outcrop Rover."""
+        return MAP_OUTCROP_CLASSIFIER in self.classifiers
+
+    def map_outcrop_proba(self, x: np.ndarray) -> np.ndarray:
+        """(N,) probability that map outcrop regions of features ``x`` are outcrops."""
+        return self.classifiers[MAP_OUTCROP_CLASSIFIER].predict_proba(x)
+
     def map_rock_proba(self, x: np.ndarray) -> np.ndarray:
         """(N,) probability that map rock regions of features ``x`` are rocks."""
         return self.classifiers[MAP_ROCK_CLASSIFIER].predict_proba(x)
@@ -149,11 +162,12 @@ class RoverClassifier:
 
         classifiers, meta = load_classifiers(path)
         per_pair = [n for n in CLASSIFIER_NAMES.values() if n in classifiers]
-        if FAR_ROCK_CLASSIFIER not in classifiers and MAP_ROCK_CLASSIFIER not in classifiers \
+        elevation_map = (FAR_ROCK_CLASSIFIER, MAP_ROCK_CLASSIFIER, MAP_OUTCROP_CLASSIFIER)
+        if not any(n in classifiers for n in elevation_map) \
                 and len(per_pair) < len(CLASSIFIER_NAMES):
             raise ModelFileError(
                 f"{path}: not a rover model (holds {sorted(classifiers)}; expected "
-                f"'{FAR_ROCK_CLASSIFIER}', '{MAP_ROCK_CLASSIFIER}' and/or "
+                f"{', '.join(repr(n) for n in elevation_map)} and/or "
                 f"{sorted(CLASSIFIER_NAMES.values())})")
         if 0 < len(per_pair) < len(CLASSIFIER_NAMES):
             raise ModelFileError(f"{path}: per_pair classifiers incomplete (holds {per_pair})")

@@ -24,7 +24,15 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from roi_detector.elevation_map import ElevationMap, ElevationMapConfig, appearance
+from roi_detector.elevation_map import (
+    DEFAULT_OUTCROP_RULE,
+    OUTCROP_RULES,
+    ElevationMap,
+    ElevationMapConfig,
+    appearance,
+    outcrop_rule,
+    outcrop_rule_of,
+)
 from roi_detector.far_rocks import Blob, FarRock, FarRockConfig, FarRockTracker, dark_blobs
 from roi_detector.inputs import StereoFrame
 from roi_detector.local_network import LnConfig, LocalNetwork
@@ -70,6 +78,10 @@ class RoverConfig:
         classify_map_rocks: elevation_map method: the rover model's map-rock Rock Rover
             decides which of the map's rock regions (those the height, area, ring and
             relief rules pass) are rocks (``ElevationMap(rock_classifier=)``).
+        classify_map_outcrops: elevation_map method: the rover model's map outcrops'
+            Outcrop Rover decides which of the map's outcrop regions are outcrops
+            (``ElevationMap(outcrop_classifier=)``). The model records the outcrop rule
+            its candidates came from; a map with another rule refuses it.
         working_fx_px: the angular resolution the detector works at, as a focal length
             (pixels per radian at the image centre): a rectified pair whose left focal
             length is finer is resampled to it (:func:`at_working_resolution`), one
@@ -83,10 +95,12 @@ class RoverConfig:
     """
 
     method: str = "elevation_map"
-    elevation_map: ElevationMapConfig = field(default_factory=ElevationMapConfig)
+    elevation_map: ElevationMapConfig = field(
+        default_factory=lambda: outcrop_rule(DEFAULT_OUTCROP_RULE))
     far_rocks: bool = True
     classify_far_rocks: bool = True
     classify_map_rocks: bool = True
+    classify_map_outcrops: bool = False
     far: FarRockConfig = field(default_factory=FarRockConfig)
     stereo: StereoConfig = field(default_factory=StereoConfig)
     thresholds: RoverThresholds = field(default_factory=RoverThresholds)
@@ -106,11 +120,16 @@ class RoverConfig:
         return self.method == "elevation_map" and self.classify_map_rocks
 
     @property
+    def classifies_map_outcrops(self) -> bool:
+        """The map outcrops' Outcrop Rover decides the elevation map's outcrop regions."""
+        return self.method == "elevation_map" and self.outcrops and self.classify_map_outcrops
+
+    @property
     def runs_classifier(self) -> bool:
-        """A rover model has a part in this configuration (per_pair, or far or map rocks
-        classified)."""
+        """A rover model has a part in this configuration (per_pair, or far rocks, map
+        rocks or map outcrops classified)."""
         return self.method == "per_pair" or self.classifies_far_rocks or \
-            self.classifies_map_rocks
+            self.classifies_map_rocks or self.classifies_map_outcrops
 
 
 METHODS = ("elevation_map", "per_pair")
@@ -314,6 +333,30 @@ def check_model(classifier: RoverClassifier | None, cfg: RoverConfig) -> None:
         raise ValueError(f"{where}: no map-rock Rock Rover to classify the map's rocks "
                          "with (train it: roi_detector train; or --no-classify-map-rocks, "
                          "node parameter classify_map_rocks: false)")
+    if cfg.classifies_map_outcrops:
+        if not classifier.map_outcrops:
+            raise ValueError(f"{where}: no map outcrops' Outcrop Rover to classify the map's "
+                             "outcrops with (train it: roi_detector train; or "
+                             "--no-classify-map-outcrops, node parameter "
+                             "classify_map_outcrops: false)")
+        trained = classifier.meta.get("provenance", {}).get("map_outcrop_rule")
+        mine = outcrop_rule_of(cfg.elevation_map)
+        if trained is not None and any(
+                not np.isclose(float(trained.get(k, np.nan)), float(v)) for k, v in mine.items()):
+            names = [n for n, r in OUTCROP_RULES.items()
+                     if outcrop_rule_of(outcrop_rule(n)) == {k: trained.get(k) for k in mine}]
+            raise ValueError(f"{where}: its Outcrop Rover was trained on the candidates of "
+                             f"another outcrop rule ({names[0] if names else trained}) "
+                             f"than the map's ({mine}): use that rule (--outcrops, node "
+                             "parameter outcrops), or retrain")
+
+
+def map_outcrop_classifier(classifier: RoverClassifier | None, cfg: RoverConfig):
+    """The map outcrops' Outcrop Rover (probability of features) when ``cfg`` classifies
+    map outcrops and the model holds one, else None."""
+    if classifier is None or not cfg.classifies_map_outcrops or not classifier.map_outcrops:
+        return None
+    return classifier.map_outcrop_proba
 
 
 def far_classifier(classifier: RoverClassifier | None, cfg: RoverConfig):
@@ -431,7 +474,8 @@ class DriveMapper:
         self.cfg = cfg
         self.classifier = classifier
         self.tracker = Tracker(cfg.tracker)
-        self.map = ElevationMap(cfg.elevation_map, map_rock_classifier(classifier, cfg))
+        self.map = ElevationMap(cfg.elevation_map, map_rock_classifier(classifier, cfg),
+                                map_outcrop_classifier(classifier, cfg))
         self.far = FarRockTracker(cfg.far, far_classifier(classifier, cfg))
         self.ln = ln if ln is not None else LocalNetwork(cfg.ln)
         self._tracks = empty_records(0)

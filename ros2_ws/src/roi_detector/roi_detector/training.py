@@ -8,13 +8,17 @@ that ROI's class; otherwise it is a negative.
   (or every far-rock candidate) of a drive run with the truth trajectory as odometry
   (:func:`far_rock_samples`); and, from the same drive, the map rocks' Rock Rover, on
   every rock region of the elevation map found in at least ``min_rounds`` detection
-  rounds, at its latest measurement (:func:`map_rock_samples`).
+  rounds, at its latest measurement (:func:`map_rock_samples`); and the map outcrops'
+  Outcrop Rover, on every outcrop region of that map (its outcrop rule's candidates)
+  found in at least ``min_rounds`` rounds, at its kept measurement
+  (:func:`map_outcrop_samples`).
 - per_pair method: Rock Rover and Outcrop Rover, on every candidate of every
   ``every``-th stereo pair (:func:`labelled_candidates`).
 """
 
 from __future__ import annotations
 
+import json
 import tempfile
 import time
 from pathlib import Path
@@ -22,11 +26,17 @@ from pathlib import Path
 import numpy as np
 
 from roi_detector.classifier import BinaryClassifier, ClassifierConfig
-from roi_detector.elevation_map import MAP_ROCK_FEATURES
+from roi_detector.elevation_map import (
+    MAP_OUTCROP_FEATURES,
+    MAP_ROCK_FEATURES,
+    outcrop_rule,
+    outcrop_rule_of,
+)
 from roi_detector.far_rocks import FAR_KINDS, FAR_POPULATIONS, far_feature_names
 from roi_detector.inputs import BadInput, load_rover_params, read_stereo_frames
 from roi_detector.rover_classifier import (
     FAR_ROCK_CLASSIFIER,
+    MAP_OUTCROP_CLASSIFIER,
     MAP_ROCK_CLASSIFIER,
     features_of,
     save_rover_model,
@@ -40,7 +50,7 @@ from roi_detector.rover_pipeline import (
     far_rock_records,
 )
 from roi_detector.truth import Truth, match_to_truth
-from roi_network.records import ROCK, xy
+from roi_network.records import OUTCROP, ROCK, xy
 
 #: Far tracks labelled false that lie within this distance (m) of a truth rock are left
 #: out of the Rock Rover's training, neither label (``roi_detector train --ignore-near``;
@@ -51,6 +61,14 @@ from roi_network.records import ROCK, xy
 #: found one rock more and kept three false rocks more (docs/roi_detector.md,
 #: 2026-11-28): not the default.
 IGNORE_NEAR_M = 0.0
+#: The outcrop rule whose candidates the map outcrops' Outcrop Rover is trained on
+#: (``roi_detector train --outcrops``; :data:`~roi_detector.elevation_map.OUTCROP_RULES`).
+OUTCROP_TRAINING_RULE = "averaged_wide"
+#: The map outcrops' Outcrop Rover's classifier (``roi_detector train --outcrop-kind``):
+#: the paper's PCA + kNN. Left one of the 12 training drives out, it kept 35 of the 38
+#: outcrop regions the map reports and none of the 40 others; boosted trees kept 34 and 1
+#: (``bench/outcrop_rover_bench.py``; docs/roi_detector.md, eighteenth session).
+OUTCROP_KIND = "knn"
 
 
 def labelled_candidates(bag_dir: str, feature_sets: tuple[str, ...], every: int = 2,
@@ -130,7 +148,8 @@ def drive_with_truth_odometry(bag_dir: str, mapper: DriveMapper, log=print,
 
 
 def far_rock_samples(bag_dir: str, log=print, population: str = "measured",
-                     working_fx_px: float = RoverConfig().working_fx_px) -> dict:
+                     working_fx_px: float = RoverConfig().working_fx_px,
+                     outcrops: str = OUTCROP_TRAINING_RULE) -> dict:
     """The far tracks of a drive (truth trajectory as the odometry, every pair): every
     candidate (the rules passed) or every measured track (``population``), with its
     :func:`~roi_detector.far_rocks.far_rock_features`, whether it matches a truth rock,
@@ -138,8 +157,11 @@ def far_rock_samples(bag_dir: str, log=print, population: str = "measured",
 
     Returns:
         dict with ``x`` (N, F) float32, ``y`` (N,) 0/1, ``candidate`` (N,) bool,
-        ``xy_map`` (N, 2), ``near_rock_m`` (N,) (:func:`near_rock_distance`); and the
-        same drive's map rocks (:func:`map_rock_samples`) as ``map_x``, ``map_y``.
+        ``xy_map`` (N, 2), ``near_rock_m`` (N,) (:func:`near_rock_distance`); the same
+        drive's map rocks (:func:`map_rock_samples`) as ``map_x``, ``map_y``; and its map
+        outcrops under the outcrop rule ``outcrops`` (:func:`map_outcrop_samples`) as
+        ``outcrop_x``, ``outcrop_y``, and whether the map reports each
+        (``outcrop_reported``).
     """
     if population not in FAR_POPULATIONS:
         raise ValueError(f"population: unknown '{population}' (one of {FAR_POPULATIONS})")
@@ -147,24 +169,30 @@ def far_rock_samples(bag_dir: str, log=print, population: str = "measured",
 
     # No classifier: every track is measured and described, and every map rock reported,
     # whatever a model would say.
+    # The outcrop rule does not change the rocks: the far rocks are dropped only beside
+    # a map rock.
     mapper = DriveMapper(RoverConfig(far_rocks=True, classify_far_rocks=False,
-                                     classify_map_rocks=False, working_fx_px=working_fx_px))
+                                     classify_map_rocks=False, classify_map_outcrops=False,
+                                     elevation_map=outcrop_rule(outcrops),
+                                     working_fx_px=working_fx_px))
     truth, _ = drive_with_truth_odometry(bag_dir, mapper, log, describe=True)
     tracks = [r for r in mapper.far.measured if r.features is not None
               and (r.candidate or population == "measured")]
     n_feat = len(far_feature_names())
     map_x, map_y = map_rock_samples(mapper.map, truth)
+    outcrop_x, outcrop_y, reported = map_outcrop_samples(mapper.map, truth)
+    maps = {"map_x": map_x, "map_y": map_y, "outcrop_x": outcrop_x, "outcrop_y": outcrop_y,
+            "outcrop_reported": reported}
     if not tracks:
         return {"x": np.zeros((0, n_feat), np.float32), "y": np.zeros(0, np.uint8),
                 "candidate": np.zeros(0, bool), "xy_map": np.zeros((0, 2)),
-                "near_rock_m": np.zeros(0), "map_x": map_x, "map_y": map_y}
+                "near_rock_m": np.zeros(0), **maps}
     rec = far_rock_records(tracks)
     pts, j = match_nodes(rec, truth)
     y = true_nodes(rec, truth.rois, j, ROCK).astype(np.uint8)
     return {"x": np.stack([r.features for r in tracks]), "y": y,
             "candidate": np.array([r.candidate for r in tracks]), "xy_map": pts[:, :2],
-            "near_rock_m": near_rock_distance(pts[:, :2], truth),
-            "map_x": map_x, "map_y": map_y}
+            "near_rock_m": near_rock_distance(pts[:, :2], truth), **maps}
 
 
 def map_rock_samples(emap, truth: Truth) -> tuple[np.ndarray, np.ndarray]:
@@ -183,6 +211,28 @@ def map_rock_samples(emap, truth: Truth) -> tuple[np.ndarray, np.ndarray]:
     _, j = match_nodes(rec, truth)
     return (np.stack([r.features for r in rocks]).astype(np.float32),
             true_nodes(rec, truth.rois, j, ROCK).astype(np.uint8))
+
+
+def map_outcrop_samples(emap, truth: Truth) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The outcrop regions of a drive's elevation map (filled with the truth trajectory
+    as odometry) found in at least ``min_rounds`` detection rounds: their
+    :data:`~roi_detector.elevation_map.MAP_OUTCROP_FEATURES` at their kept measurement
+    (N, F), whether each matches a truth outcrop (N,) 0/1 (DESIGN.md's rule), and
+    whether the map reports it, its score aside (N,) bool (found in ``min_hit_ratio``
+    of the rounds that examined it)."""
+    from roi_detector.evaluation import match_nodes, true_nodes
+
+    c = emap.cfg
+    found = [r for r in emap.rois if r.label == OUTCROP and r.features is not None
+             and r.rounds >= c.min_rounds]
+    if not found:
+        return (np.zeros((0, len(MAP_OUTCROP_FEATURES)), np.float32), np.zeros(0, np.uint8),
+                np.zeros(0, bool))
+    rec = emap.to_records(found)
+    _, j = match_nodes(rec, truth)
+    return (np.stack([r.features for r in found]).astype(np.float32),
+            true_nodes(rec, truth.rois, j, OUTCROP).astype(np.uint8),
+            np.array([r.rounds >= c.min_hit_ratio * r.examined for r in found]))
 
 
 def near_rock_distance(xy_map: np.ndarray, truth: Truth) -> np.ndarray:
@@ -226,8 +276,36 @@ def _seeds(bags: list[str]) -> list:
     return seeds
 
 
-def _far_samples_quiet(bag: str, population: str, working_fx_px: float) -> dict:
-    return far_rock_samples(bag, lambda m: None, population, working_fx_px)
+def drive_samples(bag: str, population: str = "measured",
+                  working_fx_px: float = RoverConfig().working_fx_px,
+                  outcrops: str = OUTCROP_TRAINING_RULE, cache: str | Path | None = None,
+                  log=print) -> dict:
+    """:func:`far_rock_samples` of a drive, kept in ``cache`` (a directory; None: none)
+    as ``<bag name>.npz`` with the settings they were taken with, and read from there
+    when those settings match (re-taken, and overwritten, when they do not). A cache
+    does not know the code: empty it when the detector changes."""
+    settings = {"population": population, "working_fx_px": float(working_fx_px),
+                "outcrops": outcrops}
+    path = None if cache is None else Path(cache) / f"{Path(bag).name}.npz"
+    if path is not None and path.is_file():
+        try:
+            with np.load(path) as z:
+                if json.loads(str(z["settings"])) == settings:
+                    return {k: z[k] for k in z.files if k != "settings"}
+        except (OSError, ValueError, KeyError) as e:
+            log(f"{path}: not a samples cache ({e}): taking the samples again")
+    data = far_rock_samples(bag, log, population, working_fx_px, outcrops)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.stem + ".tmp.npz")
+        np.savez(tmp, settings=json.dumps(settings), **data)
+        tmp.replace(path)
+    return data
+
+
+def _drive_samples_quiet(bag: str, population: str, working_fx_px: float,
+                         outcrops: str, cache: str | None) -> dict:
+    return drive_samples(bag, population, working_fx_px, outcrops, cache, lambda m: None)
 
 
 def fit_rock_rovers(far_x: np.ndarray, far_y: np.ndarray, map_x: np.ndarray,
@@ -260,36 +338,60 @@ def fit_rock_rovers(far_x: np.ndarray, far_y: np.ndarray, map_x: np.ndarray,
                         "map_samples": len(map_y), "map_rocks": int(map_y.sum())}
 
 
+def fit_outcrop_rover(x: np.ndarray, y: np.ndarray, k: int = 5,
+                      kind: str = "gradient_boosting") -> BinaryClassifier | None:
+    """The map outcrops' Outcrop Rover fitted on map outcrop regions ``x``, ``y``
+    (:func:`map_outcrop_samples`); None when they are not both outcrops and non-outcrops
+    (drives that pass no outcrop, or whose every candidate is one)."""
+    if len(np.unique(y)) < 2:
+        return None
+    cfg = ClassifierConfig(n_components=8, k=k, kind=kind)
+    return BinaryClassifier(MAP_OUTCROP_CLASSIFIER, MAP_OUTCROP_FEATURES, cfg).fit(x, y)
+
+
 def train_rock_rovers(bags: list[str], out: str, k: int = 5, log=print,
                       population: str = "measured", jobs: int = 1,
                       kind: str = "gradient_boosting",
                       ignore_near_m: float = IGNORE_NEAR_M,
-                      working_fx_px: float = RoverConfig().working_fx_px) -> dict:
-    """Train the elevation_map method's two Rock Rovers (``kind``: boosted trees, or the
+                      working_fx_px: float = RoverConfig().working_fx_px,
+                      outcrops: str = OUTCROP_TRAINING_RULE,
+                      cache: str | None = None, outcrop_kind: str = OUTCROP_KIND) -> dict:
+    """Train the elevation_map method's classifiers (``kind``: boosted trees, or the
     paper's PCA + kNN with ``k`` neighbours) on the drives of ``bags`` (``jobs`` bags at a
-    time, each in its own process) and write both to ``out``: the far rocks' on the far
-    tracks (``population``, see :data:`FAR_POPULATIONS`) less the false ones within
-    ``ignore_near_m`` of a truth rock (:func:`trained_on`); the map rocks' on the map's
-    rock regions (:func:`map_rock_samples`)."""
-    if kind not in FAR_KINDS:
-        raise ValueError(f"kind: unknown '{kind}' (one of {FAR_KINDS})")
+    time, each in its own process) and write them to ``out``: the far rocks' Rock Rover
+    on the far tracks (``population``, see :data:`FAR_POPULATIONS`) less the false ones
+    within ``ignore_near_m`` of a truth rock (:func:`trained_on`); the map rocks' on the
+    map's rock regions (:func:`map_rock_samples`); the map outcrops' Outcrop Rover on the
+    map's outcrop regions under the outcrop rule ``outcrops``
+    (:func:`map_outcrop_samples`), which the model records, as ``outcrop_kind``; left out,
+    with a log line, when those are not both outcrops and non-outcrops. ``cache``: a
+    directory that keeps each drive's samples (:func:`drive_samples`)."""
+    for name, value in (("kind", kind), ("outcrop_kind", outcrop_kind)):
+        if value not in FAR_KINDS:
+            raise ValueError(f"{name}: unknown '{value}' (one of {FAR_KINDS})")
     trained_on(np.zeros(0), np.zeros(0), ignore_near_m)  # a bad distance fails here
+    rule = outcrop_rule_of(outcrop_rule(outcrops))  # an unknown rule fails here
     t0 = time.perf_counter()
-    x, y, mx, my, ignored = [], [], [], [], 0
+    x, y, mx, my, ox, oy, ignored = [], [], [], [], [], [], 0
     if jobs > 1:
         from concurrent.futures import ProcessPoolExecutor
 
         with ProcessPoolExecutor(jobs) as pool:
-            samples = list(pool.map(_far_samples_quiet, bags, [population] * len(bags),
-                                    [working_fx_px] * len(bags)))
+            n = len(bags)
+            samples = list(pool.map(_drive_samples_quiet, bags, [population] * n,
+                                    [working_fx_px] * n, [outcrops] * n, [cache] * n))
     else:
-        samples = [far_rock_samples(bag, log, population, working_fx_px) for bag in bags]
+        samples = [drive_samples(bag, population, working_fx_px, outcrops, cache, log)
+                   for bag in bags]
     for bag, data in zip(bags, samples, strict=True):
         log(f"{bag}: {len(data['y'])} far tracks ({population}), {int(data['y'].sum())} "
             f"rocks; {int(data['candidate'].sum())} candidates; {len(data['map_y'])} map "
-            f"rock regions, {int(data['map_y'].sum())} rocks")
+            f"rock regions, {int(data['map_y'].sum())} rocks; {len(data['outcrop_y'])} map "
+            f"outcrop regions, {int(data['outcrop_y'].sum())} outcrops")
         mx.append(data["map_x"])
         my.append(data["map_y"])
+        ox.append(data["outcrop_x"])
+        oy.append(data["outcrop_y"])
         keep = trained_on(data["y"], data["near_rock_m"], ignore_near_m)
         ignored += int((~keep).sum())
         x.append(data["x"][keep])
@@ -297,6 +399,11 @@ def train_rock_rovers(bags: list[str], out: str, k: int = 5, log=print,
     clf, map_clf, n = fit_rock_rovers(np.concatenate(x), np.concatenate(y),
                                       np.concatenate(mx), np.concatenate(my), k, kind,
                                       where=str(bags))
+    ox, oy = np.concatenate(ox), np.concatenate(oy)
+    outcrop_clf = fit_outcrop_rover(ox, oy, k, outcrop_kind)
+    if outcrop_clf is None:
+        log(f"no map outcrops' Outcrop Rover: {len(oy)} outcrop regions, {int(oy.sum())} "
+            "of them outcrops, not both outcrops and non-outcrops")
     summary = {"method": "elevation_map", "bags": [str(Path(b).resolve()) for b in bags],
                "seeds": _seeds(bags), "kind": kind, "k": k,
                "threshold": RoverConfig().far.min_score,
@@ -306,10 +413,16 @@ def train_rock_rovers(bags: list[str], out: str, k: int = 5, log=print,
                "ignore_near_m": ignore_near_m, "ignored_near_rocks": ignored,
                "map_rock_samples": n["map_samples"], "map_rocks": n["map_rocks"],
                "map_rock_threshold": RoverConfig().elevation_map.map_rock_min_score,
+               "map_outcrop_samples": len(oy), "map_outcrops": int(oy.sum()),
+               "map_outcrop_rule": rule, "map_outcrop_kind": outcrop_kind,
                "train_s": round(time.perf_counter() - t0, 1),
                "command": f"roi_detector train {' '.join(bags)} --out {out} "
                           f"--population {population} --kind {kind} "
-                          f"--ignore-near {ignore_near_m:g} --working-fx {working_fx_px:g}"}
+                          f"--ignore-near {ignore_near_m:g} --working-fx {working_fx_px:g} "
+                          f"--outcrops {outcrops} --outcrop-kind {outcrop_kind}"}
     Path(out).parent.mkdir(parents=True, exist_ok=True)
-    save_rover_model(out, {FAR_ROCK_CLASSIFIER: clf, MAP_ROCK_CLASSIFIER: map_clf}, summary)
+    classifiers = {FAR_ROCK_CLASSIFIER: clf, MAP_ROCK_CLASSIFIER: map_clf}
+    if outcrop_clf is not None:
+        classifiers[MAP_OUTCROP_CLASSIFIER] = outcrop_clf
+    save_rover_model(out, classifiers, summary)
     return summary

@@ -1,10 +1,13 @@
 """The drive's elevation map and the ROIs found in it (pure library, synthetic scenes)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from roi_detector.elevation_map import (
     AVERAGED_OUTCROPS,
+    MAP_OUTCROP_FEATURES,
     MAP_ROCK_FEATURES,
     ElevationMap,
     ElevationMapConfig,
@@ -468,3 +471,38 @@ def test_the_map_rock_rover_decides_which_rock_regions_are_reported():
     assert len(emap.rois) == 1 and len(emap.to_records()) == 0
     # Without a classifier the rules alone decide, score 1.
     assert _found(pts)["score"].tolist() == [1.0]
+
+
+def test_the_map_outcrop_rover_decides_which_outcrop_regions_are_reported():
+    """Each outcrop region measured is scored on its MAP_OUTCROP_FEATURES; an outcrop is
+    reported while its kept measurement's score is above map_outcrop_min_score, and a
+    rock's score is judged against the rocks' floor, not the outcrops'."""
+    pts, app = _slab()
+    seen = []
+
+    def rover(score):
+        def proba(x):
+            seen.append(x)
+            return np.full(len(x), score)
+        return proba
+
+    cfg = ElevationMapConfig(detect_every=2, map_outcrop_min_score=0.6)
+    emap = ElevationMap(cfg, outcrop_classifier=rover(0.7))
+    rec = _the_slab(emap, pts, app)
+    assert rec["score"] == pytest.approx(0.7)
+    x = np.concatenate(seen)
+    assert x.shape[1] == len(MAP_OUTCROP_FEATURES) and np.isfinite(x).all()
+    f = dict(zip(MAP_OUTCROP_FEATURES, emap.rois[0].features, strict=True))
+    # The slab is 0.4 of the soil's saturation, the ring around it the soil's; 0.1 m thick.
+    assert f["saturation"] == pytest.approx(0.4, abs=0.05)
+    assert f["ring_saturation_contrast"] == pytest.approx(0.6, abs=0.1)
+    assert f["log_area_m2"] == pytest.approx(np.log(rec["area_m2"]), abs=1e-5)
+    assert 0.05 < f["height_m"] < 0.2 and f["rock_share"] == 0.0 and f["seen_share"] > 0.9
+    # Refused (at or below the floor), it stays in the map, unreported.
+    emap = ElevationMap(cfg, outcrop_classifier=rover(0.55))
+    _drive(emap, pts, appearance=app)
+    assert len(emap.rois) == 1 and len(emap.to_records()) == 0
+    # The rocks' floor does not apply to it.
+    emap = ElevationMap(replace(cfg, map_rock_min_score=0.9), outcrop_classifier=rover(0.7))
+    _drive(emap, pts, appearance=app)
+    assert len(emap.to_records()) == 1

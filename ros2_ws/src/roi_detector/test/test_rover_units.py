@@ -595,3 +595,79 @@ def test_a_model_trained_at_another_working_resolution_is_refused(tmp_path):
                                r"resolution of 887 px .* works at 460 px"):
                 RoverDetector(EXTRINSIC, model, RoverConfig())
             RoverDetector(EXTRINSIC, model, RoverConfig(working_fx_px=887.0))
+
+
+def test_the_map_outcrops_outcrop_rover_is_fitted_loaded_and_checked_against_the_rule(
+        tmp_path):
+    """``roi_detector train`` fits the Outcrop Rover on the map's outcrop regions (none
+    when they are one class) and records the outcrop rule of its candidates; the map gets
+    it with classify_map_outcrops, a model without one is refused by name, and a map
+    whose outcrop rule differs from the recorded one refuses the model, naming the
+    rule."""
+    from roi_detector.elevation_map import MAP_OUTCROP_FEATURES, outcrop_rule, outcrop_rule_of
+    from roi_detector.rover_classifier import (
+        MAP_OUTCROP_CLASSIFIER,
+        RoverClassifier,
+        save_rover_model,
+    )
+    from roi_detector.rover_pipeline import DriveMapper, RoverConfig, check_model
+    from roi_detector.training import fit_outcrop_rover
+
+    rng = np.random.default_rng(4)
+    y = np.r_[np.ones(15), np.zeros(25)].astype(np.uint8)
+    x = rng.normal(size=(40, len(MAP_OUTCROP_FEATURES))) + y[:, None] * 3.0
+    assert fit_outcrop_rover(x[15:], y[15:]) is None  # no outcrop among them
+    rover = fit_outcrop_rover(x, y)
+    assert rover.name == MAP_OUTCROP_CLASSIFIER
+    assert (rover.predict_proba(x) > 0.5).tolist() == (y == 1).tolist()
+    clfs = _two_rock_rovers(rng)
+    wide = RoverConfig(classify_map_outcrops=True, elevation_map=outcrop_rule("averaged_wide"))
+    # Without it: refused by name when asked for, fine when not.
+    rocks_only = tmp_path / "rocks.npz"
+    save_rover_model(rocks_only, clfs, {"method": "elevation_map"})
+    with pytest.raises(ValueError, match=r"rocks\.npz: no map outcrops' Outcrop Rover"):
+        check_model(RoverClassifier.load(rocks_only), wide)
+    check_model(RoverClassifier.load(rocks_only), RoverConfig())
+    path = tmp_path / "all.npz"
+    save_rover_model(path, {**clfs, MAP_OUTCROP_CLASSIFIER: rover}, {
+        "method": "elevation_map",
+        "map_outcrop_rule": outcrop_rule_of(outcrop_rule("averaged_wide"))})
+    model = RoverClassifier.load(path)
+    assert model.map_outcrops
+    check_model(model, wide)
+    assert DriveMapper(wide, classifier=model).map.outcrop_classifier is not None
+    assert DriveMapper(RoverConfig(), classifier=model).map.outcrop_classifier is None
+    per_cell = RoverConfig(classify_map_outcrops=True)
+    with pytest.raises(ValueError, match=r"all\.npz: its Outcrop Rover was trained on the "
+                       r"candidates of another outcrop rule \(averaged_wide\)"):
+        check_model(model, per_cell)
+    # Outcrops off: nothing to classify, nothing to check.
+    check_model(model, RoverConfig(classify_map_outcrops=True, outcrops=False))
+
+
+def test_drive_samples_are_kept_per_bag_and_retaken_under_other_settings(tmp_path,
+                                                                         monkeypatch):
+    """``roi_detector train --cache``: a drive's samples are taken once per settings and
+    read back as they were written; other settings (or a damaged file) take them again."""
+    import roi_detector.training as training
+
+    calls = []
+
+    def fake(bag, log, population, working_fx_px, outcrops):
+        calls.append((bag, outcrops))
+        return {"x": np.full((2, 3), len(calls), np.float32), "y": np.array([1, 0], np.uint8),
+                "outcrop_y": np.zeros(0, np.uint8)}
+
+    monkeypatch.setattr(training, "far_rock_samples", fake)
+    cache = tmp_path / "cache"
+    first = training.drive_samples("bags/s1", cache=cache)
+    again = training.drive_samples("bags/s1", cache=cache)
+    assert len(calls) == 1 and (again["x"] == first["x"]).all() and set(again) == set(first)
+    other = training.drive_samples("bags/s1", outcrops="per_cell", cache=cache)
+    assert len(calls) == 2 and other["x"][0, 0] == 2.0
+    (cache / "s1.npz").write_bytes(b"not a cache")
+    logged = []
+    training.drive_samples("bags/s1", cache=cache, log=logged.append)
+    assert len(calls) == 3 and "s1.npz: not a samples cache" in logged[0]
+    training.drive_samples("bags/s1")  # no cache: always taken
+    assert len(calls) == 4
