@@ -286,9 +286,10 @@ def main(argv: list[str] | None = None) -> int:
                    "(measured, default), or the candidates the rules pass (the paper's "
                    "order)")
     p.add_argument("--outcrops", default=DEFAULT_OUTCROP_RULE, choices=tuple(OUTCROP_RULES),
-                   help="elevation_map: the outcrop rule: per observed cell (default), or on "
-                   "the colour averaged over 0.2 m (finds more outcrops seen from afar, "
-                   "and more grey regions that are not: docs/roi_detector.md)")
+                   help="elevation_map: the outcrop rule: the colour averaged over 0.2 m, "
+                   "saturation < 0.6 (averaged_wide, default: the Outcrop Rover's candidates), "
+                   "< 0.5 (averaged), or per observed cell (per_cell; with a rule other than "
+                   "the model's, add --no-classify-map-outcrops)")
     p.add_argument("--working-fx", type=float, default=RoverConfig().working_fx_px,
                    metavar="PX",
                    help="the angular resolution the detector works at, as a focal length in "

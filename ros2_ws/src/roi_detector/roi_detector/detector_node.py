@@ -116,9 +116,10 @@ class RoiDetectorNode(Node):
         ).value
         outcrops = self.declare_parameter(
             "outcrops", DEFAULT_OUTCROP_RULE,
-            d(description=f"one of {tuple(OUTCROP_RULES)}: elevation_map's outcrop rule, "
-              "per observed cell (default) or on the colour averaged over 0.2 m "
-              "(roi_detector.elevation_map.AVERAGED_OUTCROPS)"),
+            d(description=f"one of {tuple(OUTCROP_RULES)}: elevation_map's outcrop rule "
+              "(roi_detector.elevation_map.OUTCROP_RULES; the default's candidates are "
+              "decided by the model's Outcrop Rover: with another rule, set "
+              "classify_map_outcrops false)"),
         ).value
         working_fx = self.declare_parameter(
             "working_fx_px", RoverConfig().working_fx_px,

@@ -257,17 +257,21 @@ AVERAGED_OUTCROPS: dict = dict(outcrop_colour_sigma_m=0.2, outcrop_max_saturatio
 #: of 26 counted outcrops found, at 24 of 51 true nodes; docs/roi_detector.md,
 #: 2026-11-26, late); the classifier decides (``RoverConfig.classify_map_outcrops``).
 AVERAGED_WIDE_OUTCROPS: dict = {**AVERAGED_OUTCROPS, "outcrop_max_saturation": 0.6}
-#: The outcrop rules by name (``roi_detector ln --outcrops``, the node's ``outcrops``
-#: parameter): ``per_cell``, the default; ``averaged``, :data:`AVERAGED_OUTCROPS`;
-#: ``averaged_wide``, :data:`AVERAGED_WIDE_OUTCROPS`.
+#: The outcrop rule per observed cell, saturation < 0.6 and value > 0.8 (the default
+#: until 2026-11-28, eighteenth session, decided by the rule alone).
+
 PER_CELL_OUTCROPS: dict = dict(outcrop_colour_sigma_m=0.0, outcrop_max_saturation=0.6,
                                outcrop_min_value=0.8, outcrop_opening=2,
                                outcrop_min_cells_fraction=1.0)
+#: The outcrop rules by name (``roi_detector ln --outcrops``, the node's ``outcrops``
+#: parameter): ``per_cell``, :data:`PER_CELL_OUTCROPS`; ``averaged``,
+#: :data:`AVERAGED_OUTCROPS`; ``averaged_wide``, :data:`AVERAGED_WIDE_OUTCROPS`.
 OUTCROP_RULES: dict[str, dict] = {"per_cell": PER_CELL_OUTCROPS, "averaged": AVERAGED_OUTCROPS,
                                   "averaged_wide": AVERAGED_WIDE_OUTCROPS}
 #: The outcrop rule of the rover pipeline's default configuration (``RoverConfig``, the
-#: CLI's and the node's ``outcrops``).
-DEFAULT_OUTCROP_RULE = "per_cell"
+#: CLI's and the node's ``outcrops``): the candidates of the map outcrops' Outcrop Rover,
+#: which decides them by default (``RoverConfig.classify_map_outcrops``).
+DEFAULT_OUTCROP_RULE = "averaged_wide"
 #: The fields of :class:`ElevationMapConfig` that make an outcrop rule: a map outcrops'
 #: Outcrop Rover records them, and is refused by a map whose rule differs.
 OUTCROP_RULE_FIELDS: tuple[str, ...] = (

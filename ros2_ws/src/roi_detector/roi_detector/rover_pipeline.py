@@ -100,7 +100,7 @@ class RoverConfig:
     far_rocks: bool = True
     classify_far_rocks: bool = True
     classify_map_rocks: bool = True
-    classify_map_outcrops: bool = False
+    classify_map_outcrops: bool = True
     far: FarRockConfig = field(default_factory=FarRockConfig)
     stereo: StereoConfig = field(default_factory=StereoConfig)
     thresholds: RoverThresholds = field(default_factory=RoverThresholds)
@@ -348,7 +348,9 @@ def check_model(classifier: RoverClassifier | None, cfg: RoverConfig) -> None:
             raise ValueError(f"{where}: its Outcrop Rover was trained on the candidates of "
                              f"another outcrop rule ({names[0] if names else trained}) "
                              f"than the map's ({mine}): use that rule (--outcrops, node "
-                             "parameter outcrops), or retrain")
+                             "parameter outcrops), retrain, or let the rule alone decide "
+                             "(--no-classify-map-outcrops, node parameter "
+                             "classify_map_outcrops: false)")
 
 
 def map_outcrop_classifier(classifier: RoverClassifier | None, cfg: RoverConfig):

@@ -416,6 +416,7 @@ def train_rock_rovers(bags: list[str], out: str, k: int = 5, log=print,
                "map_outcrop_samples": len(oy), "map_outcrops": int(oy.sum()),
                "map_outcrop_rule": rule, "map_outcrop_kind": outcrop_kind,
                "train_s": round(time.perf_counter() - t0, 1),
+               "samples_cache": None if cache is None else str(cache),
                "command": f"roi_detector train {' '.join(bags)} --out {out} "
                           f"--population {population} --kind {kind} "
                           f"--ignore-near {ignore_near_m:g} --working-fx {working_fx_px:g} "

@@ -1,5 +1,6 @@
 """The drive's elevation map and the ROIs found in it (pure library, synthetic scenes)."""
 
+import functools
 from dataclasses import replace
 
 import numpy as np
@@ -418,16 +419,22 @@ def test_trace_reports_each_rock_region_and_the_test_that_rejected_it():
 
 
 def test_outcrop_rules_by_name_in_the_library_and_the_cli(monkeypatch):
-    """``per_cell`` is the default configuration, ``averaged`` is AVERAGED_OUTCROPS, and
+    """``per_cell`` is the library's default configuration (the rule that stands alone),
+    ``averaged`` is AVERAGED_OUTCROPS, ``averaged_wide`` the pipeline's default (the
+    Outcrop Rover's candidates); a rule sets every outcrop field, whatever ``cfg`` held;
     ``roi_detector ln --outcrops`` passes the rule to the detector; an unknown name is
     refused with the names."""
     from roi_detector import cli
-    from roi_detector.elevation_map import OUTCROP_RULES, outcrop_rule
+    from roi_detector.elevation_map import DEFAULT_OUTCROP_RULE, OUTCROP_RULES, outcrop_rule
+    from roi_detector.rover_pipeline import RoverConfig
 
     assert outcrop_rule("per_cell") == ElevationMapConfig()
+    assert RoverConfig().elevation_map == outcrop_rule(DEFAULT_OUTCROP_RULE) == \
+        outcrop_rule("averaged_wide")
     averaged = outcrop_rule("averaged", ElevationMapConfig(detect_every=2))
     assert averaged.detect_every == 2
     assert all(getattr(averaged, k) == v for k, v in AVERAGED_OUTCROPS.items())
+    assert outcrop_rule("per_cell", averaged) == ElevationMapConfig(detect_every=2)
     with pytest.raises(ValueError, match="per_cell"):
         outcrop_rule("smoothed")
     seen = []
@@ -437,23 +444,28 @@ def test_outcrop_rules_by_name_in_the_library_and_the_cli(monkeypatch):
         raise ValueError("stop here")  # the CLI reports it and exits 1
 
     monkeypatch.setattr(cli, "build_ln", build_ln)
-    for flags, name in (([], "per_cell"), (["--outcrops", "averaged"], "averaged")):
+    for flags, name in (([], "averaged_wide"), (["--outcrops", "averaged"], "averaged"),
+                        (["--outcrops", "per_cell", "--no-classify-map-outcrops"], "per_cell")):
         assert cli.main(["ln", "BAG", "--odometry", "o.tum", "--out", "ln", *flags]) == 1
         assert seen[-1] == outcrop_rule(name) and name in OUTCROP_RULES
     with pytest.raises(SystemExit):  # argparse names the choices
         cli.main(["ln", "BAG", "--odometry", "o.tum", "--out", "ln", "--outcrops", "x"])
 
 
+def _fixed_score(seen: list, score: float):
+    """A classifier that gives every region ``score`` and appends its features to
+    ``seen``."""
+    def proba(x):
+        seen.append(x)
+        return np.full(len(x), score)
+    return proba
+
+
 def test_the_map_rock_rover_decides_which_rock_regions_are_reported():
     pts = _scene()
     app = _dark_where_raised(pts)
     seen = []
-
-    def rover(score):
-        def proba(x):
-            seen.append(x)
-            return np.full(len(x), score)
-        return proba
+    rover = functools.partial(_fixed_score, seen)
 
     emap = ElevationMap(ElevationMapConfig(detect_every=2), rock_classifier=rover(0.9))
     _drive(emap, pts, appearance=app)
@@ -479,12 +491,7 @@ def test_the_map_outcrop_rover_decides_which_outcrop_regions_are_reported():
     rock's score is judged against the rocks' floor, not the outcrops'."""
     pts, app = _slab()
     seen = []
-
-    def rover(score):
-        def proba(x):
-            seen.append(x)
-            return np.full(len(x), score)
-        return proba
+    rover = functools.partial(_fixed_score, seen)
 
     cfg = ElevationMapConfig(detect_every=2, map_outcrop_min_score=0.6)
     emap = ElevationMap(cfg, outcrop_classifier=rover(0.7))

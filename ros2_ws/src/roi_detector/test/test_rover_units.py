@@ -1,5 +1,7 @@
 """Rover-side building blocks on small synthetic inputs: geometry, tracking, LN, inputs."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -337,14 +339,16 @@ def test_a_far_rock_model_serves_the_elevation_map_and_only_it(tmp_path):
     assert model.far_rocks and not model.per_pair
     probe = np.array([[3.0], [-3.0]], np.float32) * np.ones(len(names), np.float32)
     assert model.far_rock_proba(probe).tolist() == [1.0, 0.0]
-    classify = RoverConfig(classify_map_rocks=False)  # far rocks classified, by default
+    # Far rocks classified, as by default; the map's rocks and outcrops by their rules.
+    classify = RoverConfig(classify_map_rocks=False, classify_map_outcrops=False)
     assert DriveMapper(classify, classifier=model).far.classifier is not None
     # The defaults classify the map's rocks too: a model without their Rock Rover is
     # refused by name.
     with pytest.raises(ValueError, match=r"far\.npz.*map-rock"):
         load_classifier(str(path), RoverConfig())
     # Turned off: no model is loaded, the far rocks keep to the rules.
-    rules = RoverConfig(classify_far_rocks=False, classify_map_rocks=False)
+    rules = RoverConfig(classify_far_rocks=False, classify_map_rocks=False,
+                        classify_map_outcrops=False)
     assert load_classifier(str(path), rules) is None
     assert DriveMapper(rules, classifier=model).far.classifier is None
     assert not RoverDetector([0.0] * 6 + [1.0], model, rules).describe_blobs
@@ -371,17 +375,24 @@ def test_a_far_rock_model_serves_the_elevation_map_and_only_it(tmp_path):
         RoverClassifier.load(other)
 
 
-def _two_rock_rovers(rng: np.random.Generator) -> dict:
+def _two_rock_rovers(rng: np.random.Generator, outcrops: bool = True) -> dict:
     """Both Rock Rovers (far and map rocks, boosted trees) fitted on random features whose
-    common factor says rock (> 0) or not, as ``roi_detector train`` writes them."""
+    common factor says rock (> 0) or not, as ``roi_detector train`` writes them; and with
+    ``outcrops`` the map outcrops' Outcrop Rover the same way."""
     from roi_detector.classifier import BinaryClassifier, ClassifierConfig
-    from roi_detector.elevation_map import MAP_ROCK_FEATURES
+    from roi_detector.elevation_map import MAP_OUTCROP_FEATURES, MAP_ROCK_FEATURES
     from roi_detector.far_rocks import far_feature_names
-    from roi_detector.rover_classifier import FAR_ROCK_CLASSIFIER, MAP_ROCK_CLASSIFIER
+    from roi_detector.rover_classifier import (
+        FAR_ROCK_CLASSIFIER,
+        MAP_OUTCROP_CLASSIFIER,
+        MAP_ROCK_CLASSIFIER,
+    )
 
     clfs = {}
-    for name, names in ((FAR_ROCK_CLASSIFIER, far_feature_names()),
-                        (MAP_ROCK_CLASSIFIER, MAP_ROCK_FEATURES)):
+    parts = [(FAR_ROCK_CLASSIFIER, far_feature_names()), (MAP_ROCK_CLASSIFIER, MAP_ROCK_FEATURES)]
+    if outcrops:
+        parts.append((MAP_OUTCROP_CLASSIFIER, MAP_OUTCROP_FEATURES))
+    for name, names in parts:
         f = rng.normal(0, 1, 60)
         x = (f[:, None] + rng.normal(0, 0.1, (60, len(names)))).astype(np.float32)
         clfs[name] = BinaryClassifier(name, names, ClassifierConfig(kind="gradient_boosting")
@@ -453,6 +464,16 @@ def test_the_committed_rover_model_is_the_far_rocks_rock_rover_of_training_seeds
     assert model.classifiers[FAR_ROCK_CLASSIFIER].config.kind == prov["kind"] == \
         "gradient_boosting"
     assert prov["population"] == "measured" and "--kind gradient_boosting" in prov["command"]
+    # The map outcrops' Outcrop Rover: the paper's PCA + kNN, on the default rule's
+    # candidates, which the model records.
+    from roi_detector.elevation_map import outcrop_rule, outcrop_rule_of
+    from roi_detector.rover_classifier import MAP_OUTCROP_CLASSIFIER
+
+    assert model.map_outcrops and prov["map_outcrop_kind"] == "knn"
+    assert model.classifiers[MAP_OUTCROP_CLASSIFIER].config.kind == "knn"
+    assert prov["map_outcrop_rule"] == outcrop_rule_of(RoverConfig().elevation_map) == \
+        outcrop_rule_of(outcrop_rule("averaged_wide"))
+    assert prov["map_outcrops"] > 20 and "--outcrops averaged_wide" in prov["command"]
     # The default method without classify_far_rocks needs no model; per_pair has none here.
     assert load_classifier(None, RoverConfig(method="per_pair")) is None
 
@@ -491,8 +512,9 @@ def test_both_rock_rovers_are_fitted_on_their_samples_and_refuse_one_class():
 
 
 def test_classifying_far_rocks_without_a_model_is_an_error(monkeypatch):
-    """classify_far_rocks and classify_map_rocks ask for their Rock Rovers: no model is a
-    clear error naming the setting, not rocks silently left to the rules."""
+    """classify_far_rocks, classify_map_rocks and classify_map_outcrops ask for their
+    classifiers: no model is a clear error naming the setting, not ROIs silently left to
+    the rules."""
     import roi_detector.cli as cli
     from roi_detector.rover_pipeline import RoverConfig
 
@@ -501,8 +523,12 @@ def test_classifying_far_rocks_without_a_model_is_an_error(monkeypatch):
         cli.load_classifier(None, RoverConfig())  # the default classifies far rocks
     with pytest.raises(ValueError, match="classify_map_rocks: no rover model"):
         cli.load_classifier(None, RoverConfig(classify_far_rocks=False))
+    with pytest.raises(ValueError, match="classify_map_outcrops: no rover model"):
+        cli.load_classifier(None, RoverConfig(classify_far_rocks=False,
+                                              classify_map_rocks=False))
     assert cli.load_classifier(None, RoverConfig(classify_far_rocks=False,
-                                                 classify_map_rocks=False)) is None
+                                                 classify_map_rocks=False,
+                                                 classify_map_outcrops=False)) is None
 
 
 def test_far_rock_training_leaves_out_false_tracks_beside_a_rock():
@@ -620,14 +646,14 @@ def test_the_map_outcrops_outcrop_rover_is_fitted_loaded_and_checked_against_the
     rover = fit_outcrop_rover(x, y)
     assert rover.name == MAP_OUTCROP_CLASSIFIER
     assert (rover.predict_proba(x) > 0.5).tolist() == (y == 1).tolist()
-    clfs = _two_rock_rovers(rng)
-    wide = RoverConfig(classify_map_outcrops=True, elevation_map=outcrop_rule("averaged_wide"))
+    clfs = _two_rock_rovers(rng, outcrops=False)
+    wide = RoverConfig()  # the default: averaged_wide's candidates, classified
     # Without it: refused by name when asked for, fine when not.
     rocks_only = tmp_path / "rocks.npz"
     save_rover_model(rocks_only, clfs, {"method": "elevation_map"})
     with pytest.raises(ValueError, match=r"rocks\.npz: no map outcrops' Outcrop Rover"):
         check_model(RoverClassifier.load(rocks_only), wide)
-    check_model(RoverClassifier.load(rocks_only), RoverConfig())
+    check_model(RoverClassifier.load(rocks_only), RoverConfig(classify_map_outcrops=False))
     path = tmp_path / "all.npz"
     save_rover_model(path, {**clfs, MAP_OUTCROP_CLASSIFIER: rover}, {
         "method": "elevation_map",
@@ -636,13 +662,16 @@ def test_the_map_outcrops_outcrop_rover_is_fitted_loaded_and_checked_against_the
     assert model.map_outcrops
     check_model(model, wide)
     assert DriveMapper(wide, classifier=model).map.outcrop_classifier is not None
-    assert DriveMapper(RoverConfig(), classifier=model).map.outcrop_classifier is None
-    per_cell = RoverConfig(classify_map_outcrops=True)
+    assert DriveMapper(RoverConfig(classify_map_outcrops=False),
+                       classifier=model).map.outcrop_classifier is None
+    per_cell = RoverConfig(elevation_map=outcrop_rule("per_cell"))
     with pytest.raises(ValueError, match=r"all\.npz: its Outcrop Rover was trained on the "
-                       r"candidates of another outcrop rule \(averaged_wide\)"):
+                       r"candidates of another outcrop rule \(averaged_wide\).*"
+                       r"--no-classify-map-outcrops"):
         check_model(model, per_cell)
+    check_model(model, replace(per_cell, classify_map_outcrops=False))
     # Outcrops off: nothing to classify, nothing to check.
-    check_model(model, RoverConfig(classify_map_outcrops=True, outcrops=False))
+    check_model(model, replace(per_cell, outcrops=False))
 
 
 def test_drive_samples_are_kept_per_bag_and_retaken_under_other_settings(tmp_path,
