@@ -15,6 +15,7 @@ Usage (from the repository root, after ``source env.sh``)::
     python bench/roi_bench.py --name eval bags/atacama_1km_s1 bags/atacama_1km_s2
     python bench/roi_bench.py --name recipes --every 2 --recipes bags/quick
     python bench/roi_bench.py --name cameras_other --as-they-come bags/quick_cam1024_s7
+    python bench/roi_bench.py --name outcrops --per-cell-outcrops bags/quick
 """
 
 from __future__ import annotations
@@ -158,9 +159,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="also the detector on the stereo pairs as they come (working_fx_px "
                     "0), beside the default, which resamples a camera finer than its "
                     "working resolution")
-    ap.add_argument("--outcrop-rover", action="store_true",
-                    help="also the map's outcrops decided by the model's Outcrop Rover on the "
-                    "averaged_wide rule's candidates, beside the default")
+    ap.add_argument("--per-cell-outcrops", action="store_true",
+                    help="also the map's outcrops by the per-cell rule alone (the default "
+                    "before 2026-11-28, eighteenth session), beside the default (the Outcrop "
+                    "Rover on the averaged_wide rule's candidates)")
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args(argv)
     if args.threads == 1:
@@ -178,10 +180,9 @@ def main(argv: list[str] | None = None) -> int:
                     ("per_pair_paper_rock_mask", RoverConfig(
                         method="per_pair", thresholds=RoverThresholds(rock_method="hessian")),
                      args.model)]
-    if args.outcrop_rover:
-        configs.append(("elevation_map_outcrop_rover", RoverConfig(
-            classify_map_outcrops=True, elevation_map=outcrop_rule("averaged_wide")),
-            args.model))
+    if args.per_cell_outcrops:
+        configs.append(("elevation_map_per_cell_outcrops", RoverConfig(
+            classify_map_outcrops=False, elevation_map=outcrop_rule("per_cell")), args.model))
     if args.as_they_come:
         configs.append(("elevation_map_as_they_come", RoverConfig(working_fx_px=0.0),
                         args.model))
