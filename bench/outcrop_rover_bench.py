@@ -70,13 +70,12 @@ def feature_auc(x: np.ndarray, y: np.ndarray) -> list[float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from roi_detector.elevation_map import MAP_OUTCROP_FEATURES, OUTCROP_RULES
-    from roi_detector.training import OUTCROP_TRAINING_RULE
+    from roi_detector.elevation_map import DEFAULT_OUTCROP_RULE, MAP_OUTCROP_FEATURES, OUTCROP_RULES
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("bags", nargs="+")
     ap.add_argument("--name", default="loo")
-    ap.add_argument("--outcrops", default=OUTCROP_TRAINING_RULE, choices=tuple(OUTCROP_RULES))
+    ap.add_argument("--outcrops", default=DEFAULT_OUTCROP_RULE, choices=tuple(OUTCROP_RULES))
     ap.add_argument("--cache", default=None, metavar="DIR",
                     help="the drives' samples, as roi_detector train --cache keeps them")
     ap.add_argument("--jobs", type=int, default=1)

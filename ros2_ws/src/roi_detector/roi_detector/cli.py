@@ -245,7 +245,7 @@ def main(argv: list[str] | None = None) -> int:
         return node_main(["roi_detector", *argv])
     # Here, past the node's branch: the roi_detector node (which also imports this
     # module, for load_classifier) has no use for the training code, which reads truth.
-    from roi_detector.training import IGNORE_NEAR_M, OUTCROP_KIND, OUTCROP_TRAINING_RULE
+    from roi_detector.training import IGNORE_NEAR_M, OUTCROP_KIND
 
     ap = argparse.ArgumentParser(prog="roi_detector", description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -335,7 +335,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="elevation_map: the working resolution the samples are taken at (as "
                    "roi_detector ln --working-fx; the model records it and a detector at "
                    "another refuses it; default %(default)g)")
-    p.add_argument("--outcrops", default=OUTCROP_TRAINING_RULE, choices=tuple(OUTCROP_RULES),
+    p.add_argument("--outcrops", default=DEFAULT_OUTCROP_RULE, choices=tuple(OUTCROP_RULES),
                    help="elevation_map: the outcrop rule whose candidates the map outcrops' "
                    "Outcrop Rover is trained on (the model records it; a map with another "
                    "rule refuses it; default %(default)s)")

@@ -259,7 +259,6 @@ AVERAGED_OUTCROPS: dict = dict(outcrop_colour_sigma_m=0.2, outcrop_max_saturatio
 AVERAGED_WIDE_OUTCROPS: dict = {**AVERAGED_OUTCROPS, "outcrop_max_saturation": 0.6}
 #: The outcrop rule per observed cell, saturation < 0.6 and value > 0.8 (the default
 #: until 2026-11-28, eighteenth session, decided by the rule alone).
-
 PER_CELL_OUTCROPS: dict = dict(outcrop_colour_sigma_m=0.0, outcrop_max_saturation=0.6,
                                outcrop_min_value=0.8, outcrop_opening=2,
                                outcrop_min_cells_fraction=1.0)
@@ -270,7 +269,8 @@ OUTCROP_RULES: dict[str, dict] = {"per_cell": PER_CELL_OUTCROPS, "averaged": AVE
                                   "averaged_wide": AVERAGED_WIDE_OUTCROPS}
 #: The outcrop rule of the rover pipeline's default configuration (``RoverConfig``, the
 #: CLI's and the node's ``outcrops``): the candidates of the map outcrops' Outcrop Rover,
-#: which decides them by default (``RoverConfig.classify_map_outcrops``).
+#: which decides them by default (``RoverConfig.classify_map_outcrops``) and is trained
+#: on them (``roi_detector train --outcrops``).
 DEFAULT_OUTCROP_RULE = "averaged_wide"
 #: The fields of :class:`ElevationMapConfig` that make an outcrop rule: a map outcrops'
 #: Outcrop Rover records them, and is refused by a map whose rule differs.
@@ -524,8 +524,8 @@ class ElevationMap:
         # Rock seeds stand high in every view: the mean less one spread across views (a
         # stereo mismatch of one view is a high spread, not a rock).
         out += self._rocks(rel, np.where(seen, rel - sd, 0.0), z, seen, off, val, colour)
-        if self.nb.any():
-            out += self._outcrops(rel, ground, seen, si, sj, off)
+        if colour is not None:
+            out += self._outcrops(rel, ground, seen, si, sj, off, colour)
         return out
 
     def heights(self, si: slice = slice(None), sj: slice = slice(None), with_sd: bool = False):
@@ -762,7 +762,9 @@ class ElevationMap:
             lab = np.where(rel >= c.rock_footprint_fraction * np.asarray(peak)[lab], lab, 0)
         return lab, n
 
-    def _outcrops(self, rel, ground, seen, si, sj, off) -> list[MapRoi]:
+    def _outcrops(self, rel, ground, seen, si, sj, off, colour) -> list[MapRoi]:
+        """The outcrop regions of the window ``si``, ``sj`` (``colour``: its cells'
+        relative value and saturation, as :meth:`_regions` reads them)."""
         c = self.cfg
         nb = self.nb[si, sj]
         if (nb > 0).sum() < 100:
@@ -779,8 +781,7 @@ class ElevationMap:
             low = ~(seen & (rel >= c.max_outcrop_height_m))
         else:
             have = seen & (nb > 0)
-            sat = self.bs[si, sj] / np.maximum(nb, 1)
-            val = self.bv[si, sj] / np.maximum(nb, 1)
+            val, sat = colour
             low = rel < c.max_outcrop_height_m
         # Outcrops are grey slabs: far less saturated than the reddish soil around them
         # and not dark (rocks, desert pavement and rock shadows are dark), and flat.
@@ -802,21 +803,22 @@ class ElevationMap:
                 continue
             r = self._measure(OUTCROP, cells, off, float(np.nanmedian(ground[sl][reg])), height)
             if r is not None and r.area_m2 >= c.outcrop_min_area_m2:
-                r.features = self._outcrop_features(r, lab == k, rel, seen, si, sj)
+                r.features = self._outcrop_features(r, lab == k, rel, seen, colour, nb,
+                                                    self.npairs[si, sj])
                 if self.outcrop_classifier is not None:
                     r.score = float(self.outcrop_classifier(r.features[None])[0])
                 out.append(r)
         return out
 
     def _outcrop_features(self, r: MapRoi, reg_full: np.ndarray, rel: np.ndarray,
-                          seen: np.ndarray, si: slice, sj: slice) -> np.ndarray:
-        """The :data:`MAP_OUTCROP_FEATURES` of an outcrop region (``reg_full`` its mask
-        over the window ``si``, ``sj``; ``rel`` the height above the ground there)."""
+                          seen: np.ndarray, colour: tuple, nb: np.ndarray,
+                          npairs: np.ndarray) -> np.ndarray:
+        """The :data:`MAP_OUTCROP_FEATURES` of an outcrop region (window arrays:
+        ``reg_full`` its mask, ``rel`` the height above the ground, ``colour`` the cells'
+        relative value and saturation, ``nb`` their colour samples, ``npairs`` the pairs
+        that saw them)."""
         c = self.cfg
-        nb = self.nb[si, sj]
-        have = nb > 0
-        sat = self.bs[si, sj] / np.maximum(nb, 1)
-        val = self.bv[si, sj] / np.maximum(nb, 1)
+        val, sat = colour
         rows, cols = np.nonzero(reg_full)
         far = round(1.5 / c.cell_m)
         box = (slice(max(rows.min() - far, 0), rows.max() + far + 1),
@@ -824,8 +826,8 @@ class ElevationMap:
         reg = reg_full[box]
         ring = ndimage.binary_dilation(reg, iterations=far) & \
             ~ndimage.binary_dilation(reg, iterations=round(0.3 / c.cell_m))
-        rs, rv, rh, rsn = (a[box] for a in (sat, val, rel, seen))
-        hv = have[box]
+        rs, rv, rh, rsn, nbb = (a[box] for a in (sat, val, rel, seen, nb))
+        hv = nbb > 0
         in_c = reg & hv
         ring_c = ring & hv
         nan = float("nan")
@@ -836,7 +838,7 @@ class ElevationMap:
         s_in, v_in = rs[in_c], rv[in_c]
         h_in = rh[reg & rsn]
         rocky = (rh > c.rock_grow_height_m) & rsn & (rv < (c.rock_dark_value or 0.55))
-        npairs = self.npairs[si, sj][box][reg]
+        npairs = npairs[box][reg]
         feats = np.array([
             np.log(max(r.area_m2, 1e-3)), reg.sum() * c.cell_m**2 / max(r.area_m2, 1e-6),
             np.log(max(r.major_m, 1e-3)), r.minor_m / max(r.major_m, 1e-3), r.height_m,
@@ -848,7 +850,7 @@ class ElevationMap:
             float(rocky[reg].mean()), float(rocky[ring & rsn].mean()) if (ring & rsn).any()
             else 0.0,
             np.log1p(float(npairs.max())), np.log1p(float(np.median(npairs))),
-            np.log1p(float(np.median(nb[box][in_c]))) if in_c.any() else 0.0,
+            np.log1p(float(np.median(nbb[in_c]))) if in_c.any() else 0.0,
         ], np.float32)
         return np.nan_to_num(feats, nan=0.0)
 
@@ -886,9 +888,13 @@ class ElevationMap:
         ``map_outcrop_min_score`` at its kept one."""
         c = self.cfg
         floor = {ROCK: c.map_rock_min_score, OUTCROP: c.map_outcrop_min_score}
-        return [r for r in self.rois if r.rounds >= c.min_rounds
-                and r.rounds >= c.min_hit_ratio * r.examined
-                and not r.score <= floor[r.label]]
+        return [r for r in self.rois if self.persists(r) and not r.score <= floor[r.label]]
+
+    def persists(self, r: MapRoi) -> bool:
+        """``r`` was found in at least ``min_rounds`` detection rounds and in
+        ``min_hit_ratio`` of the rounds that examined its cells (its score aside)."""
+        c = self.cfg
+        return r.rounds >= c.min_rounds and r.rounds >= c.min_hit_ratio * r.examined
 
     def to_records(self, rois: list[MapRoi] | None = None) -> np.ndarray:
         """ROI records (odom) of ``rois`` (default: :meth:`consistent`) with covariance:

@@ -27,6 +27,7 @@ import numpy as np
 
 from roi_detector.classifier import BinaryClassifier, ClassifierConfig
 from roi_detector.elevation_map import (
+    DEFAULT_OUTCROP_RULE,
     MAP_OUTCROP_FEATURES,
     MAP_ROCK_FEATURES,
     outcrop_rule,
@@ -61,9 +62,6 @@ from roi_network.records import OUTCROP, ROCK, xy
 #: found one rock more and kept three false rocks more (docs/roi_detector.md,
 #: 2026-11-28): not the default.
 IGNORE_NEAR_M = 0.0
-#: The outcrop rule whose candidates the map outcrops' Outcrop Rover is trained on
-#: (``roi_detector train --outcrops``; :data:`~roi_detector.elevation_map.OUTCROP_RULES`).
-OUTCROP_TRAINING_RULE = "averaged_wide"
 #: The map outcrops' Outcrop Rover's classifier (``roi_detector train --outcrop-kind``):
 #: the paper's PCA + kNN. Left one of the 12 training drives out, it kept 35 of the 38
 #: outcrop regions the map reports and none of the 40 others; boosted trees kept 34 and 1
@@ -149,7 +147,7 @@ def drive_with_truth_odometry(bag_dir: str, mapper: DriveMapper, log=print,
 
 def far_rock_samples(bag_dir: str, log=print, population: str = "measured",
                      working_fx_px: float = RoverConfig().working_fx_px,
-                     outcrops: str = OUTCROP_TRAINING_RULE) -> dict:
+                     outcrops: str = DEFAULT_OUTCROP_RULE) -> dict:
     """The far tracks of a drive (truth trajectory as the odometry, every pair): every
     candidate (the rules passed) or every measured track (``population``), with its
     :func:`~roi_detector.far_rocks.far_rock_features`, whether it matches a truth rock,
@@ -201,16 +199,8 @@ def map_rock_samples(emap, truth: Truth) -> tuple[np.ndarray, np.ndarray]:
     their :data:`~roi_detector.elevation_map.MAP_ROCK_FEATURES` at their latest
     measurement (N, F) and whether each matches a truth rock (N,) 0/1 (DESIGN.md's
     rule, the LN's placement)."""
-    from roi_detector.evaluation import match_nodes, true_nodes
-
-    rocks = [r for r in emap.rois if r.label == ROCK and r.features is not None
-             and r.rounds >= emap.cfg.min_rounds]
-    if not rocks:
-        return np.zeros((0, len(MAP_ROCK_FEATURES)), np.float32), np.zeros(0, np.uint8)
-    rec = emap.to_records(rocks)
-    _, j = match_nodes(rec, truth)
-    return (np.stack([r.features for r in rocks]).astype(np.float32),
-            true_nodes(rec, truth.rois, j, ROCK).astype(np.uint8))
+    x, y, _ = _map_region_samples(emap, truth, ROCK, len(MAP_ROCK_FEATURES))
+    return x, y
 
 
 def map_outcrop_samples(emap, truth: Truth) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -218,21 +208,27 @@ def map_outcrop_samples(emap, truth: Truth) -> tuple[np.ndarray, np.ndarray, np.
     as odometry) found in at least ``min_rounds`` detection rounds: their
     :data:`~roi_detector.elevation_map.MAP_OUTCROP_FEATURES` at their kept measurement
     (N, F), whether each matches a truth outcrop (N,) 0/1 (DESIGN.md's rule), and
-    whether the map reports it, its score aside (N,) bool (found in ``min_hit_ratio``
-    of the rounds that examined it)."""
+    whether the map reports it, its score aside (N,) bool (``ElevationMap.persists``)."""
+    return _map_region_samples(emap, truth, OUTCROP, len(MAP_OUTCROP_FEATURES))
+
+
+def _map_region_samples(emap, truth: Truth, label: int,
+                        n_features: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The map's regions of class ``label`` with features, found in at least
+    ``min_rounds`` rounds: features (N, ``n_features``), whether each matches a truth ROI
+    of that class (N,) 0/1, whether the map's persistence test passes it (N,) bool."""
     from roi_detector.evaluation import match_nodes, true_nodes
 
-    c = emap.cfg
-    found = [r for r in emap.rois if r.label == OUTCROP and r.features is not None
-             and r.rounds >= c.min_rounds]
+    found = [r for r in emap.rois if r.label == label and r.features is not None
+             and r.rounds >= emap.cfg.min_rounds]
     if not found:
-        return (np.zeros((0, len(MAP_OUTCROP_FEATURES)), np.float32), np.zeros(0, np.uint8),
+        return (np.zeros((0, n_features), np.float32), np.zeros(0, np.uint8),
                 np.zeros(0, bool))
     rec = emap.to_records(found)
     _, j = match_nodes(rec, truth)
     return (np.stack([r.features for r in found]).astype(np.float32),
-            true_nodes(rec, truth.rois, j, OUTCROP).astype(np.uint8),
-            np.array([r.rounds >= c.min_hit_ratio * r.examined for r in found]))
+            true_nodes(rec, truth.rois, j, label).astype(np.uint8),
+            np.array([emap.persists(r) for r in found], bool))
 
 
 def near_rock_distance(xy_map: np.ndarray, truth: Truth) -> np.ndarray:
@@ -278,7 +274,7 @@ def _seeds(bags: list[str]) -> list:
 
 def drive_samples(bag: str, population: str = "measured",
                   working_fx_px: float = RoverConfig().working_fx_px,
-                  outcrops: str = OUTCROP_TRAINING_RULE, cache: str | Path | None = None,
+                  outcrops: str = DEFAULT_OUTCROP_RULE, cache: str | Path | None = None,
                   log=print) -> dict:
     """:func:`far_rock_samples` of a drive, kept in ``cache`` (a directory; None: none)
     as ``<bag name>.npz`` with the settings they were taken with, and read from there
@@ -339,7 +335,7 @@ def fit_rock_rovers(far_x: np.ndarray, far_y: np.ndarray, map_x: np.ndarray,
 
 
 def fit_outcrop_rover(x: np.ndarray, y: np.ndarray, k: int = 5,
-                      kind: str = "gradient_boosting") -> BinaryClassifier | None:
+                      kind: str = OUTCROP_KIND) -> BinaryClassifier | None:
     """The map outcrops' Outcrop Rover fitted on map outcrop regions ``x``, ``y``
     (:func:`map_outcrop_samples`); None when they are not both outcrops and non-outcrops
     (drives that pass no outcrop, or whose every candidate is one)."""
@@ -354,7 +350,7 @@ def train_rock_rovers(bags: list[str], out: str, k: int = 5, log=print,
                       kind: str = "gradient_boosting",
                       ignore_near_m: float = IGNORE_NEAR_M,
                       working_fx_px: float = RoverConfig().working_fx_px,
-                      outcrops: str = OUTCROP_TRAINING_RULE,
+                      outcrops: str = DEFAULT_OUTCROP_RULE,
                       cache: str | None = None, outcrop_kind: str = OUTCROP_KIND) -> dict:
     """Train the elevation_map method's classifiers (``kind``: boosted trees, or the
     paper's PCA + kNN with ``k`` neighbours) on the drives of ``bags`` (``jobs`` bags at a
