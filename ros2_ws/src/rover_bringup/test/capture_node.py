@@ -25,6 +25,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CompressedImage, Imu
 
 DEPTH = 2000  # deep reader queue: the test is about the player losing nothing
+LINGER_S = 15.0  # at most this long, once complete, waiting for the player to leave
 
 
 def _stamp(header: object) -> int:
@@ -91,10 +92,10 @@ def main() -> int:
     parser.add_argument('--timeout', type=float, default=60.0)
     args = parser.parse_args()
     expect = {k: int(v) for k, v in (e.split('=') for e in args.expect)}
-    # A capture still alive 5 s past its own deadline is hung (seen in 3 of ~24 CI runs,
-    # after the player had finished): print every thread's stack to stderr, where pytest
-    # shows it, so that the next failure says where.
-    faulthandler.dump_traceback_later(args.timeout + 5.0, exit=False)
+    # A capture still alive 5 s past its own deadline is hung (seen in 4 of ~25 CI runs,
+    # after the player had finished; the last one showed destroy_node): print every
+    # thread's stack to stderr, where pytest shows it, so that a failure says where.
+    faulthandler.dump_traceback_later(args.timeout + LINGER_S + 5.0, exit=False)
     rclpy.init()
     node = Capture(expect, args.clock_until)
     executor = SingleThreadedExecutor()
@@ -102,6 +103,12 @@ def main() -> int:
     deadline = time.monotonic() + args.timeout
     try:
         while not node.complete() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+        # Let the player leave first (it waits for our acknowledgements, then exits):
+        # one CI run in ~25 hung in this process's destroy_node below, Fast DDS deleting
+        # its participant while the player's was being deleted too.
+        linger = time.monotonic() + LINGER_S
+        while node.count_publishers('/clock') > 0 and time.monotonic() < linger:
             executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

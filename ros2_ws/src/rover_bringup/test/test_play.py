@@ -49,11 +49,15 @@ def _play_into_capture(
             [*globloc_cmd, 'play', str(bag), '--wait-subscribers', '30', *play_args],
             env=env, capture_output=True, text=True, timeout=120, check=False,
         )
-        assert capture.wait(timeout=70) == 0
+        assert capture.wait(timeout=90) == 0
     finally:
         if capture.poll() is None:
             capture.terminate()
-            capture.wait(timeout=10)
+            try:
+                capture.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                capture.kill()  # rclpy handles SIGTERM itself; a hung one ignores it
+                capture.wait(timeout=10)
     assert player.returncode == 0, player.stderr
     assert 'Traceback' not in player.stderr
     return json.loads(out.read_text()), player.stderr
