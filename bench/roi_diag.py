@@ -1,4 +1,5 @@
-"""Per truth rock, why the rover's elevation map did or did not find it.
+"""Per truth rock, or per truth outcrop (``--outcrops``), why the rover's elevation map did
+or did not find it.
 
 Runs the LN of a bag with the truth trajectory as odometry (``roi_detector ln``'s library
 path, detection geometry alone) while recording every rock region the map's detection
@@ -21,9 +22,20 @@ test), ``refused`` (the Rock Rover, or without one the size thresholds, refused 
 ``kept`` (a far rock; if the LN still misses it, it lay outside the matching radius or a
 map rock hid it), with that track's measurement.
 
+With ``--outcrops``, per truth outcrop the recall counts: what the map held in its truth
+footprint at the detection round that had observed most of it (the share of the footprint
+with colour samples, of it passing the outcrop rule's colour test and its height test, the
+averaged saturation and value inside and in the soil ring around it), and the furthest
+stage an outcrop ROI of the map near it reached: ``unseen`` (under a fifth of the
+footprint ever observed), ``colour`` (observed, but under a fifth of it passed the colour
+test), ``region`` (no outcrop region formed there: too small once opened, or too high),
+``flicker`` (a region, not found in enough rounds), ``refused`` (the Outcrop Rover scored
+it at most ``map_outcrop_min_score``), ``reported`` (the map reports it; if the LN still
+misses it, its centre lies outside the matching radius).
+
 Evaluation code: reads truth/. Usage (from the repository root, after ``source env.sh``)::
 
-    python bench/roi_diag.py bags/quick [--json OUT.json]
+    python bench/roi_diag.py bags/quick [--outcrops] [--json OUT.json]
 """
 
 from __future__ import annotations
@@ -106,6 +118,154 @@ def diagnose(bag: str) -> list[dict]:
     return rows
 
 
+#: Outcrop verdicts, in order (see the module).
+OUTCROP_STAGES = ("unseen", "colour", "region", "flicker", "refused", "reported")
+
+
+def high(z: np.ndarray, seen: np.ndarray, inside: np.ndarray, ring: np.ndarray,
+         limit_m: float) -> float | None:
+    """The share of the observed cells of ``inside`` standing at least ``limit_m`` above
+    the median height of the ring's (None: either unobserved)."""
+    if not (ring & seen).any() or not (inside & seen).any():
+        return None
+    return float(np.mean(z[inside & seen] - np.median(z[ring & seen]) >= limit_m))
+
+
+def footprint_stats(emap, truth, outcrops: np.ndarray) -> list[dict | None]:
+    """Per truth outcrop, what ``emap`` (an ElevationMap, just after a detection round)
+    holds in its truth footprint (None: not inside the map's window)."""
+    from scipy import ndimage
+
+    c = emap.cfg
+    if emap.origin is None or not emap.nb.any():
+        return [None] * len(outcrops)
+    n = emap.n
+    ij = np.stack(np.meshgrid(np.arange(n), np.arange(n), indexing="ij"), -1).reshape(-1, 2)
+    cxy = emap._cell_xy(ij)
+    mxy = truth.odom_to_map(np.column_stack([cxy, np.zeros(len(cxy))]))[:, :2]
+    z, seen = emap.heights()
+    sigma = max(c.outcrop_colour_sigma_m, c.cell_m) / c.cell_m
+    nbs = ndimage.gaussian_filter(emap.nb, sigma)
+    sat = ndimage.gaussian_filter(emap.bs, sigma) / np.maximum(nbs, 1e-6)
+    val = ndimage.gaussian_filter(emap.bv, sigma) / np.maximum(nbs, 1e-6)
+    have = nbs > 0.5
+    out: list[dict | None] = []
+    for o in outcrops:
+        d = mxy - np.array([o["x"], o["y"]])
+        ca, sa = np.cos(o["angle_rad"]), np.sin(o["angle_rad"])
+        u, v = d[:, 0] * ca + d[:, 1] * sa, -d[:, 0] * sa + d[:, 1] * ca
+        a, b = 0.5 * float(o["major_m"]), 0.5 * float(o["minor_m"])
+        rr = (u / a) ** 2 + (v / b) ** 2
+        inside = (rr <= 1.0).reshape(n, n)
+        ring = ((rr > 1.3**2) & (rr <= 2.0**2)).reshape(n, n)
+        if inside.sum() < 4:
+            out.append(None)
+            continue
+        obs = inside & have
+        colour_ok = obs & (sat < c.outcrop_max_saturation) & (val > c.outcrop_min_value)
+        ring_obs = ring & have
+        out.append({
+            "cells": int(inside.sum()), "observed": float(obs.mean() / inside.mean()),
+            "colour_ok": float(colour_ok.sum() / inside.sum()),
+            "high": high(z, seen, inside, ring, c.max_outcrop_height_m),
+            "sat": float(np.median(sat[obs])) if obs.any() else None,
+            "val": float(np.median(val[obs])) if obs.any() else None,
+            "ring_sat": float(np.median(sat[ring_obs])) if ring_obs.any() else None,
+            "ring_val": float(np.median(val[ring_obs])) if ring_obs.any() else None})
+    return out
+
+
+def diagnose_outcrops(bag: str) -> list[dict]:
+    """One row per counted truth outcrop (see the module)."""
+    from roi_detector.cli import build_ln, load_classifier
+    from roi_detector.evaluation import match_nodes, true_nodes
+    from roi_detector.inputs import load_rover_params
+    from roi_detector.rover_pipeline import DriveMapper, RoverConfig
+    from roi_detector.truth import Truth, match_rule_radius
+    from roi_network.records import OUTCROP, xy
+
+    truth = Truth.load(bag)
+    r = truth.rois
+    counted = np.flatnonzero(truth.counted(15.0) & (r["label"] == OUTCROP))
+    cfg = RoverConfig()
+    mapper = DriveMapper(cfg, classifier=load_classifier(None, cfg))
+    best: list[dict | None] = [None] * len(counted)
+    detect = mapper.map.detect
+
+    def probed(*a, **k):
+        found = detect(*a, **k)
+        for n, st in enumerate(footprint_stats(mapper.map, truth, r[counted])):
+            if st is not None and (best[n] is None or st["observed"] > best[n]["observed"]
+                                   or (st["observed"] == best[n]["observed"]
+                                       and st["colour_ok"] > best[n]["colour_ok"])):
+                best[n] = st
+        return found
+
+    mapper.map.detect = probed
+    with tempfile.TemporaryDirectory() as tmp:
+        odom = Path(tmp) / "truth_odom.tum"
+        truth.write_odom_tum(odom)
+        ln, _ = build_ln(bag, str(odom), None, cfg, log=lambda m: None, mapper=mapper)
+    emap = mapper.map
+    floor = emap.cfg.map_outcrop_min_score
+    rois = [q for q in emap.rois if q.label == OUTCROP]
+    rois_map = truth.odom_to_map(np.array([[*q.xy, 0.0] for q in rois]))[:, :2] if rois \
+        else np.zeros((0, 2))
+    nodes = ln.network().records
+    _, j = match_nodes(nodes, truth)
+    found = set(j[true_nodes(nodes, r, j, OUTCROP)].tolist())
+    views = truth.views(load_rover_params(Path(bag) / "rover.yaml"), 20.0)
+    route = truth.trajectory.p[:, :2]
+    rows = []
+    for n, i in enumerate(counted):
+        gate = float(match_rule_radius(r["major_m"][i])) + 0.5
+        d = np.linalg.norm(rois_map - xy(r[i:i + 1]), axis=1)
+        near = [(rois[k], float(d[k])) for k in np.flatnonzero(d < gate)]
+
+        def stage(q) -> int:
+            if not emap.persists(q):
+                return 3
+            return 4 if q.score <= floor else 5
+
+        st = best[n]
+        if near:
+            q, dq = max(near, key=lambda e: (stage(e[0]), -e[1]))
+            verdict = OUTCROP_STAGES[stage(q)]
+            roi = {"off_m": round(dq, 2), "area_m2": round(q.area_m2, 1),
+                   "rounds": q.rounds, "examined": q.examined,
+                   "score": None if not np.isfinite(q.score) else round(q.score, 2)}
+        else:
+            roi = {}
+            verdict = ("unseen" if st is None or st["observed"] < 0.2 else
+                       "colour" if st["colour_ok"] < 0.2 else "region")
+        rows.append({"id": int(r["id"][i]), "area_m2": float(r["area_m2"][i]),
+                     "major_m": float(r["major_m"][i]), "minor_m": float(r["minor_m"][i]),
+                     "route_distance_m": float(np.min(np.linalg.norm(route - xy(r[i:i + 1]),
+                                                                     axis=1))),
+                     "views": int(views[i]), "in_ln": bool(i in found), "stage": verdict,
+                     "footprint": {k: (None if v is None else round(float(v), 2))
+                                   for k, v in (st or {}).items()},
+                     "roi": roi})
+    return rows
+
+
+def markdown_outcrops(bag: str, rows: list[dict]) -> str:
+    """The outcrop rows as a Markdown table, with the count per stage."""
+    lines = [f"# roi_diag --outcrops: {bag}", "",
+             "| truth id | area m^2 | axes m | from route m | views | in LN | stage "
+             "| footprint (best round) | map ROI |", "|---|---|---|---|---|---|---|---|---|"]
+    for w in sorted(rows, key=lambda w: w["route_distance_m"]):
+        fp = ", ".join(f"{k} {v}" for k, v in w["footprint"].items())
+        ro = ", ".join(f"{k} {v}" for k, v in w["roi"].items())
+        lines.append(f"| {w['id']} | {w['area_m2']:.1f} | {w['major_m']:.1f} x "
+                     f"{w['minor_m']:.1f} | {w['route_distance_m']:.1f} | {w['views']} "
+                     f"| {w['in_ln']} | {w['stage']} | {fp} | {ro} |")
+    counts = {s: sum(w["stage"] == s for w in rows) for s in OUTCROP_STAGES}
+    lines += ["", f"In the LN: {sum(w['in_ln'] for w in rows)} of {len(rows)}; stage: "
+              + ", ".join(f"{s} {n}" for s, n in counts.items() if n)]
+    return "\n".join(lines) + "\n"
+
+
 #: Far-track verdicts, in order (see the module).
 FAR_STAGES = ("none", "geometry", "refused", "kept")
 
@@ -155,10 +315,16 @@ def markdown(bag: str, rows: list[dict]) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("bag", help="bag directory with truth/")
+    ap.add_argument("--outcrops", action="store_true",
+                    help="per truth outcrop instead of per truth rock")
     ap.add_argument("--json", type=Path, help="write the rows here")
     args = ap.parse_args(argv)
-    rows = diagnose(args.bag)
-    sys.stdout.write(markdown(args.bag, rows))
+    if args.outcrops:
+        rows = diagnose_outcrops(args.bag)
+        sys.stdout.write(markdown_outcrops(args.bag, rows))
+    else:
+        rows = diagnose(args.bag)
+        sys.stdout.write(markdown(args.bag, rows))
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
     return 0
