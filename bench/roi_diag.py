@@ -31,7 +31,10 @@ footprint ever observed), ``colour`` (observed, but under a fifth of it passed t
 test), ``region`` (no outcrop region formed there: too small once opened, or too high),
 ``flicker`` (a region, not found in enough rounds), ``refused`` (the Outcrop Rover scored
 it at most ``map_outcrop_min_score``), ``reported`` (the map reports it; if the LN still
-misses it, its centre lies outside the matching radius).
+misses it, its centre lies outside the matching radius). The stage is the map's at the
+end of the drive, and the LN keeps a node once reported: an outcrop whose ROI later fell
+under the hit ratio (``flicker``), or was merged into a neighbouring one (``region``), can
+still be in the LN.
 
 Evaluation code: reads truth/. Usage (from the repository root, after ``source env.sh``)::
 
