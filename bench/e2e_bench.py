@@ -366,6 +366,22 @@ def markdown(report: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def claim_tag(results: Path, tag: str):
+    """An open lock file that reserves ``tag`` in ``results`` for this process (released
+    when it ends, however it ends), or None when another process holds it: two benches
+    under one tag would each write ``e2e_<tag>.*``, the second over the first."""
+    import fcntl
+
+    # Held open, not in a with-block: the lock lasts as long as the file is open.
+    f = open(results / f".e2e_{tag}.lock", "w")  # noqa: SIM115
+    try:
+        fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        f.close()
+        return None
+    return f
+
+
 def main(argv: list[str] | None = None) -> int:
     """Command line: see the module docstring."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -381,6 +397,13 @@ def main(argv: list[str] | None = None) -> int:
         if not bag.is_dir():
             print(f"e2e_bench: error: bag directory not found: {bag}", file=sys.stderr)
             return 1
+    args.results.mkdir(parents=True, exist_ok=True)
+    lock = claim_tag(args.results, args.tag)  # held until the process ends
+    if lock is None:
+        print(f"e2e_bench: error: another e2e_bench is running with --tag {args.tag} and "
+              f"will write {args.results / f'e2e_{args.tag}'}.{{json,md}}: pick another "
+              "tag", file=sys.stderr)
+        return 1
     run_id = "bench-" + datetime.now().strftime("%Y%m%d-%H%M%S")
     entries = []
     for bag in args.bags:
@@ -401,7 +424,6 @@ def main(argv: list[str] | None = None) -> int:
             [e.get("end_of_route", {}).get("final_error_m") for e in entries])},
         "paper_final_error_m": PAPER_FINAL_ERROR_M,
     }
-    args.results.mkdir(parents=True, exist_ok=True)
     write_atomic(args.results / f"e2e_{args.tag}.json", json.dumps(report, indent=2) + "\n")
     write_atomic(args.results / f"e2e_{args.tag}.md", markdown(report))
     print(markdown(report))

@@ -156,3 +156,19 @@ def test_cpu_sampler_names_a_child_by_its_command_after_exec(bench: ModuleType):
     child.cmd = []  # exited: its name stays
     sampler._sample()
     assert sampler.per_name() == {'globloc_run': 1.0, 'ln_builder': 5.0}
+
+
+def test_a_tag_in_use_is_refused_before_anything_runs(tmp_path: Path, bench: ModuleType,
+                                                      capsys: pytest.CaptureFixture):
+    held = bench.claim_tag(tmp_path, 'busy')
+    assert held is not None
+    assert bench.claim_tag(tmp_path, 'busy') is None  # a second claim, as another run's
+    assert bench.claim_tag(tmp_path, 'free') is not None
+    bag = tmp_path / 'bag'
+    bag.mkdir()
+    assert bench.main([str(bag), '--tag', 'busy', '--results', str(tmp_path),
+                       '--out', str(tmp_path / 'out')]) == 1
+    assert 'another e2e_bench is running with --tag busy' in capsys.readouterr().err
+    assert not (tmp_path / 'out').exists() and not (tmp_path / 'e2e_busy.md').exists()
+    held.close()  # the run ends: the tag is free again
+    assert bench.claim_tag(tmp_path, 'busy') is not None
