@@ -65,24 +65,62 @@ def furthest(verdicts: list[tuple[str, dict]]) -> tuple[str, dict]:
     return STAGES[best], last
 
 
+def default_mapper():
+    """A DriveMapper with the committed defaults and model."""
+    from roi_detector.cli import load_classifier
+    from roi_detector.rover_pipeline import DriveMapper, RoverConfig
+
+    cfg = RoverConfig()
+    return DriveMapper(cfg, classifier=load_classifier(None, cfg))
+
+
+def ln_on_truth(bag: str, truth, mapper, trace=None):
+    """The LN ``mapper`` builds on ``bag`` with the truth trajectory as odometry
+    (``roi_detector ln``'s library path)."""
+    from roi_detector.cli import build_ln
+
+    with tempfile.TemporaryDirectory() as tmp:
+        odom = Path(tmp) / "truth_odom.tum"
+        truth.write_odom_tum(odom)
+        ln, _ = build_ln(bag, str(odom), None, mapper.cfg, log=lambda m: None,
+                         mapper=mapper, trace=trace)
+    return ln
+
+
+def found_in_ln(ln, truth, label: int) -> set[int]:
+    """Indices of the truth ROIs of class ``label`` that a node of ``ln`` matches."""
+    from roi_detector.evaluation import match_nodes, true_nodes
+
+    nodes = ln.network().records
+    _, j = match_nodes(nodes, truth)
+    return set(j[true_nodes(nodes, truth.rois, j, label)].tolist())
+
+
+def truth_views(bag: str, truth) -> np.ndarray:
+    """Per truth ROI, the stereo pairs that had it in view within 20 m."""
+    from roi_detector.inputs import load_rover_params
+
+    return truth.views(load_rover_params(Path(bag) / "rover.yaml"), 20.0)
+
+
+def route_distance(truth, i: int) -> float:
+    """The closest approach of the route to truth ROI ``i`` (m)."""
+    from roi_network.records import xy
+
+    return float(np.min(np.linalg.norm(truth.trajectory.p[:, :2] - xy(truth.rois[i:i + 1]),
+                                       axis=1)))
+
+
 def diagnose(bag: str) -> list[dict]:
     """One row per counted truth rock (see the module)."""
-    from roi_detector.cli import build_ln, load_classifier
-    from roi_detector.evaluation import match_nodes, true_nodes
-    from roi_detector.inputs import load_rover_params
-    from roi_detector.rover_pipeline import DriveMapper, RoverConfig
     from roi_detector.truth import Truth, match_rule_radius
     from roi_network.records import ROCK, xy
 
     truth = Truth.load(bag)
     events: list[tuple[str, np.ndarray, dict]] = []
-    cfg = RoverConfig()
-    mapper = DriveMapper(cfg, classifier=load_classifier(None, cfg))
-    with tempfile.TemporaryDirectory() as tmp:
-        odom = Path(tmp) / "truth_odom.tum"
-        truth.write_odom_tum(odom)
-        ln, _ = build_ln(bag, str(odom), None, cfg, log=lambda m: None, mapper=mapper,
-                         trace=lambda v, p, m: events.append((v, np.array(p), m)))
+    mapper = default_mapper()
+    ln = ln_on_truth(bag, truth, mapper,
+                     trace=lambda v, p, m: events.append((v, np.array(p), m)))
 
     def to_map(points_odom: list) -> np.ndarray:
         """(N, 2) map x-y of odom x-y points."""
@@ -95,12 +133,9 @@ def diagnose(bag: str) -> list[dict]:
     far_map = to_map([f.xy for f in far])
     r = truth.rois
     counted = np.flatnonzero(truth.counted(15.0) & (r["label"] == ROCK))
-    nodes = ln.network().records
-    _, j = match_nodes(nodes, truth)
-    found = set(j[true_nodes(nodes, r, j, ROCK)].tolist())
+    found = found_in_ln(ln, truth, ROCK)
     ev_map = to_map([p for _, p, _ in events])
-    views = truth.views(load_rover_params(Path(bag) / "rover.yaml"), 20.0)
-    route = truth.trajectory.p[:, :2]
+    views = truth_views(bag, truth)
     rows = []
     for i in counted:
         gate = float(match_rule_radius(r["major_m"][i])) + 0.5
@@ -112,8 +147,7 @@ def diagnose(bag: str) -> list[dict]:
                                               d_far[near_far])
         rows.append({"id": int(r["id"][i]), "area_m2": float(r["area_m2"][i]),
                      "height_m": float(r["height_m"][i]),
-                     "route_distance_m": float(np.min(np.linalg.norm(route - xy(r[i:i + 1]),
-                                                                     axis=1))),
+                     "route_distance_m": route_distance(truth, i),
                      "views": int(views[i]), "in_ln": bool(i in found), "stage": stage,
                      "measured": {k: (None if v is None else round(float(v), 3))
                                   for k, v in measured.items()},
@@ -180,18 +214,13 @@ def footprint_stats(emap, truth, outcrops: np.ndarray) -> list[dict | None]:
 
 def diagnose_outcrops(bag: str) -> list[dict]:
     """One row per counted truth outcrop (see the module)."""
-    from roi_detector.cli import build_ln, load_classifier
-    from roi_detector.evaluation import match_nodes, true_nodes
-    from roi_detector.inputs import load_rover_params
-    from roi_detector.rover_pipeline import DriveMapper, RoverConfig
     from roi_detector.truth import Truth, match_rule_radius
     from roi_network.records import OUTCROP, xy
 
     truth = Truth.load(bag)
     r = truth.rois
     counted = np.flatnonzero(truth.counted(15.0) & (r["label"] == OUTCROP))
-    cfg = RoverConfig()
-    mapper = DriveMapper(cfg, classifier=load_classifier(None, cfg))
+    mapper = default_mapper()
     best: list[dict | None] = [None] * len(counted)
     detect = mapper.map.detect
 
@@ -205,20 +234,14 @@ def diagnose_outcrops(bag: str) -> list[dict]:
         return found
 
     mapper.map.detect = probed
-    with tempfile.TemporaryDirectory() as tmp:
-        odom = Path(tmp) / "truth_odom.tum"
-        truth.write_odom_tum(odom)
-        ln, _ = build_ln(bag, str(odom), None, cfg, log=lambda m: None, mapper=mapper)
+    ln = ln_on_truth(bag, truth, mapper)
     emap = mapper.map
     floor = emap.cfg.map_outcrop_min_score
     rois = [q for q in emap.rois if q.label == OUTCROP]
     rois_map = truth.odom_to_map(np.array([[*q.xy, 0.0] for q in rois]))[:, :2] if rois \
         else np.zeros((0, 2))
-    nodes = ln.network().records
-    _, j = match_nodes(nodes, truth)
-    found = set(j[true_nodes(nodes, r, j, OUTCROP)].tolist())
-    views = truth.views(load_rover_params(Path(bag) / "rover.yaml"), 20.0)
-    route = truth.trajectory.p[:, :2]
+    found = found_in_ln(ln, truth, OUTCROP)
+    views = truth_views(bag, truth)
     rows = []
     for n, i in enumerate(counted):
         gate = float(match_rule_radius(r["major_m"][i])) + 0.5
@@ -243,8 +266,7 @@ def diagnose_outcrops(bag: str) -> list[dict]:
                        "colour" if st["colour_ok"] < 0.2 else "region")
         rows.append({"id": int(r["id"][i]), "area_m2": float(r["area_m2"][i]),
                      "major_m": float(r["major_m"][i]), "minor_m": float(r["minor_m"][i]),
-                     "route_distance_m": float(np.min(np.linalg.norm(route - xy(r[i:i + 1]),
-                                                                     axis=1))),
+                     "route_distance_m": route_distance(truth, i),
                      "views": int(views[i]), "in_ln": bool(i in found), "stage": verdict,
                      "footprint": {k: (None if v is None else round(float(v), 2))
                                    for k, v in (st or {}).items()},
