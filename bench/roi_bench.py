@@ -163,6 +163,10 @@ def main(argv: list[str] | None = None) -> int:
                     help="also the map's outcrops by the per-cell rule alone (the default "
                     "before 2026-11-28, eighteenth session), beside the default (the Outcrop "
                     "Rover on the averaged_wide rule's candidates)")
+    ap.add_argument("--outcrops-also", action="append", default=[], metavar="RULE=MODEL",
+                    help="also the map's outcrops on the candidates of outcrop rule RULE, "
+                    "decided by the Outcrop Rover of MODEL (trained on them: roi_detector "
+                    "train --outcrops RULE), beside the default")
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args(argv)
     if args.threads == 1:
@@ -183,6 +187,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.per_cell_outcrops:
         configs.append(("elevation_map_per_cell_outcrops", RoverConfig(
             classify_map_outcrops=False, elevation_map=outcrop_rule("per_cell")), args.model))
+    for spec in args.outcrops_also:
+        rule, sep, model = spec.partition("=")
+        if not sep:
+            ap.error(f"--outcrops-also {spec}: expected RULE=MODEL")
+        configs.append((f"elevation_map_{rule}_outcrops", RoverConfig(
+            elevation_map=outcrop_rule(rule)), model))
     if args.as_they_come:
         configs.append(("elevation_map_as_they_come", RoverConfig(working_fx_px=0.0),
                         args.model))

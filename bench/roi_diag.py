@@ -168,24 +168,34 @@ def high(z: np.ndarray, seen: np.ndarray, inside: np.ndarray, ring: np.ndarray,
     return float(np.mean(z[inside & seen] - np.median(z[ring & seen]) >= limit_m))
 
 
+_CELLS_ON_MAP: dict = {}
+
+
+def _cells_on_map(emap, truth) -> np.ndarray:
+    """Map x, y of every cell centre of ``emap`` by the truth odometry (kept while the
+    map's window stays put: it moves only when the rover nears its border)."""
+    key = (emap.n, emap.cfg.cell_m, *np.asarray(emap.origin, float).tolist())
+    if _CELLS_ON_MAP.get("key") != key or _CELLS_ON_MAP.get("truth") is not truth:
+        n = emap.n
+        ij = np.stack(np.meshgrid(np.arange(n), np.arange(n), indexing="ij"),
+                      -1).reshape(-1, 2)
+        cxy = emap._cell_xy(ij)
+        _CELLS_ON_MAP.update(key=key, truth=truth, xy=truth.odom_to_map(
+            np.column_stack([cxy, np.zeros(len(cxy))]))[:, :2])
+    return _CELLS_ON_MAP["xy"]
+
+
 def footprint_stats(emap, truth, outcrops: np.ndarray) -> list[dict | None]:
     """Per truth outcrop, what ``emap`` (an ElevationMap, just after a detection round)
     holds in its truth footprint (None: not inside the map's window)."""
-    from scipy import ndimage
-
     c = emap.cfg
     if emap.origin is None or not emap.nb.any():
         return [None] * len(outcrops)
     n = emap.n
-    ij = np.stack(np.meshgrid(np.arange(n), np.arange(n), indexing="ij"), -1).reshape(-1, 2)
-    cxy = emap._cell_xy(ij)
-    mxy = truth.odom_to_map(np.column_stack([cxy, np.zeros(len(cxy))]))[:, :2]
+    mxy = _cells_on_map(emap, truth)
     z, seen = emap.heights()
-    sigma = max(c.outcrop_colour_sigma_m, c.cell_m) / c.cell_m
-    nbs = ndimage.gaussian_filter(emap.nb, sigma)
-    sat = ndimage.gaussian_filter(emap.bs, sigma) / np.maximum(nbs, 1e-6)
-    val = ndimage.gaussian_filter(emap.bv, sigma) / np.maximum(nbs, 1e-6)
-    have = nbs > 0.5
+    have, sat, val = emap.averaged_colour(max(c.outcrop_colour_sigma_m, c.cell_m))
+    pale = emap.outcrop_colour(have, sat, val)
     out: list[dict | None] = []
     for o in outcrops:
         d = mxy - np.array([o["x"], o["y"]])
@@ -199,7 +209,7 @@ def footprint_stats(emap, truth, outcrops: np.ndarray) -> list[dict | None]:
             out.append(None)
             continue
         obs = inside & have
-        colour_ok = obs & (sat < c.outcrop_max_saturation) & (val > c.outcrop_min_value)
+        colour_ok = inside & pale
         ring_obs = ring & have
         out.append({
             "cells": int(inside.sum()), "observed": float(obs.mean() / inside.mean()),

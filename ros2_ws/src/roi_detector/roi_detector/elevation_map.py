@@ -143,6 +143,12 @@ class ElevationMapConfig:
             mask.
         outcrop_min_cells_fraction: a region's cells must cover at least this fraction
             of ``outcrop_min_area_m2`` (its hull the whole): a slab seen in part.
+        outcrop_soil_ratio: > 0: a cell is also pale when its saturation is under this
+            fraction of the soil's around it: the saturation of the cells within
+            ``outcrop_soil_sigma_m`` (a Gaussian) that hold colour and are not pale by
+            ``outcrop_max_saturation``. A slab seen from afar or in part measures
+            0.6-0.9 of the frame's saturation where its soil measures 1.0-1.2
+            (``bench/roi_diag.py --outcrops``); 0 (default): the absolute test alone.
         max_outcrop_height_m: outcrops are slabs; regions standing higher are not.
         detect_every: a detection round every this many integrated pairs.
         centre_sigma_m: 1-sigma error of a map ROI's centre (cell size, partial views).
@@ -224,6 +230,8 @@ class ElevationMapConfig:
     outcrop_colour_sigma_m: float = 0.0
     outcrop_opening: int = 2
     outcrop_min_cells_fraction: float = 1.0
+    outcrop_soil_ratio: float = 0.0
+    outcrop_soil_sigma_m: float = 3.0
     max_outcrop_height_m: float = 0.45
     detect_every: int = 3
     centre_sigma_m: float = 0.15
@@ -257,6 +265,9 @@ AVERAGED_OUTCROPS: dict = dict(outcrop_colour_sigma_m=0.2, outcrop_max_saturatio
 #: of 26 counted outcrops found, at 24 of 51 true nodes; docs/roi_detector.md,
 #: 2026-11-26, late); the classifier decides (``RoverConfig.classify_map_outcrops``).
 AVERAGED_WIDE_OUTCROPS: dict = {**AVERAGED_OUTCROPS, "outcrop_max_saturation": 0.6}
+#: :data:`AVERAGED_WIDE_OUTCROPS` and, besides, the cells under 0.75 of the local soil's
+#: saturation (``outcrop_soil_ratio``): candidates of slabs seen from afar or in part.
+SOIL_RELATIVE_OUTCROPS: dict = {**AVERAGED_WIDE_OUTCROPS, "outcrop_soil_ratio": 0.75}
 #: The outcrop rule per observed cell, saturation < 0.6 and value > 0.8 (the default
 #: until 2026-11-28, eighteenth session, decided by the rule alone).
 PER_CELL_OUTCROPS: dict = dict(outcrop_colour_sigma_m=0.0, outcrop_max_saturation=0.6,
@@ -266,7 +277,8 @@ PER_CELL_OUTCROPS: dict = dict(outcrop_colour_sigma_m=0.0, outcrop_max_saturatio
 #: parameter): ``per_cell``, :data:`PER_CELL_OUTCROPS`; ``averaged``,
 #: :data:`AVERAGED_OUTCROPS`; ``averaged_wide``, :data:`AVERAGED_WIDE_OUTCROPS`.
 OUTCROP_RULES: dict[str, dict] = {"per_cell": PER_CELL_OUTCROPS, "averaged": AVERAGED_OUTCROPS,
-                                  "averaged_wide": AVERAGED_WIDE_OUTCROPS}
+                                  "averaged_wide": AVERAGED_WIDE_OUTCROPS,
+                                  "soil_relative": SOIL_RELATIVE_OUTCROPS}
 #: The outcrop rule of the rover pipeline's default configuration (``RoverConfig``, the
 #: CLI's and the node's ``outcrops``): the candidates of the map outcrops' Outcrop Rover,
 #: which decides them by default (``RoverConfig.classify_map_outcrops``) and is trained
@@ -277,7 +289,7 @@ DEFAULT_OUTCROP_RULE = "averaged_wide"
 OUTCROP_RULE_FIELDS: tuple[str, ...] = (
     "outcrop_max_saturation", "outcrop_min_value", "outcrop_min_area_m2",
     "outcrop_colour_sigma_m", "outcrop_opening", "outcrop_min_cells_fraction",
-    "max_outcrop_height_m")
+    "max_outcrop_height_m", "outcrop_soil_ratio", "outcrop_soil_sigma_m")
 
 
 def outcrop_rule_of(cfg: ElevationMapConfig) -> dict:
@@ -285,12 +297,20 @@ def outcrop_rule_of(cfg: ElevationMapConfig) -> dict:
     return {k: getattr(cfg, k) for k in OUTCROP_RULE_FIELDS}
 
 
+def recorded_outcrop_rule(rule: dict) -> dict:
+    """A rule as a model records it (:func:`outcrop_rule_of`), with the fields it
+    predates at their defaults (which is what they were when it was trained)."""
+    return {**outcrop_rule_of(ElevationMapConfig()), **rule}
+
+
 def outcrop_rule(name: str, cfg: ElevationMapConfig | None = None) -> ElevationMapConfig:
     """``cfg`` (default: the defaults) with the outcrop rule ``name`` of
     :data:`OUTCROP_RULES`; ValueError naming the rules for any other name."""
     if name not in OUTCROP_RULES:
         raise ValueError(f"unknown outcrop rule '{name}' (one of {tuple(OUTCROP_RULES)})")
-    return replace(cfg or ElevationMapConfig(), **OUTCROP_RULES[name])
+    # Every outcrop field: those a rule leaves out at their defaults.
+    return replace(cfg or ElevationMapConfig(),
+                   **{**outcrop_rule_of(ElevationMapConfig()), **OUTCROP_RULES[name]})
 
 
 #: The features of a map rock region (:meth:`ElevationMap._rock_features`), the map-rock
@@ -542,6 +562,18 @@ class ElevationMap:
             return z, seen, np.sqrt(np.clip(var, 0.0, None))
         return z, seen
 
+    def averaged_colour(self, sigma_m: float, si: slice = slice(None),
+                        sj: slice = slice(None)):
+        """The relative saturation and value of a window's cells averaged over a
+        Gaussian ``sigma_m`` wide, each cell weighted by its colour samples (whether or
+        not its height is observed), and the cells that hold colour after averaging
+        (weight > 0.5): ``(have, sat, val)``."""
+        s = sigma_m / self.cfg.cell_m
+        n = ndimage.gaussian_filter(self.nb[si, sj], s)
+        sat = ndimage.gaussian_filter(self.bs[si, sj], s) / np.maximum(n, 1e-6)
+        val = ndimage.gaussian_filter(self.bv[si, sj], s) / np.maximum(n, 1e-6)
+        return n > 0.5, sat, val
+
     def _cell_xy(self, ij: np.ndarray) -> np.ndarray:
         """Odom x, y of the centres of cells ``ij`` (indices in the whole map)."""
         return (ij + 0.5) * self.cfg.cell_m + self.origin
@@ -773,19 +805,13 @@ class ElevationMap:
             # The colour averaged over a small neighbourhood, every cell with colour
             # samples contributing (a slab seen from afar is observed in sparse stripes of
             # cells, and its per-cell colour scatters across the thresholds).
-            s = c.outcrop_colour_sigma_m / c.cell_m
-            n = ndimage.gaussian_filter(nb, s)
-            have = n > 0.5
-            sat = ndimage.gaussian_filter(self.bs[si, sj], s) / np.maximum(n, 1e-6)
-            val = ndimage.gaussian_filter(self.bv[si, sj], s) / np.maximum(n, 1e-6)
+            have, sat, val = self.averaged_colour(c.outcrop_colour_sigma_m, si, sj)
             low = ~(seen & (rel >= c.max_outcrop_height_m))
         else:
             have = seen & (nb > 0)
             val, sat = colour
             low = rel < c.max_outcrop_height_m
-        # Outcrops are grey slabs: far less saturated than the reddish soil around them
-        # and not dark (rocks, desert pavement and rock shadows are dark), and flat.
-        pale = have & (sat < c.outcrop_max_saturation) & (val > c.outcrop_min_value) & low
+        pale = self.outcrop_colour(have, sat, val) & low
         pale = ndimage.binary_opening(pale, iterations=c.outcrop_opening)
         pale = ndimage.binary_closing(pale, iterations=3) & have
         lab, _ = ndimage.label(pale)
@@ -809,6 +835,39 @@ class ElevationMap:
                     r.score = float(self.outcrop_classifier(r.features[None])[0])
                 out.append(r)
         return out
+
+    def outcrop_colour(self, have: np.ndarray, sat: np.ndarray,
+                       val: np.ndarray) -> np.ndarray:
+        """The cells (holding colour: ``have``) whose relative saturation ``sat`` and
+        value ``val`` are an outcrop's. Outcrops are grey slabs: far less saturated than
+        the reddish soil (``outcrop_max_saturation``; and, with ``outcrop_soil_ratio``,
+        than the soil around them) and not dark (rocks, desert pavement and rock shadows
+        are dark: ``outcrop_min_value``)."""
+        c = self.cfg
+        grey = sat < c.outcrop_max_saturation
+        if c.outcrop_soil_ratio > 0:
+            grey |= sat < c.outcrop_soil_ratio * self._soil_saturation(have & ~grey, sat)
+        return have & grey & (val > c.outcrop_min_value)
+
+    def _soil_saturation(self, soil: np.ndarray, sat: np.ndarray) -> np.ndarray:
+        """The saturation of the ``soil`` cells around each cell (Gaussian,
+        ``outcrop_soil_sigma_m``), inf where none is near."""
+        c = self.cfg
+        # On blocks of ~0.5 m (the soil varies over metres): sums per block, filtered,
+        # each cell given its block's value.
+        f = max(1, round(0.5 / c.cell_m))
+        h, w_ = soil.shape
+        ph, pw = -h % f, -w_ % f
+
+        def blocks(a):
+            a = np.pad(a.astype(np.float32), ((0, ph), (0, pw)))
+            return a.reshape(a.shape[0] // f, f, a.shape[1] // f, f).sum(axis=(1, 3))
+
+        s = c.outcrop_soil_sigma_m / (c.cell_m * f)
+        w = ndimage.gaussian_filter(blocks(soil), s)
+        ws = ndimage.gaussian_filter(blocks(np.where(soil, sat, 0.0)), s)
+        bg = np.where(w > 1e-3, ws / np.maximum(w, 1e-6), np.inf)
+        return np.repeat(np.repeat(bg, f, axis=0), f, axis=1)[:h, :w_]
 
     def _outcrop_features(self, r: MapRoi, reg_full: np.ndarray, rel: np.ndarray,
                           seen: np.ndarray, colour: tuple, nb: np.ndarray,

@@ -168,6 +168,30 @@ def test_a_gravel_patch_is_no_outcrop_on_the_averaged_colour():
     assert len(rec) == 1 and rec["label"][0] == OUTCROP
 
 
+def test_a_slab_greyer_than_its_soil_by_the_soil_relative_rule():
+    """A slab at 0.8 of the frame's saturation on soil at 1.15 (0.7 of its soil, as a
+    slab seen from afar measures) is no candidate by the absolute test (0.6) and one by
+    ``soil_relative``; uniform soil scattered +-0.1 gives none."""
+    from roi_detector.elevation_map import outcrop_rule
+
+    pts, app = _slab(scatter=0.05)
+    slab = app[:, 0, 0] < 0.7
+    app[slab, 0, 0] = 0.8
+    app[~slab, 0, 0] = 1.15
+    wide = outcrop_rule("averaged_wide", ElevationMapConfig(detect_every=2))
+    relative = outcrop_rule("soil_relative", ElevationMapConfig(detect_every=2))
+    emap = ElevationMap(wide)
+    _drive(emap, pts, appearance=app)
+    assert len(emap.to_records()) == 0
+    rec = _the_slab(ElevationMap(relative), pts, app)
+    assert 5.5 < rec["area_m2"] < 11.0  # its edge cells, averaged with the soil, are not
+    soil = np.ones_like(app)
+    soil[:, 0, 0] += np.random.default_rng(1).normal(0.0, 0.1, len(soil))
+    emap = ElevationMap(relative)
+    _drive(emap, pts, appearance=soil)
+    assert len(emap.to_records()) == 0
+
+
 def test_an_outcrop_keeps_its_largest_footprint_a_rock_its_latest():
     from roi_detector.elevation_map import MapRoi
 
