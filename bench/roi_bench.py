@@ -163,10 +163,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="also the map's outcrops by the per-cell rule alone (the default "
                     "before 2026-11-28, eighteenth session), beside the default (the Outcrop "
                     "Rover on the averaged_wide rule's candidates)")
-    ap.add_argument("--outcrops-also", action="append", default=[], metavar="RULE=MODEL",
-                    help="also the map's outcrops on the candidates of outcrop rule RULE, "
-                    "decided by the Outcrop Rover of MODEL (trained on them: roi_detector "
-                    "train --outcrops RULE), beside the default")
+    ap.add_argument("--outcrops", default=None, metavar="RULE",
+                    help="the map's outcrops on the candidates of outcrop rule RULE in place "
+                    "of the default's (rows elevation_map_RULE_outcrops), decided by the "
+                    "Outcrop Rover of --model, which must have been trained on them "
+                    "(roi_detector train --outcrops RULE)")
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args(argv)
     if args.threads == 1:
@@ -179,6 +180,12 @@ def main(argv: list[str] | None = None) -> int:
     from roi_detector.rover_pipeline import RoverConfig
 
     configs = [("elevation_map", RoverConfig(), args.model)]
+    if args.outcrops is not None:
+        try:
+            configs = [(f"elevation_map_{args.outcrops}_outcrops",
+                        RoverConfig(elevation_map=outcrop_rule(args.outcrops)), args.model)]
+        except ValueError as err:
+            ap.error(f"--outcrops: {err}")
     if args.recipes:
         configs += [("per_pair", RoverConfig(method="per_pair"), args.model),
                     ("per_pair_paper_rock_mask", RoverConfig(
@@ -187,12 +194,6 @@ def main(argv: list[str] | None = None) -> int:
     if args.per_cell_outcrops:
         configs.append(("elevation_map_per_cell_outcrops", RoverConfig(
             classify_map_outcrops=False, elevation_map=outcrop_rule("per_cell")), args.model))
-    for spec in args.outcrops_also:
-        rule, sep, model = spec.partition("=")
-        if not sep:
-            ap.error(f"--outcrops-also {spec}: expected RULE=MODEL")
-        configs.append((f"elevation_map_{rule}_outcrops", RoverConfig(
-            elevation_map=outcrop_rule(rule)), model))
     if args.as_they_come:
         configs.append(("elevation_map_as_they_come", RoverConfig(working_fx_px=0.0),
                         args.model))

@@ -288,8 +288,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--outcrops", default=DEFAULT_OUTCROP_RULE, choices=tuple(OUTCROP_RULES),
                    help="elevation_map: the outcrop rule: the colour averaged over 0.2 m, "
                    "saturation < 0.6 (averaged_wide, default: the Outcrop Rover's candidates), "
-                   "< 0.5 (averaged), or per observed cell (per_cell; with a rule other than "
-                   "the model's, add --no-classify-map-outcrops)")
+                   "< 0.5 (averaged), per observed cell (per_cell), or averaged_wide's cells "
+                   "and those under 0.75 of the soil's saturation around them (soil_relative; "
+                   "with a rule other than the model's, retrain or add "
+                   "--no-classify-map-outcrops)")
     p.add_argument("--working-fx", type=float, default=RoverConfig().working_fx_px,
                    metavar="PX",
                    help="the angular resolution the detector works at, as a focal length in "
