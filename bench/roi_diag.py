@@ -65,13 +65,15 @@ def furthest(verdicts: list[tuple[str, dict]]) -> tuple[str, dict]:
     return STAGES[best], last
 
 
-def default_mapper():
-    """A DriveMapper with the committed defaults and model."""
+def default_mapper(rule: str | None = None, model: str | None = None):
+    """A DriveMapper with the committed defaults and model; or with the outcrop rule
+    ``rule`` and the rover model ``model`` (trained on that rule's candidates)."""
     from roi_detector.cli import load_classifier
+    from roi_detector.elevation_map import outcrop_rule
     from roi_detector.rover_pipeline import DriveMapper, RoverConfig
 
-    cfg = RoverConfig()
-    return DriveMapper(cfg, classifier=load_classifier(None, cfg))
+    cfg = RoverConfig() if rule is None else RoverConfig(elevation_map=outcrop_rule(rule))
+    return DriveMapper(cfg, classifier=load_classifier(model, cfg))
 
 
 def ln_on_truth(bag: str, truth, mapper, trace=None):
@@ -222,15 +224,17 @@ def footprint_stats(emap, truth, outcrops: np.ndarray) -> list[dict | None]:
     return out
 
 
-def diagnose_outcrops(bag: str) -> list[dict]:
-    """One row per counted truth outcrop (see the module)."""
+def diagnose_outcrops(bag: str, rule: str | None = None,
+                      model: str | None = None) -> list[dict]:
+    """One row per counted truth outcrop (see the module), with the committed defaults
+    or the outcrop rule ``rule`` and the model ``model``."""
     from roi_detector.truth import Truth, match_rule_radius
     from roi_network.records import OUTCROP, xy
 
     truth = Truth.load(bag)
     r = truth.rois
     counted = np.flatnonzero(truth.counted(15.0) & (r["label"] == OUTCROP))
-    mapper = default_mapper()
+    mapper = default_mapper(rule, model)
     best: list[dict | None] = [None] * len(counted)
     detect = mapper.map.detect
 
@@ -352,10 +356,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("bag", help="bag directory with truth/")
     ap.add_argument("--outcrops", action="store_true",
                     help="per truth outcrop instead of per truth rock")
+    ap.add_argument("--outcrop-rule", default=None, metavar="RULE",
+                    help="with --outcrops: the map's outcrop rule in place of the default's")
+    ap.add_argument("--model", default=None,
+                    help="with --outcrops: the rover model (default: committed), trained on "
+                    "--outcrop-rule's candidates")
     ap.add_argument("--json", type=Path, help="write the rows here")
     args = ap.parse_args(argv)
+    if (args.outcrop_rule or args.model) and not args.outcrops:
+        ap.error("--outcrop-rule and --model go with --outcrops")
     if args.outcrops:
-        rows = diagnose_outcrops(args.bag)
+        rows = diagnose_outcrops(args.bag, args.outcrop_rule, args.model)
         sys.stdout.write(markdown_outcrops(args.bag, rows))
     else:
         rows = diagnose(args.bag)

@@ -114,3 +114,17 @@ def test_markdown_outcrops_counts_the_stages(diag):
     md = diag.markdown_outcrops("bags/x", rows)
     assert "In the LN: 1 of 2; stage: colour 1, reported 1" in md
     assert md.index("| 2 |") < md.index("| 5 |")
+
+
+def test_the_outcrop_rule_and_model_options_go_with_outcrops(diag, capsys):
+    with pytest.raises(SystemExit):
+        diag.main(["bags/x", "--outcrop-rule", "soil_relative"])
+    assert "go with --outcrops" in capsys.readouterr().err
+
+
+def test_a_mapper_with_another_outcrop_rule_refuses_the_committed_model(diag):
+    """The committed Outcrop Rover was trained on the default rule's candidates: a map
+    with another rule refuses it, naming the rule (no diagnosis on the wrong model)."""
+    with pytest.raises(ValueError, match="another outcrop rule"):
+        diag.default_mapper("soil_relative")
+    assert diag.default_mapper().cfg.elevation_map.outcrop_soil_ratio == 0.0
