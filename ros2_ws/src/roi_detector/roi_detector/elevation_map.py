@@ -275,7 +275,8 @@ PER_CELL_OUTCROPS: dict = dict(outcrop_colour_sigma_m=0.0, outcrop_max_saturatio
                                outcrop_min_cells_fraction=1.0)
 #: The outcrop rules by name (``roi_detector ln --outcrops``, the node's ``outcrops``
 #: parameter): ``per_cell``, :data:`PER_CELL_OUTCROPS`; ``averaged``,
-#: :data:`AVERAGED_OUTCROPS`; ``averaged_wide``, :data:`AVERAGED_WIDE_OUTCROPS`.
+#: :data:`AVERAGED_OUTCROPS`; ``averaged_wide``, :data:`AVERAGED_WIDE_OUTCROPS`;
+#: ``soil_relative``, :data:`SOIL_RELATIVE_OUTCROPS`.
 OUTCROP_RULES: dict[str, dict] = {"per_cell": PER_CELL_OUTCROPS, "averaged": AVERAGED_OUTCROPS,
                                   "averaged_wide": AVERAGED_WIDE_OUTCROPS,
                                   "soil_relative": SOIL_RELATIVE_OUTCROPS}
@@ -297,9 +298,11 @@ def outcrop_rule_of(cfg: ElevationMapConfig) -> dict:
     return {k: getattr(cfg, k) for k in OUTCROP_RULE_FIELDS}
 
 
-def recorded_outcrop_rule(rule: dict) -> dict:
-    """A rule as a model records it (:func:`outcrop_rule_of`), with the fields it
-    predates at their defaults (which is what they were when it was trained)."""
+def complete_outcrop_rule(rule: dict) -> dict:
+    """Every :data:`OUTCROP_RULE_FIELDS` of ``rule``, those it leaves out at their
+    defaults: a rule of :data:`OUTCROP_RULES`, or one a model records
+    (:func:`outcrop_rule_of`) without the fields it predates (they were at their
+    defaults when it was trained)."""
     return {**outcrop_rule_of(ElevationMapConfig()), **rule}
 
 
@@ -308,9 +311,7 @@ def outcrop_rule(name: str, cfg: ElevationMapConfig | None = None) -> ElevationM
     :data:`OUTCROP_RULES`; ValueError naming the rules for any other name."""
     if name not in OUTCROP_RULES:
         raise ValueError(f"unknown outcrop rule '{name}' (one of {tuple(OUTCROP_RULES)})")
-    # Every outcrop field: those a rule leaves out at their defaults.
-    return replace(cfg or ElevationMapConfig(),
-                   **{**outcrop_rule_of(ElevationMapConfig()), **OUTCROP_RULES[name]})
+    return replace(cfg or ElevationMapConfig(), **complete_outcrop_rule(OUTCROP_RULES[name]))
 
 
 #: The features of a map rock region (:meth:`ElevationMap._rock_features`), the map-rock

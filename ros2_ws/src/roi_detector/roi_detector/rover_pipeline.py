@@ -30,9 +30,9 @@ from roi_detector.elevation_map import (
     ElevationMap,
     ElevationMapConfig,
     appearance,
+    complete_outcrop_rule,
     outcrop_rule,
     outcrop_rule_of,
-    recorded_outcrop_rule,
 )
 from roi_detector.far_rocks import Blob, FarRock, FarRockConfig, FarRockTracker, dark_blobs
 from roi_detector.inputs import StereoFrame
@@ -342,7 +342,7 @@ def check_model(classifier: RoverClassifier | None, cfg: RoverConfig) -> None:
                              "classify_map_outcrops: false)")
         trained = classifier.meta.get("provenance", {}).get("map_outcrop_rule")
         mine = outcrop_rule_of(cfg.elevation_map)
-        trained = None if trained is None else recorded_outcrop_rule(trained)
+        trained = None if trained is None else complete_outcrop_rule(trained)
         if trained is not None and any(
                 not np.isclose(float(trained.get(k, np.nan)), float(v)) for k, v in mine.items()):
             names = [n for n, r in OUTCROP_RULES.items()

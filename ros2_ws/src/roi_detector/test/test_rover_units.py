@@ -467,15 +467,15 @@ def test_the_committed_rover_model_is_the_far_rocks_rock_rover_of_training_seeds
     # The map outcrops' Outcrop Rover: the paper's PCA + kNN, on the default rule's
     # candidates, which the model records.
     from roi_detector.elevation_map import (
+        complete_outcrop_rule,
         outcrop_rule,
         outcrop_rule_of,
-        recorded_outcrop_rule,
     )
     from roi_detector.rover_classifier import MAP_OUTCROP_CLASSIFIER
 
     assert model.map_outcrops and prov["map_outcrop_kind"] == "knn"
     assert model.classifiers[MAP_OUTCROP_CLASSIFIER].config.kind == "knn"
-    assert recorded_outcrop_rule(prov["map_outcrop_rule"]) == \
+    assert complete_outcrop_rule(prov["map_outcrop_rule"]) == \
         outcrop_rule_of(RoverConfig().elevation_map) == \
         outcrop_rule_of(outcrop_rule("averaged_wide"))
     assert prov["map_outcrops"] > 20 and "--outcrops averaged_wide" in prov["command"]
