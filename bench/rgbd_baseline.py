@@ -38,11 +38,10 @@ def stereo_pairs(bag: Path):
     """``(t_ns, left, right, rig)`` for each complete stereo pair of the bag, in order."""
     from rover_vo.bag import read_messages, rover_params
     from rover_vo.messages import (
-        TOPIC_LEFT,
         TOPIC_LEFT_INFO,
-        TOPIC_RIGHT,
         TOPIC_RIGHT_INFO,
         decode_image,
+        side_of,
         stamp_ns,
     )
     from rover_vo.rig import rig_from_camera_info
@@ -55,17 +54,17 @@ def stereo_pairs(bag: Path):
         if topic in (TOPIC_LEFT_INFO, TOPIC_RIGHT_INFO):
             infos[topic] = msg
             continue
-        if topic not in (TOPIC_LEFT, TOPIC_RIGHT):
+        if side_of(topic) is None:
             continue
         pair = pending.setdefault(stamp_ns(msg), {})
-        pair[topic] = msg
+        pair[side_of(topic)] = msg
         if len(pair) < 2 or len(infos) < 2:
             continue
         t_ns = stamp_ns(msg)
         del pending[t_ns]
         if rig is None:
             rig = rig_from_camera_info(infos[TOPIC_LEFT_INFO], infos[TOPIC_RIGHT_INFO], params)
-        left, right = decode_image(pair[TOPIC_LEFT]), decode_image(pair[TOPIC_RIGHT])
+        left, right = decode_image(pair["left"]), decode_image(pair["right"])
         if left is not None and right is not None:
             yield t_ns, left, right, rig
 

@@ -5,7 +5,7 @@ stereo points, or its classified detections with the paper's per-pair method) an
 :class:`~roi_detector.rover_pipeline.DriveMapper` (the drive's elevation map, or the
 tracker), the code ``roi_detector ln`` runs offline.
 
-Subscribes the stereo pair (CompressedImage + CameraInfo, sensor-data QoS) and
+Subscribes the stereo pair (CompressedImage or raw Image + CameraInfo, sensor-data QoS) and
 ``/vo/odometry``; publishes, after each pair whose odometry pose is known,
 ``/rois/detections`` (base_link: the ROIs in the pair's view; per_pair: what the pair
 detected) and ``/rois/tracks`` (odom, every ROI followed).
@@ -24,11 +24,11 @@ from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from sensor_msgs.msg import CameraInfo, CompressedImage, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
 from roi_detector.elevation_map import DEFAULT_OUTCROP_RULE, OUTCROP_RULES, outcrop_rule
 from roi_detector.far_rocks import FAR_POPULATIONS, FarRockConfig
-from roi_detector.inputs import BadInput, OdometryBuffer, StereoFrame, decode_image
+from roi_detector.inputs import BadInput, FrameMaker, OdometryBuffer
 from roi_detector.rover_pipeline import (
     METHODS,
     DriveMapper,
@@ -38,6 +38,8 @@ from roi_detector.rover_pipeline import (
     session_id_base,
 )
 from roi_detector.tracking import TrackerConfig
+from roi_network import images
+from roi_network.images import TRANSPORT_PARAMETER_HELP, TransportLock
 from roi_network.pointcloud import to_pointcloud2
 from roi_network.spin import run_node
 
@@ -127,9 +129,20 @@ class RoiDetectorNode(Node):
               "in pixels: finer stereo pairs are resampled to it (the pixel parameters and "
               "the committed Rock Rovers are set at it); 0: pairs as they come"),
         ).value
+        transport = self.declare_parameter(
+            "image_transport", "auto", d(description=TRANSPORT_PARAMETER_HELP)).value
+        rectify = self.declare_parameter(
+            "rectify", True,
+            d(description="rectify images whose CameraInfo has distortion (D) or a "
+              "rectifying rotation (R) to its P, as image_proc does; false: read every "
+              "image as rectified (DESIGN.md's are)")).value
         if len(extrinsic) != 7 or not any(extrinsic):
             raise ValueError("parameter 'base_to_left_camera' is not set (pass the bag's "
                              "rover.yaml as a params file)")
+        try:
+            self.transports = TransportLock(str(transport), self.get_logger().warning)
+        except ValueError as e:
+            raise ValueError(f"parameter {e}") from None
         from roi_detector.cli import load_classifier
 
         if method not in METHODS:
@@ -152,9 +165,9 @@ class RoiDetectorNode(Node):
         self.detector = RoverDetector(extrinsic, classifier, cfg, self.bad)
         self.mapper = DriveMapper(cfg, classifier=classifier)
         self.odometry = OdometryBuffer(self.max_gap_s)
-        self.pending_pairs: dict[int, dict[str, CompressedImage]] = {}
+        self.pending_pairs: dict[int, dict[str, CompressedImage | Image]] = {}
         self.waiting: list = []  # (stamp s, header stamp, PairObservation) awaiting odometry
-        self.left_k = self.right_p = None
+        self.frames = FrameMaker(self.bad, bool(rectify), self.get_logger().info)
         self.n_pairs = 0
         self.id_base = session_id_base(time.time())
         prov = {} if classifier is None else classifier.meta.get("provenance", {})
@@ -163,26 +176,19 @@ class RoiDetectorNode(Node):
         self.det_pub = self.create_publisher(PointCloud2, "/rois/detections", RELIABLE)
         self.track_pub = self.create_publisher(PointCloud2, "/rois/tracks", RELIABLE)
         self.status_pub = self.create_publisher(DiagnosticArray, "/rois/status", 10)
-        self.create_subscription(CompressedImage, "/stereo/left/image_raw/compressed",
-                                 lambda m: self.on_image("left", m), SENSOR)
-        self.create_subscription(CompressedImage, "/stereo/right/image_raw/compressed",
-                                 lambda m: self.on_image("right", m), SENSOR)
-        self.create_subscription(CameraInfo, "/stereo/left/camera_info", self.on_left_info,
-                                 SENSOR)
-        self.create_subscription(CameraInfo, "/stereo/right/camera_info", self.on_right_info,
-                                 SENSOR)
+        self.transports.subscribe(self, self.on_image, SENSOR)
+        for side in ("left", "right"):
+            self.create_subscription(CameraInfo, f"/stereo/{side}/camera_info",
+                                     lambda m, s=side: self.on_info(s, m), SENSOR)
         self.create_subscription(Odometry, "/vo/odometry", self.on_odometry, RELIABLE)
 
-    def on_left_info(self, msg: CameraInfo) -> None:
-        self.left_k = np.asarray(msg.k, float)
+    def on_info(self, side: str, msg: CameraInfo) -> None:
+        self.frames.info[side] = msg
         self._process_ready()
 
-    def on_right_info(self, msg: CameraInfo) -> None:
-        self.right_p = np.asarray(msg.p, float)
-        self._process_ready()
-
-    def on_image(self, side: str, msg: CompressedImage) -> None:
+    def on_image(self, topic: str, msg: CompressedImage | Image) -> None:
         """Pair the halves by header stamp; a half left alone for 2 s is dropped."""
+        side = images.side_of(topic)
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         self.pending_pairs.setdefault(stamp, {})[side] = msg
         for old in [s for s in self.pending_pairs if s < stamp - 2_000_000_000]:
@@ -191,7 +197,7 @@ class RoiDetectorNode(Node):
         self._process_ready()
 
     def _process_ready(self) -> None:
-        if self.left_k is None or self.right_p is None:
+        if not self.frames.ready:
             return
         for stamp in sorted(s for s, p in self.pending_pairs.items() if len(p) == 2):
             pair = self.pending_pairs.pop(stamp)
@@ -199,13 +205,10 @@ class RoiDetectorNode(Node):
 
     def process_pair(self, stamp: int, left_msg, right_msg) -> None:
         """Detect, publish detections, track when the odometry pose is known."""
-        left, right = decode_image(left_msg.data), decode_image(right_msg.data)
-        if left is None or right is None or left.shape != right.shape:
-            self.bad("undecodable image", f"stereo pair at {stamp * 1e-9:.3f} s "
-                     f"({left_msg.format!r})")
+        frame = self.frames.frame(stamp, left_msg, right_msg)
+        if frame is None:  # undecodable, or a CameraInfo it cannot rectify with
             self.publish_status(left_msg.header.stamp)  # the skip shows at once
             return
-        frame = StereoFrame(stamp, left, right, self.left_k, self.right_p)
         try:
             obs = self.detector.observe(frame)
         except ValueError as exc:  # inconsistent CameraInfo: named field

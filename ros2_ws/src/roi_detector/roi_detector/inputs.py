@@ -11,10 +11,11 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation, Slerp
+
+from roi_network import images
 
 # POSE_COVARIANCE_FILE and write_tum are this package's names for the shared ones.
 from roi_network.trajectory import (  # noqa: F401
@@ -24,8 +25,6 @@ from roi_network.trajectory import (  # noqa: F401
     write_tum,
 )
 
-LEFT_IMAGE = "/stereo/left/image_raw/compressed"
-RIGHT_IMAGE = "/stereo/right/image_raw/compressed"
 LEFT_INFO = "/stereo/left/camera_info"
 RIGHT_INFO = "/stereo/right/camera_info"
 
@@ -48,13 +47,10 @@ class BadInput:
             self._report(f"{kind}: {detail} (skipped; further '{kind}' counted, not logged)")
 
 
-def decode_image(data: bytes | np.ndarray) -> np.ndarray | None:
-    """BGR uint8 image of a CompressedImage payload (JPEG or PNG); None if undecodable."""
-    buf = np.frombuffer(bytes(data), np.uint8) if not isinstance(data, np.ndarray) else data
-    if buf.size == 0:
-        return None
-    img = cv2.imdecode(buf.astype(np.uint8, copy=False), cv2.IMREAD_COLOR)
-    return img
+def decode_image(msg) -> np.ndarray | None:
+    """BGR uint8 image of a sensor_msgs/CompressedImage or sensor_msgs/Image; None if it
+    does not decode (:func:`roi_network.images.decode_image`)."""
+    return images.decode_image(msg, colour=True)
 
 
 def load_rover_params(path: str | Path) -> dict:
@@ -97,17 +93,76 @@ def _stamp_ns(header) -> int:
     return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
 
-def read_stereo_frames(bag_dir: str | Path, bad: BadInput,
-                       every: int = 1) -> Iterator[StereoFrame]:
+class FrameMaker:
+    """StereoFrames of decoded pairs and each side's latest CameraInfo, for the CLI and the
+    node alike.
+
+    The images are rectified to their CameraInfo's P (:class:`roi_network.images.
+    Rectifier`: the identity for DESIGN.md's CameraInfo, which describes rectified images;
+    a camera driver's carries its lens distortion D and rectifying rotation R), and the
+    left camera's intrinsics are P's left 3x3, those of the rectified image.
+
+    Args:
+        bad: bad-input counter (undecodable image, a CameraInfo it cannot rectify with).
+        rectify: False reads every image as rectified, whatever its CameraInfo says.
+        log: called once per side when its images are rectified.
+    """
+
+    def __init__(self, bad: BadInput, rectify: bool = True,
+                 log: Callable[[str], None] | None = None) -> None:
+        self.bad = bad
+        self.rectify = rectify
+        self.log = log or (lambda _text: None)
+        self.info: dict[str, object] = {"left": None, "right": None}
+        self.rectifiers: dict[str, images.Rectifier | None] = {"left": None, "right": None}
+
+    @property
+    def ready(self) -> bool:
+        """Both CameraInfo have come."""
+        return self.info["left"] is not None and self.info["right"] is not None
+
+    def frame(self, stamp: int, left_msg, right_msg) -> StereoFrame | None:
+        """The pair as the pipeline sees it; None (counted) when it cannot be."""
+        left, right = decode_image(left_msg), decode_image(right_msg)
+        if left is None or right is None or left.shape != right.shape:
+            self.bad("undecodable image", f"stereo pair at {stamp * 1e-9:.3f} s "
+                     f"({images.describe(left_msg)})")
+            return None
+        pixels = {"left": left, "right": right}
+        if self.rectify:
+            for side in pixels:
+                try:
+                    rectifier = images.rectifier_for(self.info[side], self.rectifiers[side])
+                except ValueError as exc:
+                    self.bad("bad camera_info", f"/stereo/{side}/camera_info: {exc}")
+                    return None
+                if rectifier is not self.rectifiers[side] and not rectifier.identity:
+                    self.log(f"/stereo/{side}/camera_info has distortion or a rectifying "
+                             "rotation: images are rectified to its P (parameter rectify)")
+                self.rectifiers[side] = rectifier
+                pixels[side] = rectifier(pixels[side])
+        p_left = np.asarray(self.info["left"].p, float)
+        left_k = p_left[[0, 1, 2, 4, 5, 6, 8, 9, 10]]
+        return StereoFrame(stamp, pixels["left"], pixels["right"], left_k,
+                           np.asarray(self.info["right"].p, float))
+
+
+def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
+                       rectify: bool = True) -> Iterator[StereoFrame]:
     """Stereo pairs of a bag directory (``BAG/rosbag``), paired by header stamp.
 
     Args:
         bag_dir: the bag directory (holding ``rosbag/``) or the rosbag2 directory itself.
         bad: bad-input counter (undecodable image, missing pair half).
         every: keep one pair in ``every`` (1: all).
+        rectify: rectify images whose CameraInfo has distortion (:class:`FrameMaker`).
+
+    The images are those of the transport the bag carries (compressed, the contract,
+    when it carries both; :func:`roi_network.images.bag_transport`).
 
     Raises:
         FileNotFoundError: when the bag is missing.
+        ValueError: naming the bag when it carries no stereo image pair.
     """
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
@@ -116,37 +171,38 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput,
     rosbag = bag_dir / "rosbag" if (bag_dir / "rosbag").is_dir() else bag_dir
     if not (rosbag / "metadata.yaml").is_file():
         raise FileNotFoundError(f"{bag_dir}: no rosbag2 directory (metadata.yaml) found")
-    topics = (LEFT_IMAGE, RIGHT_IMAGE, LEFT_INFO, RIGHT_INFO)
     pending: dict[int, dict[str, object]] = {}
-    left_k = right_p = None
+    maker = FrameMaker(bad, rectify, print)
     ready: list[tuple[int, dict]] = []
     index = 0
     with AnyReader([rosbag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        transport = images.bag_transport(
+            {c.topic: c.msgtype for c in reader.connections}, str(rosbag))
+        left_image, right_image = images.STEREO_TOPICS[transport]
+        topics = (left_image, right_image, LEFT_INFO, RIGHT_INFO)
         conns = [c for c in reader.connections if c.topic in topics]
         for conn, _t, raw in reader.messages(connections=conns):
             msg = reader.deserialize(raw, conn.msgtype)
-            if conn.topic == LEFT_INFO:
-                left_k = np.asarray(msg.k, float)
-            elif conn.topic == RIGHT_INFO:
-                right_p = np.asarray(msg.p, float)
+            if conn.topic in (LEFT_INFO, RIGHT_INFO):
+                maker.info["left" if conn.topic == LEFT_INFO else "right"] = msg
             else:
                 stamp = _stamp_ns(msg.header)
                 slot = pending.setdefault(stamp, {})
-                slot[conn.topic] = msg.data
+                slot[images.side_of(conn.topic)] = msg
                 # A pair half that never comes: older pending stamps are given up.
                 for old in [s for s in pending if s < stamp - 2_000_000_000]:
                     bad("missing pair half", f"stereo pair at {old * 1e-9:.3f} s has one image")
                     del pending[old]
-                if LEFT_IMAGE in slot and RIGHT_IMAGE in slot:
+                if len(slot) == 2:
                     del pending[stamp]
                     index += 1
                     if (index - 1) % every == 0:
                         ready.append((stamp, slot))
             # CameraInfo is recorded after the images of its stamp: pairs wait for it.
-            if left_k is None or right_p is None:
+            if not maker.ready:
                 continue
             for stamp_r, slot_r in ready:
-                frame = _frame(stamp_r, slot_r, left_k, right_p, bad)
+                frame = maker.frame(stamp_r, slot_r["left"], slot_r["right"])
                 if frame is not None:
                     yield frame
             ready.clear()
@@ -154,14 +210,6 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput,
         bad("missing pair half", f"stereo pair at {old * 1e-9:.3f} s has one image")
     if ready:
         bad("no camera_info", f"{len(ready)} stereo pair(s) and no CameraInfo")
-
-
-def _frame(stamp: int, slot: dict, left_k, right_p, bad: BadInput) -> StereoFrame | None:
-    left, right = decode_image(slot[LEFT_IMAGE]), decode_image(slot[RIGHT_IMAGE])
-    if left is None or right is None or left.shape != right.shape:
-        bad("undecodable image", f"stereo pair at {stamp * 1e-9:.3f} s")
-        return None
-    return StereoFrame(stamp, left, right, left_k, right_p)
 
 
 class PoseTrack:

@@ -125,7 +125,7 @@ def test_cli_ln_and_eval_on_tiny(tiny_bag, tmp_path):
     assert not (tmp_path / "x.geojson").exists()
 
 
-def _bag_messages(bag: Path):
+def _bag_messages(bag: Path, deserialize: bool = False):
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
@@ -133,7 +133,8 @@ def _bag_messages(bag: Path):
     with AnyReader([bag / "rosbag"], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as r:
         conns = [c for c in r.connections if c.topic.startswith("/stereo/")]
         for conn, _t, raw in r.messages(connections=conns):
-            out.setdefault(conn.topic, []).append(raw)
+            out.setdefault(conn.topic, []).append(
+                r.deserialize(raw, conn.msgtype) if deserialize else raw)
     return out
 
 
@@ -335,3 +336,101 @@ def test_roi_detector_refuses_an_unknown_outcrop_rule(tiny_bag, tmp_path):
     log = (tmp_path / "roi_detector.log").read_text()
     assert proc.returncode != 0
     assert "parameter 'outcrops'" in log and "averaged" in log and "Traceback" not in log
+
+
+def test_cli_ln_reads_raw_images_alike(tiny_bag, tmp_path):
+    """A bag with raw sensor_msgs/Image stereo pairs (a field bag's usual transport) gives
+    the LN its compressed twin gives: the same pixels, the same nodes."""
+    from roi_network.testing import write_raw_image_copy
+
+    raw_bag = write_raw_image_copy(tiny_bag, tmp_path / "raw")
+    run = lambda *a: subprocess.run([shutil.which("roi_detector"), *a], capture_output=True,  # noqa: E731
+                                    text=True, timeout=240)
+    odom = tmp_path / "truth_odom.tum"
+    assert run("truth-odometry", str(tiny_bag), "--out", str(odom)).returncode == 0
+    lns = []
+    for bag in (tiny_bag, raw_bag):
+        out = tmp_path / f"{bag.name}.geojson"
+        r = run("ln", str(bag), "--odometry", str(odom), "--out", str(out), "--model", "none",
+                "--min-obs", "1")
+        assert r.returncode == 0, r.stderr
+        lns.append(read_geojson(out).records)
+    assert len(lns[0]) >= 1
+    np.testing.assert_array_equal(lns[0], lns[1])
+
+
+def test_roi_detector_node_reads_raw_images(tiny_bag, tmp_path):
+    """The node takes raw sensor_msgs/Image pairs as it takes the contract's compressed
+    ones; from a bag that carries both it reads the first transport that delivers, once.
+    The pairs come from ``globloc play`` (whose Fast DDS profile keeps 0.9 MB images in
+    shared memory), the odometry from the truth, all of it before the first pair."""
+    from nav_msgs.msg import Odometry
+    from scipy.spatial.transform import Rotation
+    from sensor_msgs.msg import PointCloud2
+
+    from roi_detector.truth import Truth
+    from roi_network.testing import write_raw_image_copy
+
+    both = write_raw_image_copy(tiny_bag, tmp_path / "both", keep_compressed=True)
+    stamps = sorted({int(m.header.stamp.sec) * 10**9 + int(m.header.stamp.nanosec)
+                     for m in _bag_messages(tiny_bag, deserialize=True)
+                     ["/stereo/left/image_raw/compressed"]})
+    domain = _domain() + 3
+    det = _start(["roi_detector", "--ros-args", "-p", "model_path:=none",
+                  "--params-file", str(tiny_bag / "rover.yaml")], domain,
+                 tmp_path / "roi_detector.log")
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    player = None
+    try:
+        node = rclpy.create_node("roi_raw_driver", context=ctx)
+        ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        got = []
+        node.create_subscription(PointCloud2, "/rois/detections", got.append, RELIABLE)
+        odom_pub = node.create_publisher(
+            Odometry, "/vo/odometry", QoSProfile(depth=500,
+                                                 reliability=ReliabilityPolicy.RELIABLE))
+
+        def spin_until(cond, timeout):
+            end = time.monotonic() + timeout
+            while not cond() and time.monotonic() < end:
+                assert det.poll() is None, (tmp_path / "roi_detector.log").read_text()
+                ex.spin_once(timeout_sec=0.05)
+            return cond()
+
+        assert spin_until(lambda: odom_pub.get_subscription_count() > 0, 30)
+        odom = Truth.load(tiny_bag).odom_track()
+        for t_ns in stamps:
+            r_ob, p_ob, _ = odom.at(t_ns * 1e-9)
+            o = Odometry()
+            o.header.stamp.sec, o.header.stamp.nanosec = divmod(t_ns, 10**9)
+            o.header.frame_id, o.child_frame_id = "odom", "base_link"
+            o.pose.pose.position.x, o.pose.pose.position.y, o.pose.pose.position.z = p_ob
+            oo = o.pose.pose.orientation
+            oo.x, oo.y, oo.z, oo.w = Rotation.from_matrix(r_ob).as_quat()
+            o.pose.covariance = list(np.diag([1e-4] * 3 + [1e-5] * 3).ravel())
+            odom_pub.publish(o)
+        spin_until(lambda: False, 1.0)
+        player = subprocess.Popen(
+            [shutil.which("globloc"), "play", str(both), "--rate", "2",
+             "--wait-subscribers", "30", "--topics", "/stereo/left/image_raw",
+             "/stereo/right/image_raw", "/stereo/left/image_raw/compressed",
+             "/stereo/right/image_raw/compressed", "/stereo/left/camera_info",
+             "/stereo/right/camera_info"], env=_env(domain), stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT, text=True)
+        assert spin_until(lambda: len(got) >= len(stamps) or player.poll() is not None, 240)
+        spin_until(lambda: len(got) >= len(stamps), 30)
+        assert player.wait(timeout=60) == 0, player.stdout.read()
+        assert [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in got] == stamps
+        assert det.poll() is None
+    finally:
+        if player is not None and player.poll() is None:
+            player.send_signal(signal.SIGINT)
+            player.wait(timeout=10)
+        rclpy.shutdown(context=ctx)
+        _stop(det)
+    log = (tmp_path / "roi_detector.log").read_text()
+    assert "images arrive in both transports; reading the " in log
+    assert "missing pair half" not in log and "undecodable" not in log
+    assert "Traceback" not in log

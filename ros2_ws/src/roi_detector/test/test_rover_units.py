@@ -5,6 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from sensor_msgs.msg import CompressedImage
 
 from roi_detector.inputs import (
     BadInput,
@@ -216,7 +217,8 @@ def test_bad_input_logged_once_per_kind():
     bad("missing pair half", "y")
     assert bad.counts == {"undecodable image": 3, "missing pair half": 1}
     assert len(lines) == 2
-    assert decode_image(b"not a jpeg") is None and decode_image(b"") is None
+    assert decode_image(CompressedImage(format="jpeg", data=list(b"not a jpeg"))) is None
+    assert decode_image(CompressedImage(format="jpeg")) is None
 
 
 def test_pose_track_interpolates_and_reports_gaps(tmp_path):
@@ -705,3 +707,46 @@ def test_drive_samples_are_kept_per_bag_and_retaken_under_other_settings(tmp_pat
     assert len(calls) == 3 and "s1.npz: not a samples cache" in logged[0]
     training.drive_samples("bags/s1")  # no cache: always taken
     assert len(calls) == 4
+
+
+def test_frame_maker_rectifies_by_camera_info_and_takes_p():
+    import cv2
+    from sensor_msgs.msg import CameraInfo
+
+    from roi_detector.inputs import FrameMaker
+
+    rng = np.random.default_rng(2)
+    img = cv2.GaussianBlur(rng.integers(0, 256, (60, 80, 3), dtype=np.uint8), (0, 0), 1.5)
+    msg = CompressedImage(format="png", data=cv2.imencode(".png", img)[1].tobytes())
+
+    def info(d=(), model="plumb_bob", tx=0.0):
+        return CameraInfo(width=80, height=60, distortion_model=model, d=list(d),
+                          k=[70.0, 0, 40, 0, 70, 30, 0, 0, 1], r=list(np.eye(3).ravel()),
+                          p=[72.0, 0, 41, tx, 0, 72, 31, 0, 0, 0, 1, 0])
+
+    lines, logs = [], []
+    maker = FrameMaker(BadInput(lines.append), log=logs.append)
+    assert not maker.ready
+    maker.info = {"left": info(), "right": info(tx=-14.4)}
+    frame = maker.frame(1, msg, msg)
+    # K and P differ: the images are remapped to P's geometry, and P gives the intrinsics.
+    np.testing.assert_array_equal(frame.left_k, [72.0, 0, 41, 0, 72, 31, 0, 0, 1])
+    assert frame.right_p[3] == -14.4 and not np.array_equal(frame.left, img)
+    assert len(logs) == 2
+    # DESIGN.md's CameraInfo (K = P, no D): the decoded pixels as they are.
+    same = {"left": info(), "right": info(tx=-14.4)}
+    for side in same:
+        same[side].k = [72.0, 0, 41, 0, 72, 31, 0, 0, 1]
+    maker = FrameMaker(BadInput(lines.append), log=logs.append)
+    maker.info = same
+    np.testing.assert_array_equal(maker.frame(2, msg, msg).left, img)
+    assert len(logs) == 2
+    # rectify=False reads any image as rectified; a model OpenCV lacks is counted, skipped.
+    maker = FrameMaker(BadInput(lines.append), rectify=False)
+    maker.info = {"left": info(d=(0.1,), model="kannala"), "right": info(tx=-14.4)}
+    np.testing.assert_array_equal(maker.frame(3, msg, msg).left, img)
+    bad = BadInput(lines.append)
+    maker = FrameMaker(bad)
+    maker.info = {"left": info(d=(0.1,), model="kannala"), "right": info(tx=-14.4)}
+    assert maker.frame(4, msg, msg) is None and bad.counts == {"bad camera_info": 1}
+    assert "distortion model 'kannala'" in lines[-1]

@@ -95,6 +95,20 @@ class PlayOptions:
     teardown_timeout_s: float = TEARDOWN_TIMEOUT_S
 
 
+#: Environment variables naming a Fast DDS XML profile (the second is Fast DDS 3's name).
+PROFILE_VARIABLES = ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE')
+
+
+def use_player_profile() -> None:
+    """Load the player's Fast DDS profile (config/fastdds_player.xml: a shared-memory
+    segment that holds raw images) unless the environment names a profile already.
+    Called before the player's DDS participant exists."""
+    if not any(os.environ.get(name) for name in PROFILE_VARIABLES):
+        from rover_bringup.run import config_file
+
+        os.environ[PROFILE_VARIABLES[0]] = str(config_file('fastdds_player.xml'))
+
+
 def play(options: PlayOptions) -> int:
     """Play a bag; see ``PlayOptions``.
 
@@ -132,6 +146,7 @@ def play(options: PlayOptions) -> int:
                 f'({(bag.end_ns - bag.start_ns) / NS_PER_S:.2f} s long)'
             )
         # rclpy is imported only now: bad input above fails fast, without starting DDS.
+        use_player_profile()
         from rclpy.executors import ExternalShutdownException
 
         from rover_bringup.player_node import BagPlayer

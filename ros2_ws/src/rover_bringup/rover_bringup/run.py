@@ -41,7 +41,10 @@ from rover_bringup.msgtypes import message_classes
 from rover_bringup.recording import count_messages
 from rover_bringup.respawn import Respawner
 from rover_bringup.run_outputs import export_outputs
-from rover_bringup.topics import OUTPUT_TOPICS
+from rover_bringup.topics import OUTPUT_TOPICS, sensor_problems
+
+#: Packages whose nodes read the bag's stereo pairs, CameraInfo and IMU.
+SENSOR_READERS = ('rover_vo', 'roi_detector')
 
 PACKAGE = 'rover_bringup'
 PLAYER = 'globloc_player'
@@ -154,7 +157,8 @@ def _prepare(options: RunOptions) -> _Plan:
     """Every check that needs no process: bag, types, graph, params, executables."""
     location = locate_bag(options.bag)
     with Bag(location) as bag:
-        message_classes({t.name: t.msgtype for t in bag.topics.values()})
+        bag_topics = {t.name: t.msgtype for t in bag.topics.values()}
+        message_classes(bag_topics)
     graph_path = options.graph or config_file('graph.yaml')
     params_path = options.params or config_file('globloc.yaml')
     nodes = load_graph(graph_path)
@@ -176,6 +180,10 @@ def _prepare(options: RunOptions) -> _Plan:
         raise GloblocError(not_built[0].reason.replace(': skipped', ' (--strict)'))
     for r in not_built:
         _warn(r.reason)
+    # The sensor readers in the graph, told what in the bag they cannot read.
+    if readers := sorted({r.spec.name for r in resolved if r.spec.package in SENSOR_READERS}):
+        for problem in sensor_problems(bag_topics, str(location.rosbag)):
+            _warn(f'{problem} ({", ".join(readers)} will publish nothing)')
     return _Plan(location, resolved, params, graph_path, params_path)
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from roi_network import images
 from rover_bringup.qos import DEFAULT_QOS, LATCHED_QOS, SENSOR_DATA_QOS, TopicQos
 
 
@@ -26,15 +27,13 @@ class TopicContract:
 
 CLOCK_TOPIC = '/clock'
 
-#: Topics a bag carries (inputs of the pipeline) plus /clock.
+#: Topics a bag carries (inputs of the pipeline) plus /clock. The stereo images come in
+#: either transport: the contract's CompressedImage, or the raw Image a field bag may carry
+#: instead (roi_network.images).
 INPUT_TOPICS: dict[str, TopicContract] = {
     CLOCK_TOPIC: TopicContract('rosgraph_msgs/msg/Clock', DEFAULT_QOS),
-    '/stereo/left/image_raw/compressed': TopicContract(
-        'sensor_msgs/msg/CompressedImage', SENSOR_DATA_QOS
-    ),
-    '/stereo/right/image_raw/compressed': TopicContract(
-        'sensor_msgs/msg/CompressedImage', SENSOR_DATA_QOS
-    ),
+    **{topic: TopicContract(images.MSGTYPES[transport], SENSOR_DATA_QOS)
+       for transport, pair in images.STEREO_TOPICS.items() for topic in pair},
     '/stereo/left/camera_info': TopicContract('sensor_msgs/msg/CameraInfo', SENSOR_DATA_QOS),
     '/stereo/right/camera_info': TopicContract('sensor_msgs/msg/CameraInfo', SENSOR_DATA_QOS),
     '/imu/data': TopicContract('sensor_msgs/msg/Imu', SENSOR_DATA_QOS),
@@ -52,6 +51,36 @@ OUTPUT_TOPICS: dict[str, TopicContract] = {
     '/global_pose': TopicContract('geometry_msgs/msg/PoseWithCovarianceStamped', DEFAULT_QOS),
     '/matcher/status': TopicContract('diagnostic_msgs/msg/DiagnosticArray', DEFAULT_QOS),
 }
+
+
+#: The sensor topics the pipeline needs besides the stereo images.
+SENSOR_TOPICS = ('/stereo/left/camera_info', '/stereo/right/camera_info', '/imu/data')
+
+
+def sensor_problems(topics: dict[str, str], source: str) -> list[str]:
+    """What keeps the pipeline from reading a bag's sensors, one line per problem.
+
+    Args:
+        topics: the bag's topics, name -> message type.
+        source: the bag, named in each line.
+
+    Returns:
+        Empty when the bag carries a stereo pair (either transport), both CameraInfo topics
+        and the IMU, with the contract's types.
+    """
+    problems = []
+    try:
+        images.bag_transport(topics, source)
+    except ValueError as exc:
+        problems.append(str(exc))
+    for topic in SENSOR_TOPICS:
+        wanted = INPUT_TOPICS[topic].msgtype
+        if topic not in topics:
+            problems.append(f'{source}: no {topic} ({wanted}): the pipeline needs it')
+        elif topics[topic] != wanted:
+            problems.append(f'{source}: {topic} is {topics[topic]}, the pipeline reads '
+                            f'{wanted}')
+    return problems
 
 
 def design_qos(topic: str) -> TopicQos:

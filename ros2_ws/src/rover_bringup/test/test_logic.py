@@ -296,3 +296,24 @@ def test_play_teardown_watchdog_exits_with_the_playback_status(tmp_path: Path):
     # A teardown that finishes is not held up by the armed watchdog, nor its status changed.
     code, stderr, wall = _run_watchdog(tmp_path, 'raise SystemExit(0)')
     assert code == 0 and 'teardown' not in stderr, stderr
+
+
+def test_sensor_problems_name_what_the_pipeline_cannot_read():
+    from rover_bringup.topics import sensor_problems
+
+    others = {'/stereo/left/camera_info': 'sensor_msgs/msg/CameraInfo',
+              '/stereo/right/camera_info': 'sensor_msgs/msg/CameraInfo',
+              '/imu/data': 'sensor_msgs/msg/Imu'}
+    compressed = dict.fromkeys(('/stereo/left/image_raw/compressed',
+                                '/stereo/right/image_raw/compressed'),
+                               'sensor_msgs/msg/CompressedImage')
+    raw = dict.fromkeys(('/stereo/left/image_raw', '/stereo/right/image_raw'),
+                        'sensor_msgs/msg/Image')
+    assert sensor_problems(others | compressed, 'b') == []
+    assert sensor_problems(others | raw, 'b') == []  # a field bag's raw transport
+    problems = sensor_problems({'/imu/data': 'sensor_msgs/msg/Temperature', **raw}, 'b.mcap')
+    assert len(problems) == 3
+    assert 'b.mcap: no /stereo/left/camera_info (sensor_msgs/msg/CameraInfo)' in problems[0]
+    assert '/imu/data is sensor_msgs/msg/Temperature' in problems[2]
+    problems = sensor_problems(others, 'b.mcap')
+    assert len(problems) == 1 and 'b.mcap: no stereo image pair' in problems[0]

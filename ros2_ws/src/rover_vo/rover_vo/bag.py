@@ -8,8 +8,9 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from roi_network.images import bag_transport
 from rover_vo.config import read_ros_params
-from rover_vo.messages import INPUT_TOPICS
+from rover_vo.messages import input_topics
 
 
 class BagError(ValueError):
@@ -25,7 +26,14 @@ def rover_params(bag_dir: str | Path) -> dict[str, Any]:
 
 
 def read_messages(bag_dir: str | Path) -> Iterator[tuple[str, Any]]:
-    """``(topic, message)`` of the VO input topics in bag (log time) order."""
+    """``(topic, message)`` of the VO input topics in bag (log time) order.
+
+    The stereo images are those of the transport the bag carries (compressed, the
+    contract, when it carries both; :func:`roi_network.images.bag_transport`).
+
+    Raises:
+        BagError: naming the bag when it cannot be read or carries no stereo pair.
+    """
     from rosbags.highlevel import AnyReader
     from rosbags.typesys import Stores, get_typestore
 
@@ -38,7 +46,13 @@ def read_messages(bag_dir: str | Path) -> Iterator[tuple[str, Any]]:
     except Exception as exc:  # rosbags raises several unrelated types for bad bags
         raise BagError(f"{path}: cannot open rosbag2: {exc}") from exc
     try:
-        conns = [c for c in reader.connections if c.topic in INPUT_TOPICS]
+        try:
+            transport = bag_transport({c.topic: c.msgtype for c in reader.connections},
+                                      str(path))
+        except ValueError as exc:
+            raise BagError(str(exc)) from None
+        topics = input_topics(transport)
+        conns = [c for c in reader.connections if c.topic in topics]
         for conn, _, raw in reader.messages(connections=conns):
             yield conn.topic, reader.deserialize(raw, conn.msgtype)
     finally:

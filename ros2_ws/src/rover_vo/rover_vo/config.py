@@ -39,6 +39,9 @@ class FeatureOptions:
     lk_iterations: int = 10  #: Lucas-Kanade iterations per level at most
     lk_epsilon_px: float = 0.03  #: ... or until the update is smaller than this (px)
     fb_max_px: float = 0.5  #: forward-backward consistency bound of a track (px)
+    #: remap images whose CameraInfo has distortion (D) or a rectifying rotation (R) to
+    #: its P, as image_proc does; false: read every image as rectified (DESIGN.md's are)
+    rectify: bool = True
     stereo_max_dy_px: float = 1.0  #: rectified pair: |row difference| allowed (px)
     min_disparity_px: float = 1.0  #: farther points (smaller disparity) are not triangulated
     max_depth_m: float = 60.0  #: farther points are not used

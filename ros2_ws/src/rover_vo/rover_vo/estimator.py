@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from roi_network.images import Rectifier, describe, rectifier_for
 from rover_vo import messages as m
 from rover_vo.config import VoConfig
 from rover_vo.features import stereo_match, track
@@ -117,6 +118,10 @@ class VoEstimator:
         self.propagator: Propagator | None = None
         self._imu_prebuffer: list[tuple[float, np.ndarray, np.ndarray]] = []
         self.pairs: dict[int, _Pair] = {}
+        # The topics the images arrive on (either transport), for the messages.
+        self.image_topics = {"left": m.TOPIC_LEFT, "right": m.TOPIC_RIGHT}
+        # Per side: the rectifier of the last CameraInfo (identity for rectified images).
+        self.rectifiers: dict[str, Rectifier | None] = {"left": None, "right": None}
         self.last_pair_ns: int | None = None
         self.state: OdomState | None = None
         self.kf: Keyframe | None = None
@@ -202,8 +207,9 @@ class VoEstimator:
         if topic in (m.TOPIC_LEFT_INFO, m.TOPIC_RIGHT_INFO):
             self.info["left" if topic == m.TOPIC_LEFT_INFO else "right"] = msg
             return []
-        if topic in (m.TOPIC_LEFT, m.TOPIC_RIGHT):
-            side = "left" if topic == m.TOPIC_LEFT else "right"
+        if topic in m.IMAGE_TOPICS:
+            side = m.side_of(topic)
+            self.image_topics[side] = topic
             t_ns = m.stamp_ns(msg)
             if self.last_pair_ns is not None and t_ns <= self.last_pair_ns:
                 kind = "stereo_duplicate" if t_ns == self.last_pair_ns else "stereo_out_of_order"
@@ -291,14 +297,31 @@ class VoEstimator:
             self.propagator.bias_cov = self._resume["gyro_bias_cov"].copy()
         return True
 
+    def _rectifier(self, side: str) -> Rectifier | None:
+        """The side's rectifier for its current CameraInfo; None (counted) if it has none."""
+        info, current = self.info[side], self.rectifiers[side]
+        try:
+            rectifier = rectifier_for(info, current)
+        except ValueError as exc:
+            self.bad("bad_camera_info", f"/stereo/{side}/camera_info: {exc}")
+            return None
+        if rectifier is not current:
+            self.rectifiers[side] = rectifier
+            if not rectifier.identity:
+                self._log(logging.INFO, f"/stereo/{side}/camera_info has distortion "
+                          f"'{info.distortion_model}' or a rectifying rotation: images are "
+                          "rectified to its P (parameter features.rectify)")
+        return rectifier
+
     def _decode(self, pair: _Pair) -> tuple[np.ndarray, np.ndarray] | None:
         t = pair.t_ns * 1e-9
+        left_topic, right_topic = self.image_topics["left"], self.image_topics["right"]
         if pair.left is None:
-            self.bad("missing_left", f"{m.TOPIC_LEFT}: no left image for the right one at "
+            self.bad("missing_left", f"{left_topic}: no left image for the right one at "
                      f"{t:.3f} s")
             return None
         if pair.right is None:
-            self.bad("missing_right", f"{m.TOPIC_RIGHT}: no right image for the left one at "
+            self.bad("missing_right", f"{right_topic}: no right image for the left one at "
                      f"{t:.3f} s")
             return None
         if not self._ensure_rig():
@@ -306,24 +329,30 @@ class VoEstimator:
                      f"CameraInfo yet at {t:.3f} s: pair not used")
             return None
         images = []
-        for topic, msg in ((m.TOPIC_LEFT, pair.left), (m.TOPIC_RIGHT, pair.right)):
+        for side, topic, msg in (("left", left_topic, pair.left),
+                                 ("right", right_topic, pair.right)):
             img = m.decode_image(msg)
             if img is None:
                 self.bad("corrupt_image", f"{topic}: image at {t:.3f} s does not decode "
-                         f"(format '{msg.format}')")
+                         f"({describe(msg)})")
                 return None
             if img.shape != (self.rig.height, self.rig.width):
                 self.bad("bad_image_size", f"{topic}: image at {t:.3f} s is {img.shape[1]}x"
                          f"{img.shape[0]}, CameraInfo says {self.rig.width}x{self.rig.height}")
                 return None
+            if self.cfg.features.rectify:
+                rectifier = self._rectifier(side)
+                if rectifier is None:
+                    return None
+                img = rectifier(img)
             images.append(img)
         left = images[0]
         small = left[::4, ::4]
         if np.mean(small >= 250) > 0.5:
-            self.bad("overexposed", f"{m.TOPIC_LEFT}: image at {t:.3f} s is over-exposed")
+            self.bad("overexposed", f"{left_topic}: image at {t:.3f} s is over-exposed")
             return None
         if float(small.std()) < 2.0:
-            self.bad("textureless", f"{m.TOPIC_LEFT}: image at {t:.3f} s has no texture")
+            self.bad("textureless", f"{left_topic}: image at {t:.3f} s has no texture")
             return None
         return images[0], images[0], images[1]
 
@@ -584,8 +613,8 @@ class VoEstimator:
                                     est_vo.R, est_vo.t, cfg.motion, prior, prior_cov)
                 est.inliers = inl
         if est is None:
-            self.bad("vision_failed", f"{m.TOPIC_LEFT}: too few tracked inliers at {t:.3f} s"
-                     " (motion from the IMU and the last step)")
+            self.bad("vision_failed", f"{self.image_topics['left']}: too few tracked inliers "
+                     f"at {t:.3f} s (motion from the IMU and the last step)")
             out = self._propagate(t, iv)
             # The keyframe is lost: start a new one where the propagated pose puts us.
             self._new_keyframe(image, left, right)

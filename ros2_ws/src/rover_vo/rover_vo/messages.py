@@ -6,15 +6,25 @@ from __future__ import annotations
 
 from typing import Any
 
-import cv2
 import numpy as np
 
-TOPIC_LEFT = "/stereo/left/image_raw/compressed"
-TOPIC_RIGHT = "/stereo/right/image_raw/compressed"
+from roi_network import images
+from roi_network.images import IMAGE_TOPICS, side_of  # noqa: F401
+
+# The contract's (compressed) image topics; the raw transport's are read as well
+# (roi_network.images).
+TOPIC_LEFT, TOPIC_RIGHT = images.STEREO_TOPICS[images.COMPRESSED]
 TOPIC_LEFT_INFO = "/stereo/left/camera_info"
 TOPIC_RIGHT_INFO = "/stereo/right/camera_info"
 TOPIC_IMU = "/imu/data"
-INPUT_TOPICS = (TOPIC_LEFT, TOPIC_RIGHT, TOPIC_LEFT_INFO, TOPIC_RIGHT_INFO, TOPIC_IMU)
+
+
+def input_topics(transport: str = images.COMPRESSED) -> tuple[str, ...]:
+    """The VO's input topics with the stereo images of ``transport``."""
+    return (*images.STEREO_TOPICS[transport], TOPIC_LEFT_INFO, TOPIC_RIGHT_INFO, TOPIC_IMU)
+
+
+INPUT_TOPICS = input_topics()
 
 
 def stamp_s(msg: Any) -> float:
@@ -34,11 +44,6 @@ def imu_sample(msg: Any) -> tuple[np.ndarray, np.ndarray]:
 
 
 def decode_image(msg: Any) -> np.ndarray | None:
-    """8-bit grey image of a sensor_msgs/CompressedImage (JPEG or PNG), None if corrupt."""
-    data = np.frombuffer(bytes(msg.data), np.uint8)
-    if data.size == 0:
-        return None
-    # OpenCV prints libjpeg warnings for truncated data and may still return an image;
-    # a truncated JPEG decodes to grey padding, caught by the exposure check downstream.
-    img = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE)
-    return img
+    """8-bit grey image of a sensor_msgs/CompressedImage or sensor_msgs/Image, None if it
+    does not decode (:func:`roi_network.images.decode_image`)."""
+    return images.decode_image(msg, colour=False)

@@ -20,8 +20,9 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from scipy.spatial.transform import Rotation
-from sensor_msgs.msg import CameraInfo, CompressedImage, Imu
+from sensor_msgs.msg import CameraInfo, Imu
 
+from roi_network.images import TRANSPORT_PARAMETER_HELP, TransportLock
 from roi_network.spin import run_node
 from rover_vo import messages as m
 from rover_vo.config import VoConfig, config_from_flat, flat_parameters
@@ -86,6 +87,13 @@ class VoNode(Node):
             "odom_frame", "odom", ParameterDescriptor(description="odometry frame")).value
         self.base_frame = self.declare_parameter(
             "base_frame", "base_link", ParameterDescriptor(description="body frame")).value
+        transport = self.declare_parameter(
+            "image_transport", "auto",
+            ParameterDescriptor(description=TRANSPORT_PARAMETER_HELP)).value
+        try:
+            self.transports = TransportLock(str(transport), self.get_logger().warning)
+        except ValueError as e:
+            raise ValueError(f"parameter {e}") from None
         if not any(rover["base_to_left_camera"][3:]):
             raise ValueError("parameter 'base_to_left_camera' is not set (pass the bag's "
                              "rover.yaml with --params-file)")
@@ -109,13 +117,12 @@ class VoNode(Node):
         # The IMU first: a stereo pair's callback takes every IMU message already queued
         # before it feeds the pair (drain_imu).
         self.imu_sub = self.create_subscription(Imu, m.TOPIC_IMU, self.on_imu, sensor_qos(2000))
-        for topic in (m.TOPIC_LEFT, m.TOPIC_RIGHT):
-            self.create_subscription(CompressedImage, topic,
-                                     lambda msg, t=topic: self.on_image(t, msg), sensor_qos(10))
+        self.transports.subscribe(self, self.on_image, sensor_qos(10))
         for topic in (m.TOPIC_LEFT_INFO, m.TOPIC_RIGHT_INFO):
             self.create_subscription(CameraInfo, topic,
                                      lambda msg, t=topic: self.on_message(t, msg), sensor_qos(10))
-        logger.info(f"mode {config.mode}; waiting for {m.TOPIC_LEFT} and {m.TOPIC_IMU}")
+        logger.info(f"mode {config.mode}; waiting for stereo images "
+                    f"({' or '.join(self.transports.subscribed())}) and {m.TOPIC_IMU}")
 
     def on_imu(self, msg: Any) -> None:
         """One IMU message, then every other one already queued (:meth:`drain_imu`)."""

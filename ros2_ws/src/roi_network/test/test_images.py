@@ -1,0 +1,159 @@
+"""roi_network.images: both image transports decode to the same pixels; a bag's transport."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from sensor_msgs.msg import CompressedImage, Image
+
+from roi_network import images
+from roi_network.images import TransportLock, bag_transport, decode_image
+
+
+@pytest.fixture(scope="module")
+def bgr() -> np.ndarray:
+    rng = np.random.default_rng(3)
+    img = rng.integers(0, 256, (48, 64, 3), dtype=np.uint8)
+    img[:, :8] = (10, 120, 240)  # a coloured band: channel order matters
+    return img
+
+
+def raw(pixels: np.ndarray, encoding: str, step: int | None = None,
+        bigendian: bool = False) -> Image:
+    h, w = pixels.shape[:2]
+    row = pixels.reshape(h, -1).view(np.uint8) if pixels.dtype == np.uint16 else \
+        pixels.reshape(h, -1)
+    step = step or row.shape[1]
+    padded = np.zeros((h, step), np.uint8)
+    padded[:, :row.shape[1]] = row
+    return Image(height=h, width=w, encoding=encoding, is_bigendian=int(bigendian), step=step,
+                 data=padded.tobytes())
+
+
+def test_raw_encodings_decode_to_the_same_pixels(bgr):
+    rgb = bgr[:, :, ::-1]
+    grey = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    for msg in (raw(rgb, "rgb8"), raw(bgr, "bgr8"), raw(bgr, "8UC3"),
+                raw(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGBA), "rgba8"),
+                raw(cv2.cvtColor(bgr, cv2.COLOR_BGR2BGRA), "bgra8"),
+                raw(rgb, "rgb8", step=64 * 3 + 5)):  # rows padded past the pixels
+        np.testing.assert_array_equal(decode_image(msg, colour=True), bgr)
+        np.testing.assert_array_equal(decode_image(msg), grey)
+    for msg in (raw(grey, "mono8"), raw(grey, "8UC1")):
+        np.testing.assert_array_equal(decode_image(msg), grey)
+        np.testing.assert_array_equal(decode_image(msg, colour=True)[:, :, 1], grey)
+    wide = grey.astype(np.uint16) * 257  # 16 bits, full range
+    for bigendian in (False, True):
+        data = wide.astype(">u2" if bigendian else "<u2")
+        msg = raw(data.view(np.uint16), "mono16", bigendian=bigendian)
+        np.testing.assert_array_equal(decode_image(msg), grey)
+
+
+def test_bayer_is_demosaiced_in_ros_order():
+    # A flat red scene seen through an RGGB mosaic: red at (even row, even column).
+    mosaic = np.zeros((32, 32), np.uint8)
+    mosaic[0::2, 0::2] = 200
+    out = decode_image(raw(mosaic, "bayer_rggb8"), colour=True)
+    inner = out[4:-4, 4:-4].reshape(-1, 3).mean(axis=0)
+    assert inner[2] > 150 and inner[0] < 30 and inner[1] < 30  # BGR: red, not blue
+
+
+def test_compressed_payloads_decode(bgr):
+    for ext in (".png", ".jpg"):
+        ok, buf = cv2.imencode(ext, bgr)
+        assert ok
+        msg = CompressedImage(format=ext[1:], data=buf.tobytes())
+        out = decode_image(msg, colour=True)
+        assert out.shape == bgr.shape
+        if ext == ".png":
+            np.testing.assert_array_equal(out, bgr)
+        assert decode_image(msg).shape == bgr.shape[:2]
+
+
+def test_undecodable_messages_give_none(bgr):
+    assert decode_image(CompressedImage(format="jpeg")) is None
+    assert decode_image(CompressedImage(format="jpeg", data=b"not a jpeg")) is None
+    assert decode_image(raw(bgr, "yuv422")) is None  # not a listed encoding
+    short = raw(bgr, "bgr8")
+    short.data = short.data[:-10]
+    assert decode_image(short) is None
+    narrow = raw(bgr, "bgr8")
+    narrow.step = 64 * 3 - 1
+    assert decode_image(narrow) is None
+    assert "encoding 'yuv422'" in images.describe(raw(bgr, "yuv422"))
+    assert "format 'jpeg'" in images.describe(CompressedImage(format="jpeg"))
+
+
+def test_bag_transport_prefers_the_contract_and_names_what_is_missing():
+    comp = dict.fromkeys(images.STEREO_TOPICS["compressed"], images.MSGTYPES["compressed"])
+    rawt = dict.fromkeys(images.STEREO_TOPICS["raw"], images.MSGTYPES["raw"])
+    assert bag_transport(comp, "b") == "compressed"
+    assert bag_transport(rawt, "b") == "raw"
+    assert bag_transport({**comp, **rawt}, "b") == "compressed"
+    half = {"/stereo/left/image_raw": images.MSGTYPES["raw"], "/imu/data": "x"}
+    with pytest.raises(ValueError, match=r"bag.mcap: no stereo image pair.*it has /imu/data"):
+        bag_transport(half, "bag.mcap")
+    wrong = {**rawt, "/stereo/right/image_raw": "sensor_msgs/msg/CompressedImage"}
+    with pytest.raises(ValueError, match="wrong type: /stereo/right/image_raw"):
+        bag_transport(wrong, "b")
+
+
+def test_transport_lock_keeps_the_first_that_delivers():
+    reports = []
+    lock = TransportLock(report=reports.append)
+    assert lock.subscribed() == ["compressed", "raw"]
+    assert lock.accept("/stereo/right/image_raw")
+    assert not lock.accept("/stereo/left/image_raw/compressed")
+    assert lock.accept("/stereo/left/image_raw") and lock.ignored == 1
+    assert not lock.accept("/stereo/right/image_raw/compressed") and lock.ignored == 2
+    assert reports == ["/stereo/left/image_raw/compressed: images arrive in both "
+                       "transports; reading the raw ones only (parameter image_transport)"]
+    fixed = TransportLock("compressed")
+    assert fixed.subscribed() == ["compressed"]
+    assert not fixed.accept("/stereo/left/image_raw")
+    with pytest.raises(ValueError, match="image_transport 'jpeg'"):
+        TransportLock("jpeg")
+    assert images.side_of("/stereo/right/image_raw/compressed") == "right"
+    assert images.side_of("/imu/data") is None
+
+
+def _info(d=(), model="plumb_bob", r=None, width=160, height=120):
+    from sensor_msgs.msg import CameraInfo
+
+    k = [120.0, 0.0, 80.0, 0.0, 120.0, 60.0, 0.0, 0.0, 1.0]
+    return CameraInfo(width=width, height=height, distortion_model=model, d=list(d), k=k,
+                      r=list(r if r is not None else np.eye(3).ravel()),
+                      p=[120.0, 0.0, 80.0, 0.0, 0.0, 120.0, 60.0, 0.0, 0.0, 0.0, 1.0, 0.0])
+
+
+def test_rectifier_undoes_a_lens_distortion():
+    from roi_network.images import Rectifier, describes_rectified, rectifier_for
+    from roi_network.testing import _distortion_maps
+
+    rng = np.random.default_rng(5)
+    scene = cv2.GaussianBlur(rng.integers(0, 256, (120, 160), dtype=np.uint8), (0, 0), 2.0)
+    scene = cv2.normalize(scene, None, 0, 255, cv2.NORM_MINMAX)
+    info = _info(d=(-0.28, 0.09, 0.0, 0.0, 0.0))
+    distorted = cv2.remap(scene, *_distortion_maps(info), cv2.INTER_LINEAR)
+    rect = Rectifier(info)
+    assert not rect.identity and not describes_rectified(info)
+    inner = np.s_[20:-20, 25:-25]
+    before = np.abs(distorted[inner].astype(float) - scene[inner]).mean()
+    after = np.abs(rect(distorted)[inner].astype(float) - scene[inner]).mean()
+    assert after < 2.0 < 5 * after < before, (before, after)
+    # DESIGN.md's CameraInfo (the simulator's): rectified already, images untouched.
+    plain = _info()
+    assert describes_rectified(plain) and Rectifier(plain).identity
+    assert Rectifier(plain)(scene) is scene
+    # The same calibration keeps its rectifier; another makes a new one.
+    assert rectifier_for(info, rect) is rect
+    assert rectifier_for(_info(d=(-0.1, 0.0, 0.0, 0.0, 0.0)), rect) is not rect
+    # A rectifying rotation alone is rectified too; a model OpenCV has not, refused.
+    tilt = cv2.Rodrigues(np.array([0.0, 0.02, 0.0]))[0].ravel()
+    assert not Rectifier(_info(r=tilt)).identity
+    assert not Rectifier(_info(d=(0.1, 0.0, 0.0, 0.0), model="equidistant")).identity
+    with pytest.raises(ValueError, match="distortion model 'kannala'"):
+        Rectifier(_info(d=(0.1,), model="kannala"))
+    with pytest.raises(ValueError, match="3 distortion coefficients"):
+        Rectifier(_info(d=(0.1, 0.0, 0.0)))
