@@ -115,7 +115,7 @@ def odometry_covariance_file(odometry: str | Path, covariance: str | None) -> Pa
 def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | None = None,
              every: int = 1, drift_frac: float = 0.01, log=print, trace=None,
              mapper: DriveMapper | None = None, describe: bool = False,
-             odometry_cov: str | Path | None = None) -> tuple:
+             odometry_cov: str | Path | None = None, rectify: bool = True) -> tuple:
     """Run detection, tracking and the LN over a bag with an odometry file.
 
     ``odometry_cov``: the odometry's pose covariance file (a row per odometry stamp,
@@ -129,6 +129,8 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
     callers that read its map or far-rock tracks afterwards (benchmarks, training).
     ``describe``: the far blobs carry their appearance even without a classifier
     (training).
+    ``rectify``: rectify images whose CameraInfo has a distortion
+    (:class:`~roi_detector.inputs.FrameMaker`); False reads them all as rectified.
 
     Returns (LocalNetwork, stats dict).
     """
@@ -146,7 +148,8 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
     n_pairs = n_dets = 0
     t_detect = 0.0
     last = None
-    for frame in read_stereo_frames(bag_dir, bad, every=every):
+    for frame in read_stereo_frames(bag_dir, bad, every=every, rectify=rectify,
+                                    log=lambda m: log(f"roi_detector: {m}")):
         n_pairs += 1
         t0 = time.perf_counter()
         obs = detector.observe(frame)
@@ -183,7 +186,7 @@ def _cmd_ln(args) -> int:
                       working_fx_px=args.working_fx)
     cov_file = odometry_covariance_file(args.odometry, args.covariance)
     ln, stats = build_ln(args.bag, args.odometry, args.model, cfg, args.every, args.drift,
-                         odometry_cov=cov_file)
+                         odometry_cov=cov_file, rectify=not args.no_rectify)
     meta = {"source_bag": str(Path(args.bag).resolve()), "odometry": str(args.odometry),
             "odometry_covariance": str(cov_file) if cov_file is not None
             else f"{args.drift:g} of the distance travelled, 1 sigma (--drift)",
@@ -298,6 +301,10 @@ def main(argv: list[str] | None = None) -> int:
                    "pixels: finer stereo pairs are resampled to it (the pixel parameters and "
                    "the committed Rock Rovers are set at it; default %(default)g; 0: as they "
                    "come)")
+    p.add_argument("--no-rectify", action="store_true",
+                   help="read every image as rectified, whatever its CameraInfo's distortion "
+                   "(D) and rectifying rotation (R) say (default: remap to its P, as the "
+                   "node's parameter rectify does)")
     p.add_argument("--covariance", default=None, metavar="FILE",
                    help="the odometry's pose covariance (t and 36 numbers per odometry stamp, "
                    f"as rover_vo writes it; default: {POSE_COVARIANCE_FILE} beside the "

@@ -148,7 +148,8 @@ class FrameMaker:
 
 
 def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
-                       rectify: bool = True) -> Iterator[StereoFrame]:
+                       rectify: bool = True,
+                       log: Callable[[str], None] = print) -> Iterator[StereoFrame]:
     """Stereo pairs of a bag directory (``BAG/rosbag``), paired by header stamp.
 
     Args:
@@ -156,6 +157,7 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
         bad: bad-input counter (undecodable image, missing pair half).
         every: keep one pair in ``every`` (1: all).
         rectify: rectify images whose CameraInfo has distortion (:class:`FrameMaker`).
+        log: told once per side when the images are rectified.
 
     The images are those of the transport the bag carries (compressed, the contract,
     when it carries both; :func:`roi_network.images.bag_transport`).
@@ -172,7 +174,7 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
     if not (rosbag / "metadata.yaml").is_file():
         raise FileNotFoundError(f"{bag_dir}: no rosbag2 directory (metadata.yaml) found")
     pending: dict[int, dict[str, object]] = {}
-    maker = FrameMaker(bad, rectify, print)
+    maker = FrameMaker(bad, rectify, log)
     ready: list[tuple[int, dict]] = []
     index = 0
     with AnyReader([rosbag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:

@@ -357,6 +357,15 @@ def test_cli_ln_reads_raw_images_alike(tiny_bag, tmp_path):
         lns.append(read_geojson(out).records)
     assert len(lns[0]) >= 1
     np.testing.assert_array_equal(lns[0], lns[1])
+    # A distorting lens with D in its CameraInfo: rectified by default, and said so once
+    # per side; --no-rectify reads the images as they come.
+    distorted = write_raw_image_copy(tiny_bag, tmp_path / "distorted",
+                                     distortion=(-0.28, 0.09, 0.0, 0.0, 0.0))
+    for flags, said in (((), 2), (("--no-rectify",), 0)):
+        r = run("ln", str(distorted), "--odometry", str(odom), "--out",
+                str(tmp_path / "d.geojson"), "--model", "none", "--min-obs", "1", *flags)
+        assert r.returncode == 0, r.stderr
+        assert (r.stdout + r.stderr).count("images are rectified to its P") == said
 
 
 def test_roi_detector_node_reads_raw_images(tiny_bag, tmp_path):
