@@ -99,10 +99,16 @@ class VoNode(Node):
                              "rover.yaml with --params-file)")
         config = config_from_flat(values)
         logger = self.get_logger()
-        levels = {logging.WARNING: logger.warning, logging.ERROR: logger.error}
 
         def log(level: int, text: str) -> None:
-            levels.get(level, logger.info)(text)
+            # One call site per severity: rclpy refuses a call site whose severity changes
+            # ("Logger severity cannot be changed between calls"), and the node died.
+            if level >= logging.ERROR:
+                logger.error(text)
+            elif level >= logging.WARNING:
+                logger.warning(text)
+            else:
+                logger.info(text)
 
         self.estimator = VoEstimator(config, rover, log)
         self.state_path = self.declare_parameter(

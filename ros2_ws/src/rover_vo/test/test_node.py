@@ -35,10 +35,12 @@ def _exe(name):
 @pytest.fixture(params=["compressed", "raw"])
 def bag_and_run(request, tiny_bag, clean_run, tiny_params, tmp_path_factory):
     """The tiny bag with the contract's compressed images, and a copy with raw
-    sensor_msgs/Image (a field bag's usual transport), each with its offline run."""
+    sensor_msgs/Image through a distorting lens, D in its CameraInfo (what a camera
+    driver records), each with its offline run."""
     if request.param == "compressed":
         return tiny_bag, clean_run, m.INPUT_TOPICS
-    raw = write_raw_image_copy(tiny_bag, tmp_path_factory.mktemp("raw") / "tiny_raw")
+    raw = write_raw_image_copy(tiny_bag, tmp_path_factory.mktemp("raw") / "tiny_raw",
+                               distortion=(-0.28, 0.09, 0.0, 0.0, 0.0))
     return raw, run(list(read_messages(raw)), tiny_params), m.input_topics("raw")
 
 
@@ -105,7 +107,11 @@ def test_node_on_tiny_bag_agrees_with_offline(bag_and_run, ros_env, tmp_path):
         node.send_signal(signal.SIGINT)
         node.wait(timeout=15)
         rclpy.try_shutdown(context=ctx)
-    assert node.returncode == 0, node.stdout.read()
+    log = node.stdout.read()
+    assert node.returncode == 0, log
+    # The rectification is said once per side, among the warnings of the same logger.
+    assert log.count("images are rectified to its P") == (2 if topics != m.INPUT_TOPICS
+                                                           else 0), log
 
     # The offline CLI on the same bag writes the same poses.
     out_dir = tmp_path / "vo"
