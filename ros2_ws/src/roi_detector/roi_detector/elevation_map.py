@@ -1009,6 +1009,13 @@ def ground_surface(z: np.ndarray, seen: np.ndarray, window_cells: float, block: 
     return up[:n0, :n1]
 
 
+def is_monochrome(bgr: np.ndarray) -> bool:
+    """True when the three channels of a BGR image are the same (a grey image): it has
+    no colour for :func:`appearance` to measure."""
+    return bool(np.array_equal(bgr[..., 0], bgr[..., 1])
+                and np.array_equal(bgr[..., 1], bgr[..., 2]))
+
+
 def appearance(bgr: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """(H, W, 2) colour saturation and value (HSV) of an image, each divided by its median
     over the ``valid`` pixels (the ground the pair sees): exposure and sun cancel."""

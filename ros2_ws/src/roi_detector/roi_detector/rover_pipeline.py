@@ -31,6 +31,7 @@ from roi_detector.elevation_map import (
     ElevationMapConfig,
     appearance,
     complete_outcrop_rule,
+    is_monochrome,
     outcrop_rule,
     outcrop_rule_of,
 )
@@ -238,9 +239,18 @@ class RoverDetector:
         blobs = dark_blobs(frame.left, raw, camera, self.cfg.far,
                            describe=self.describe_blobs) if self.cfg.far_rocks \
             else None
-        return PairObservation(points=points,
-                               appearance=appearance(small, np.isfinite(points[..., 2])),
-                               blobs=blobs)
+        colour = appearance(small, np.isfinite(points[..., 2]))
+        if is_monochrome(small):
+            # A monochrome camera's pair (or grey JPEGs): no colour to tell an outcrop's
+            # grey slab from the soil by. Its saturation, 0 everywhere, would make every
+            # cell an outcrop candidate (quick's mono8 copy: 16 outcrop nodes, none
+            # true); with none at all the rocks would lose their dark seeds too (33 rock
+            # nodes, 10 true). So the pair keeps its value and reads as saturated as the
+            # soil: its rocks are found as by day, its outcrops not looked for.
+            colour[..., 0] = 1.0
+            self.on_bad("monochrome images", "the stereo pair carries no colour: its "
+                        "outcrops are not looked for (rocks are)")
+        return PairObservation(points=points, appearance=colour, blobs=blobs)
 
     def _disparity(self, left: np.ndarray, right: np.ndarray,
                    left_half: np.ndarray | None) -> np.ndarray:

@@ -750,3 +750,32 @@ def test_frame_maker_rectifies_by_camera_info_and_takes_p():
     maker.info = {"left": info(d=(0.1,), model="kannala"), "right": info(tx=-14.4)}
     assert maker.frame(4, msg, msg) is None and bad.counts == {"bad camera_info": 1}
     assert "distortion model 'kannala'" in lines[-1]
+
+
+def test_a_monochrome_pair_gives_the_map_no_outcrop_colour():
+    """A grey pair (a monochrome navigation camera's) has no colour to tell an outcrop
+    by: the map gets its heights and values, a soil's saturation, and the skip is
+    counted; a colour pair keeps its appearance."""
+    from roi_detector.elevation_map import is_monochrome
+    from roi_detector.inputs import StereoFrame
+    from roi_detector.rover_pipeline import RoverConfig, RoverDetector
+
+    w, h, fx = 640, 480, 457.0
+    k = [fx, 0, 319.5, 0, fx, 239.5, 0, 0, 1]
+    p = [fx, 0, 319.5, -fx * 0.2, 0, fx, 239.5, 0, 0, 0, 1, 0]
+    rng = np.random.default_rng(4)
+    grey = rng.integers(0, 256, (h, w), dtype=np.uint8)
+    mono = np.repeat(grey[:, :, None], 3, axis=2)
+    colour = mono.copy()
+    colour[..., 2] = np.clip(colour[..., 2].astype(int) + 30, 0, 255)
+    assert is_monochrome(mono) and not is_monochrome(colour)
+    seen = []
+    detector = RoverDetector(EXTRINSIC, None, RoverConfig(far_rocks=False),
+                             lambda kind, detail: seen.append(kind))
+    obs = detector.observe(StereoFrame(1, mono, mono.copy(), np.array(k), np.array(p)))
+    # The value is kept (the rocks' dark seeds), the saturation is the soil's: no cell
+    # passes the outcrop colour test.
+    assert np.all(obs.appearance[..., 0] == 1.0) and np.ptp(obs.appearance[..., 1]) > 0
+    assert seen == ["monochrome images"]
+    obs = detector.observe(StereoFrame(2, colour, colour.copy(), np.array(k), np.array(p)))
+    assert np.ptp(obs.appearance[..., 0]) > 0 and seen == ["monochrome images"]

@@ -18,7 +18,8 @@ from roi_network import images
 
 def write_raw_image_copy(bag_dir: str | Path, out_dir: str | Path,
                          keep_compressed: bool = False,
-                         distortion: tuple[float, ...] | None = None) -> Path:
+                         distortion: tuple[float, ...] | None = None,
+                         encoding: str = "rgb8") -> Path:
     """Copy bag directory ``bag_dir`` (``rosbag/`` + side files) to ``out_dir`` with each
     stereo CompressedImage replaced by the ``rgb8`` Image of its decoded pixels, on the
     raw transport's topic (beside it, with ``keep_compressed``: a bag with both
@@ -27,6 +28,8 @@ def write_raw_image_copy(bag_dir: str | Path, out_dir: str | Path,
     With ``distortion`` (plumb_bob coefficients k1 k2 p1 p2 k3), the raw images are those
     a lens with that distortion would have taken (each pixel sampled where the rectified
     image holds it), and both CameraInfo carry it: what a camera driver records.
+    ``encoding`` ``mono8`` stores the grey image (OpenCV's BGR -> grey) in place of the
+    colour one: a monochrome navigation camera's.
 
     Returns:
         ``out_dir``.
@@ -84,11 +87,19 @@ def write_raw_image_copy(bag_dir: str | Path, out_dir: str | Path,
                     if maps is None:
                         raise ValueError(f"{bag_dir}: an image before any CameraInfo")
                     bgr = cv2.remap(bgr, maps[0], maps[1], cv2.INTER_LINEAR)
-                rgb = np.ascontiguousarray(bgr[:, :, ::-1])
+                if encoding == "mono8":
+                    import cv2
+
+                    pixels = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+                elif encoding == "rgb8":
+                    pixels = np.ascontiguousarray(bgr[:, :, ::-1])
+                else:
+                    raise ValueError(f"encoding '{encoding}': rgb8 or mono8")
+                channels = 1 if pixels.ndim == 2 else 3
                 image = store.types[image_type](
-                    header=msg.header, height=rgb.shape[0], width=rgb.shape[1],
-                    encoding="rgb8", is_bigendian=0, step=rgb.shape[1] * 3,
-                    data=rgb.reshape(-1))
+                    header=msg.header, height=pixels.shape[0], width=pixels.shape[1],
+                    encoding=encoding, is_bigendian=0, step=pixels.shape[1] * channels,
+                    data=pixels.reshape(-1))
                 writer.write(raw_out[conn.id], t_ns, store.serialize_cdr(image, image_type))
     return out_dir
 
