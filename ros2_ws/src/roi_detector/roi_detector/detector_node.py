@@ -139,10 +139,7 @@ class RoiDetectorNode(Node):
         if len(extrinsic) != 7 or not any(extrinsic):
             raise ValueError("parameter 'base_to_left_camera' is not set (pass the bag's "
                              "rover.yaml as a params file)")
-        try:
-            self.transports = TransportLock(str(transport), self.get_logger().warning)
-        except ValueError as e:
-            raise ValueError(f"parameter {e}") from None
+        self.transports = TransportLock(str(transport), self.get_logger().warning)
         from roi_detector.cli import load_classifier
 
         if method not in METHODS:

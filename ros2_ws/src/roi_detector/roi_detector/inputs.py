@@ -111,10 +111,9 @@ class FrameMaker:
     def __init__(self, bad: BadInput, rectify: bool = True,
                  log: Callable[[str], None] | None = None) -> None:
         self.bad = bad
-        self.rectify = rectify
-        self.log = log or (lambda _text: None)
+        self.rectifiers = images.StereoRectifiers(log or (lambda _text: None), "rectify") \
+            if rectify else None
         self.info: dict[str, object] = {"left": None, "right": None}
-        self.rectifiers: dict[str, images.Rectifier | None] = {"left": None, "right": None}
 
     @property
     def ready(self) -> bool:
@@ -129,18 +128,13 @@ class FrameMaker:
                      f"({images.describe(left_msg)})")
             return None
         pixels = {"left": left, "right": right}
-        if self.rectify:
-            for side in pixels:
-                try:
-                    rectifier = images.rectifier_for(self.info[side], self.rectifiers[side])
-                except ValueError as exc:
-                    self.bad("bad camera_info", f"/stereo/{side}/camera_info: {exc}")
-                    return None
-                if rectifier is not self.rectifiers[side] and not rectifier.identity:
-                    self.log(f"/stereo/{side}/camera_info has distortion or a rectifying "
-                             "rotation: images are rectified to its P (parameter rectify)")
-                self.rectifiers[side] = rectifier
-                pixels[side] = rectifier(pixels[side])
+        if self.rectifiers is not None:
+            try:
+                for side in pixels:
+                    pixels[side] = self.rectifiers(side, self.info[side], pixels[side])
+            except ValueError as exc:
+                self.bad("bad camera_info", str(exc))
+                return None
         p_left = np.asarray(self.info["left"].p, float)
         left_k = p_left[[0, 1, 2, 4, 5, 6, 8, 9, 10]]
         return StereoFrame(stamp, pixels["left"], pixels["right"], left_k,

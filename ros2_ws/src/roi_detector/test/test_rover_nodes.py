@@ -7,6 +7,7 @@ replays its stereo pairs over ROS 2 in lock-step with the node and publishes odo
 from the truth trajectory (re-expressed in odom), as rover_vo would.
 """
 
+import functools
 import os
 import shutil
 import signal
@@ -65,6 +66,27 @@ def _start(args, domain, log: Path) -> subprocess.Popen:
     assert exe, f"{args[0]} not on PATH (source env.sh)"
     return subprocess.Popen([exe, *args[1:]], env=_env(domain), stdout=log.open("w"),
                             stderr=subprocess.STDOUT)
+
+
+def _driver(domain: int, name: str):
+    """An rclpy context on ``domain`` with one node and its executor: ``(ctx, node, ex)``
+    (the caller shuts the context down)."""
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    node = rclpy.create_node(name, context=ctx)
+    ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    return ctx, node, ex
+
+
+def _spin_until(ex, proc: subprocess.Popen, log: Path, cond, timeout: float) -> bool:
+    """Spin ``ex`` until ``cond()`` or ``timeout`` s; the node process ``proc`` must live
+    (else its ``log`` is the failure)."""
+    end = time.monotonic() + timeout
+    while not cond() and time.monotonic() < end:
+        assert proc.poll() is None, log.read_text()
+        ex.spin_once(timeout_sec=0.05)
+    return cond()
 
 
 def _stop(proc: subprocess.Popen) -> None:
@@ -151,12 +173,8 @@ def test_roi_detector_and_ln_builder_nodes_on_tiny(tiny_bag, tmp_path):
                  tmp_path / "roi_detector.log")
     lnb = _start(["ln_builder", "--ros-args", "-p", f"ln_path:={tmp_path / 'ln.geojson'}",
                   "-p", "min_obs:=1"], domain, tmp_path / "ln_builder.log")
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
+    ctx, node, ex = _driver(domain, "roi_test_driver")
     try:
-        node = rclpy.create_node("roi_test_driver", context=ctx)
-        ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
-        ex.add_node(node)
         got = {"det": [], "tracks": [], "ln": [], "status": []}
         from diagnostic_msgs.msg import DiagnosticArray
 
@@ -171,12 +189,7 @@ def test_roi_detector_and_ln_builder_nodes_on_tiny(tiny_bag, tmp_path):
                           "/stereo/left/camera_info", "/stereo/right/camera_info")}
         odom_pub = node.create_publisher(Odometry, "/vo/odometry", RELIABLE)
 
-        def spin_until(cond, timeout):
-            end = time.monotonic() + timeout
-            while not cond() and time.monotonic() < end:
-                assert det.poll() is None, (tmp_path / "roi_detector.log").read_text()
-                ex.spin_once(timeout_sec=0.05)
-            return cond()
+        spin_until = functools.partial(_spin_until, ex, det, tmp_path / "roi_detector.log")
 
         assert spin_until(lambda: all(p.get_subscription_count() > 0 for p in pubs.values())
                           and odom_pub.get_subscription_count() > 0, 30)
@@ -288,12 +301,8 @@ def test_ln_builder_corrupt_saved_ln(tmp_path):
     domain = _domain() + 1
     proc = _start(["ln_builder", "--ros-args", "-p", f"ln_path:={path}"], domain,
                   tmp_path / "ln_builder.log")
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
+    ctx, node, ex = _driver(domain, "ln_test_driver")
     try:
-        node = rclpy.create_node("ln_test_driver", context=ctx)
-        ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
-        ex.add_node(node)
         got = []
         node.create_subscription(PointCloud2, "/local_network", got.append, LATCHED)
         pub = node.create_publisher(PointCloud2, "/rois/tracks", RELIABLE)
@@ -388,25 +397,16 @@ def test_roi_detector_node_reads_raw_images(tiny_bag, tmp_path):
     det = _start(["roi_detector", "--ros-args", "-p", "model_path:=none",
                   "--params-file", str(tiny_bag / "rover.yaml")], domain,
                  tmp_path / "roi_detector.log")
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
+    ctx, node, ex = _driver(domain, "roi_raw_driver")
     player = None
     try:
-        node = rclpy.create_node("roi_raw_driver", context=ctx)
-        ex = rclpy.executors.SingleThreadedExecutor(context=ctx)
-        ex.add_node(node)
         got = []
         node.create_subscription(PointCloud2, "/rois/detections", got.append, RELIABLE)
         odom_pub = node.create_publisher(
             Odometry, "/vo/odometry", QoSProfile(depth=500,
                                                  reliability=ReliabilityPolicy.RELIABLE))
 
-        def spin_until(cond, timeout):
-            end = time.monotonic() + timeout
-            while not cond() and time.monotonic() < end:
-                assert det.poll() is None, (tmp_path / "roi_detector.log").read_text()
-                ex.spin_once(timeout_sec=0.05)
-            return cond()
+        spin_until = functools.partial(_spin_until, ex, det, tmp_path / "roi_detector.log")
 
         assert spin_until(lambda: odom_pub.get_subscription_count() > 0, 30)
         odom = Truth.load(tiny_bag).odom_track()

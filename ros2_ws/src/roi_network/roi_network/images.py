@@ -181,13 +181,13 @@ class TransportLock:
             arrive too (a bag that records both) and are ignored.
 
     Raises:
-        ValueError: on any other choice.
+        ValueError: on any other choice, naming the nodes' parameter.
     """
 
     def __init__(self, choice: str = "auto",
                  report: Callable[[str], None] | None = None) -> None:
         if choice not in TRANSPORT_CHOICES:
-            raise ValueError(f"image_transport '{choice}': expected one of "
+            raise ValueError(f"parameter image_transport '{choice}': expected one of "
                              f"{', '.join(TRANSPORT_CHOICES)}")
         self.transport: str | None = None if choice == "auto" else choice
         self.ignored = 0
@@ -260,13 +260,14 @@ class Rectifier:
 
     Args:
         info: the camera's sensor_msgs/CameraInfo.
+        source: what the errors name it (its topic, for a node).
 
     Raises:
         ValueError: naming the distortion model when it is not one OpenCV reads, or the
             field that does not hold a calibration.
     """
 
-    def __init__(self, info: Any) -> None:
+    def __init__(self, info: Any, source: str = "camera_info") -> None:
         import cv2
 
         self.key = _info_key(info)
@@ -278,23 +279,23 @@ class Rectifier:
             r = np.eye(3)
         size = (int(info.width), int(info.height))
         if size[0] <= 0 or size[1] <= 0:
-            raise ValueError(f"camera_info: width x height {size[0]}x{size[1]} is not an "
+            raise ValueError(f"{source}: width x height {size[0]}x{size[1]} is not an "
                              "image size")
         model = str(info.distortion_model)
         if model in PINHOLE_MODELS:
             if d.size not in (0, 4, 5, 8, 12, 14):
-                raise ValueError(f"camera_info: {d.size} distortion coefficients for model "
+                raise ValueError(f"{source}: {d.size} distortion coefficients for model "
                                  f"'{model}' (OpenCV reads 4, 5, 8, 12 or 14)")
             self.maps = cv2.initUndistortRectifyMap(k, d, r, p[:, :3], size, cv2.CV_16SC2)
         elif model in FISHEYE_MODELS:
             if d.size < 4:
-                raise ValueError(f"camera_info: {d.size} distortion coefficients for model "
+                raise ValueError(f"{source}: {d.size} distortion coefficients for model "
                                  f"'{model}' (4 expected)")
             self.maps = cv2.fisheye.initUndistortRectifyMap(k, d[:4], r, p[:, :3], size,
                                                             cv2.CV_16SC2)
         else:
             known = ", ".join(PINHOLE_MODELS[:2] + FISHEYE_MODELS)
-            raise ValueError(f"camera_info: distortion model '{model}' is not one this "
+            raise ValueError(f"{source}: distortion model '{model}' is not one this "
                              f"pipeline rectifies ({known})")
 
     @property
@@ -316,8 +317,33 @@ def _info_key(info: Any) -> tuple:
             *(tuple(np.asarray(getattr(info, f), float).ravel()) for f in "dkrp"))
 
 
-def rectifier_for(info: Any, current: Rectifier | None) -> Rectifier:
-    """``current`` when it was made from the same calibration, else a new one."""
-    if current is not None and current.key == _info_key(info):
-        return current
-    return Rectifier(info)
+class StereoRectifiers:
+    """The rectifier of each side's latest CameraInfo, as a node or CLI holds them: made
+    again only when the calibration changes, and said once (``report``) each time one
+    that is not the identity is made.
+
+    Args:
+        report: called with a one-line message naming the side's CameraInfo.
+        parameter: the caller's parameter that turns rectification off, named in it.
+    """
+
+    def __init__(self, report: Callable[[str], None], parameter: str) -> None:
+        self._report = report
+        self._parameter = parameter
+        self.rectifiers: dict[str, Rectifier] = {}
+
+    def __call__(self, side: str, info: Any, image: np.ndarray) -> np.ndarray:
+        """``image`` of ``side`` (``left``/``right``) rectified by ``info``.
+
+        Raises:
+            ValueError: naming ``/stereo/<side>/camera_info`` when it cannot rectify
+                (:class:`Rectifier`).
+        """
+        current = self.rectifiers.get(side)
+        if current is None or current.key != _info_key(info):
+            current = self.rectifiers[side] = Rectifier(info, f"/stereo/{side}/camera_info")
+            if not current.identity:
+                self._report(f"/stereo/{side}/camera_info has distortion "
+                             f"'{info.distortion_model}' or a rectifying rotation: images "
+                             f"are rectified to its P (parameter {self._parameter})")
+        return current(image)

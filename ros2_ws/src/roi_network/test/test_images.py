@@ -128,7 +128,7 @@ def _info(d=(), model="plumb_bob", r=None, width=160, height=120):
 
 
 def test_rectifier_undoes_a_lens_distortion():
-    from roi_network.images import Rectifier, describes_rectified, rectifier_for
+    from roi_network.images import Rectifier, StereoRectifiers, describes_rectified
     from roi_network.testing import _distortion_maps
 
     rng = np.random.default_rng(5)
@@ -146,9 +146,19 @@ def test_rectifier_undoes_a_lens_distortion():
     plain = _info()
     assert describes_rectified(plain) and Rectifier(plain).identity
     assert Rectifier(plain)(scene) is scene
-    # The same calibration keeps its rectifier; another makes a new one.
-    assert rectifier_for(info, rect) is rect
-    assert rectifier_for(_info(d=(-0.1, 0.0, 0.0, 0.0, 0.0)), rect) is not rect
+    # The same calibration keeps its rectifier; another makes a new one: each said once.
+    said = []
+    sides = StereoRectifiers(said.append, "rectify")
+    np.testing.assert_array_equal(sides("left", info, distorted), rect(distorted))
+    kept = sides.rectifiers["left"]
+    sides("left", info, distorted)
+    assert sides.rectifiers["left"] is kept and len(said) == 1
+    sides("left", _info(d=(-0.1, 0.0, 0.0, 0.0, 0.0)), distorted)
+    assert sides.rectifiers["left"] is not kept and len(said) == 2
+    assert said[0].startswith("/stereo/left/camera_info has distortion 'plumb_bob'")
+    assert sides("right", plain, scene) is scene and len(said) == 2
+    with pytest.raises(ValueError, match="/stereo/right/camera_info: distortion model"):
+        sides("right", _info(d=(0.1,), model="kannala"), scene)
     # A rectifying rotation alone is rectified too; a model OpenCV has not, refused.
     tilt = cv2.Rodrigues(np.array([0.0, 0.02, 0.0]))[0].ravel()
     assert not Rectifier(_info(r=tilt)).identity

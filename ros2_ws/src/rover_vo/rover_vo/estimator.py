@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from roi_network.images import Rectifier, describe, rectifier_for
+from roi_network.images import StereoRectifiers, describe
 from rover_vo import messages as m
 from rover_vo.config import VoConfig
 from rover_vo.features import stereo_match, track
@@ -120,8 +120,9 @@ class VoEstimator:
         self.pairs: dict[int, _Pair] = {}
         # The topics the images arrive on (either transport), for the messages.
         self.image_topics = {"left": m.TOPIC_LEFT, "right": m.TOPIC_RIGHT}
-        # Per side: the rectifier of the last CameraInfo (identity for rectified images).
-        self.rectifiers: dict[str, Rectifier | None] = {"left": None, "right": None}
+        # Each side's rectifier of its last CameraInfo (identity for rectified images).
+        self.rectifiers = StereoRectifiers(lambda text: self._log(logging.INFO, text),
+                                           "features.rectify")
         self.last_pair_ns: int | None = None
         self.state: OdomState | None = None
         self.kf: Keyframe | None = None
@@ -297,22 +298,6 @@ class VoEstimator:
             self.propagator.bias_cov = self._resume["gyro_bias_cov"].copy()
         return True
 
-    def _rectifier(self, side: str) -> Rectifier | None:
-        """The side's rectifier for its current CameraInfo; None (counted) if it has none."""
-        info, current = self.info[side], self.rectifiers[side]
-        try:
-            rectifier = rectifier_for(info, current)
-        except ValueError as exc:
-            self.bad("bad_camera_info", f"/stereo/{side}/camera_info: {exc}")
-            return None
-        if rectifier is not current:
-            self.rectifiers[side] = rectifier
-            if not rectifier.identity:
-                self._log(logging.INFO, f"/stereo/{side}/camera_info has distortion "
-                          f"'{info.distortion_model}' or a rectifying rotation: images are "
-                          "rectified to its P (parameter features.rectify)")
-        return rectifier
-
     def _decode(self, pair: _Pair) -> tuple[np.ndarray, np.ndarray] | None:
         t = pair.t_ns * 1e-9
         left_topic, right_topic = self.image_topics["left"], self.image_topics["right"]
@@ -341,10 +326,11 @@ class VoEstimator:
                          f"{img.shape[0]}, CameraInfo says {self.rig.width}x{self.rig.height}")
                 return None
             if self.cfg.features.rectify:
-                rectifier = self._rectifier(side)
-                if rectifier is None:
+                try:
+                    img = self.rectifiers(side, self.info[side], img)
+                except ValueError as exc:
+                    self.bad("bad_camera_info", str(exc))
                     return None
-                img = rectifier(img)
             images.append(img)
         left = images[0]
         small = left[::4, ::4]

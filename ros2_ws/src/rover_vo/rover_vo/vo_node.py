@@ -90,10 +90,7 @@ class VoNode(Node):
         transport = self.declare_parameter(
             "image_transport", "auto",
             ParameterDescriptor(description=TRANSPORT_PARAMETER_HELP)).value
-        try:
-            self.transports = TransportLock(str(transport), self.get_logger().warning)
-        except ValueError as e:
-            raise ValueError(f"parameter {e}") from None
+        self.transports = TransportLock(str(transport), self.get_logger().warning)
         if not any(rover["base_to_left_camera"][3:]):
             raise ValueError("parameter 'base_to_left_camera' is not set (pass the bag's "
                              "rover.yaml with --params-file)")
