@@ -40,6 +40,7 @@ from roi_detector.rover_pipeline import (
     RoverConfig,
     RoverDetector,
 )
+from roi_network import images
 
 DEFAULT_MODEL = Path(__file__).resolve().parent / "models" / "rover.npz"
 
@@ -115,7 +116,8 @@ def odometry_covariance_file(odometry: str | Path, covariance: str | None) -> Pa
 def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | None = None,
              every: int = 1, drift_frac: float = 0.01, log=print, trace=None,
              mapper: DriveMapper | None = None, describe: bool = False,
-             odometry_cov: str | Path | None = None, rectify: bool = True) -> tuple:
+             odometry_cov: str | Path | None = None, rectify: bool = True,
+             sync_tolerance_s: float = images.SYNC_TOLERANCE_S) -> tuple:
     """Run detection, tracking and the LN over a bag with an odometry file.
 
     ``odometry_cov``: the odometry's pose covariance file (a row per odometry stamp,
@@ -131,6 +133,7 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
     (training).
     ``rectify``: rectify images whose CameraInfo has a distortion
     (:class:`~roi_detector.inputs.FrameMaker`); False reads them all as rectified.
+    ``sync_tolerance_s``: most difference between a stereo pair's two stamps, seconds.
 
     Returns (LocalNetwork, stats dict).
     """
@@ -149,7 +152,8 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
     t_detect = 0.0
     last = None
     for frame in read_stereo_frames(bag_dir, bad, every=every, rectify=rectify,
-                                    log=lambda m: log(f"roi_detector: {m}")):
+                                    log=lambda m: log(f"roi_detector: {m}"),
+                                    sync_tolerance_s=sync_tolerance_s):
         n_pairs += 1
         t0 = time.perf_counter()
         obs = detector.observe(frame)
@@ -186,7 +190,8 @@ def _cmd_ln(args) -> int:
                       working_fx_px=args.working_fx)
     cov_file = odometry_covariance_file(args.odometry, args.covariance)
     ln, stats = build_ln(args.bag, args.odometry, args.model, cfg, args.every, args.drift,
-                         odometry_cov=cov_file, rectify=not args.no_rectify)
+                         odometry_cov=cov_file, rectify=not args.no_rectify,
+                         sync_tolerance_s=args.stereo_sync_tolerance)
     meta = {"source_bag": str(Path(args.bag).resolve()), "odometry": str(args.odometry),
             "odometry_covariance": str(cov_file) if cov_file is not None
             else f"{args.drift:g} of the distance travelled, 1 sigma (--drift)",
@@ -305,6 +310,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="read every image as rectified, whatever its CameraInfo's distortion "
                    "(D) and rectifying rotation (R) say (default: remap to its P, as the "
                    "node's parameter rectify does)")
+    p.add_argument("--stereo-sync-tolerance", type=float, default=images.SYNC_TOLERANCE_S,
+                   metavar="S", help="left and right images whose stamps differ by at most "
+                   "this many seconds are one pair (default %(default)g; 0: exact stamps; "
+                   "the node's parameter stereo_sync_tolerance_s)")
     p.add_argument("--covariance", default=None, metavar="FILE",
                    help="the odometry's pose covariance (t and 36 numbers per odometry stamp, "
                    f"as rover_vo writes it; default: {POSE_COVARIANCE_FILE} beside the "

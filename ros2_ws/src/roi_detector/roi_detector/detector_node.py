@@ -136,6 +136,9 @@ class RoiDetectorNode(Node):
             d(description="rectify images whose CameraInfo has distortion (D) or a "
               "rectifying rotation (R) to its P, as image_proc does; false: read every "
               "image as rectified (DESIGN.md's are)")).value
+        sync_tolerance = self.declare_parameter(
+            "stereo_sync_tolerance_s", images.SYNC_TOLERANCE_S,
+            d(description=images.SYNC_PARAMETER_HELP)).value
         if len(extrinsic) != 7 or not any(extrinsic):
             raise ValueError("parameter 'base_to_left_camera' is not set (pass the bag's "
                              "rover.yaml as a params file)")
@@ -162,7 +165,11 @@ class RoiDetectorNode(Node):
         self.detector = RoverDetector(extrinsic, classifier, cfg, self.bad)
         self.mapper = DriveMapper(cfg, classifier=classifier)
         self.odometry = OdometryBuffer(self.max_gap_s)
-        self.pending_pairs: dict[int, dict[str, CompressedImage | Image]] = {}
+        try:
+            self.halves = images.StereoHalves(float(sync_tolerance),
+                                              "parameter stereo_sync_tolerance_s")
+        except (TypeError, ValueError) as e:
+            raise ValueError(str(e)) from None
         self.waiting: list = []  # (stamp s, header stamp, PairObservation) awaiting odometry
         self.frames = FrameMaker(self.bad, bool(rectify), self.get_logger().info)
         self.n_pairs = 0
@@ -184,20 +191,25 @@ class RoiDetectorNode(Node):
         self._process_ready()
 
     def on_image(self, topic: str, msg: CompressedImage | Image) -> None:
-        """Pair the halves by header stamp; a half left alone for 2 s is dropped."""
+        """Pair the halves by header stamp (:class:`roi_network.images.StereoHalves`); a
+        half left alone for 2 s is dropped."""
         side = images.side_of(topic)
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        self.pending_pairs.setdefault(stamp, {})[side] = msg
-        for old in [s for s in self.pending_pairs if s < stamp - 2_000_000_000]:
-            self.bad("missing pair half", f"stereo pair at {old * 1e-9:.3f} s has one image")
-            del self.pending_pairs[old]
+        if self.halves.add(side, stamp, msg) is None:
+            self.bad("duplicate image", f"{topic}: two images with stamp "
+                     f"{stamp * 1e-9:.3f} s: the second dropped")
+            return
+        for old in self.halves.older_than(stamp - 2_000_000_000):
+            self.bad("missing pair half", f"stereo pair at {old * 1e-9:.3f} s has one "
+                     f"image{self.halves.lone_detail(old)}")
+            self.halves.pop(old)
         self._process_ready()
 
     def _process_ready(self) -> None:
         if not self.frames.ready:
             return
-        for stamp in sorted(s for s, p in self.pending_pairs.items() if len(p) == 2):
-            pair = self.pending_pairs.pop(stamp)
+        for stamp in self.halves.complete():
+            pair = self.halves.pop(stamp)
             self.process_pair(stamp, pair["left"], pair["right"])
 
     def process_pair(self, stamp: int, left_msg, right_msg) -> None:
@@ -272,7 +284,8 @@ class RoiDetectorNode(Node):
         values = {"pairs": self.n_pairs, "tracks": self.mapper.n_tracks,
                   "confirmed": int((self.mapper.current_tracks()["n_obs"]
                                     >= self.mapper.cfg.ln.min_obs).sum()),
-                  "waiting_for_odometry": len(self.waiting), **{
+                  "waiting_for_odometry": len(self.waiting),
+                  "stereo_sync_max_offset_ms": round(self.halves.max_offset_ns * 1e-6, 3), **{
                       f"skipped: {k}": v for k, v in self.bad.counts.items()}}
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         msg = DiagnosticArray()

@@ -143,8 +143,11 @@ class FrameMaker:
 
 def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
                        rectify: bool = True,
-                       log: Callable[[str], None] = print) -> Iterator[StereoFrame]:
-    """Stereo pairs of a bag directory (``BAG/rosbag``), paired by header stamp.
+                       log: Callable[[str], None] = print,
+                       sync_tolerance_s: float = images.SYNC_TOLERANCE_S,
+                       ) -> Iterator[StereoFrame]:
+    """Stereo pairs of a bag directory (``BAG/rosbag``), paired by header stamp
+    (exact, or within ``sync_tolerance_s``: :class:`roi_network.images.StereoHalves`).
 
     Args:
         bag_dir: the bag directory (holding ``rosbag/``) or the rosbag2 directory itself.
@@ -152,6 +155,7 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
         every: keep one pair in ``every`` (1: all).
         rectify: rectify images whose CameraInfo has distortion (:class:`FrameMaker`).
         log: told once per side when the images are rectified.
+        sync_tolerance_s: most difference between a pair's two stamps, seconds.
 
     The images are those of the transport the bag carries (compressed, the contract,
     when it carries both; :func:`roi_network.images.bag_transport`).
@@ -167,7 +171,7 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
     rosbag = bag_dir / "rosbag" if (bag_dir / "rosbag").is_dir() else bag_dir
     if not (rosbag / "metadata.yaml").is_file():
         raise FileNotFoundError(f"{bag_dir}: no rosbag2 directory (metadata.yaml) found")
-    pending: dict[int, dict[str, object]] = {}
+    pending = images.StereoHalves(sync_tolerance_s, "stereo sync tolerance")
     maker = FrameMaker(bad, rectify, log)
     ready: list[tuple[int, dict]] = []
     index = 0
@@ -183,17 +187,21 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
                 maker.info["left" if conn.topic == LEFT_INFO else "right"] = msg
             else:
                 stamp = _stamp_ns(msg.header)
-                slot = pending.setdefault(stamp, {})
-                slot[images.side_of(conn.topic)] = msg
-                # A pair half that never comes: older pending stamps are given up.
-                for old in [s for s in pending if s < stamp - 2_000_000_000]:
-                    bad("missing pair half", f"stereo pair at {old * 1e-9:.3f} s has one image")
-                    del pending[old]
-                if len(slot) == 2:
-                    del pending[stamp]
+                key = pending.add(images.side_of(conn.topic), stamp, msg)
+                if key is None:
+                    bad("duplicate image", f"{conn.topic}: two images with stamp "
+                        f"{stamp * 1e-9:.3f} s: the second dropped")
+                    continue
+                if len(pending.slots[key]) == 2:
+                    slot = pending.pop(key)
                     index += 1
                     if (index - 1) % every == 0:
-                        ready.append((stamp, slot))
+                        ready.append((key, slot))
+                # A pair half that never comes: older pending stamps are given up.
+                for old in pending.older_than(stamp - 2_000_000_000):
+                    bad("missing pair half", f"stereo pair at {old * 1e-9:.3f} s has one "
+                        f"image{pending.lone_detail(old)}")
+                    pending.pop(old)
             # CameraInfo is recorded after the images of its stamp: pairs wait for it.
             if not maker.ready:
                 continue
@@ -202,8 +210,9 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
                 if frame is not None:
                     yield frame
             ready.clear()
-    for old in pending:
-        bad("missing pair half", f"stereo pair at {old * 1e-9:.3f} s has one image")
+    for old in pending.older_than(2 ** 63 - 1):
+        bad("missing pair half", f"stereo pair at {old * 1e-9:.3f} s has one "
+            f"image{pending.lone_detail(old)}")
     if ready:
         bad("no camera_info", f"{len(ready)} stereo pair(s) and no CameraInfo")
 

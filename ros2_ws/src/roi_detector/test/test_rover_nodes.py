@@ -350,7 +350,7 @@ def test_roi_detector_refuses_an_unknown_outcrop_rule(tiny_bag, tmp_path):
 def test_cli_ln_reads_raw_images_alike(tiny_bag, tmp_path):
     """A bag with raw sensor_msgs/Image stereo pairs (a field bag's usual transport) gives
     the LN its compressed twin gives: the same pixels, the same nodes."""
-    from roi_network.testing import write_raw_image_copy
+    from roi_network.testing import write_raw_image_copy, write_stamp_offset_copy
 
     raw_bag = write_raw_image_copy(tiny_bag, tmp_path / "raw")
     run = lambda *a: subprocess.run([shutil.which("roi_detector"), *a], capture_output=True,  # noqa: E731
@@ -366,6 +366,18 @@ def test_cli_ln_reads_raw_images_alike(tiny_bag, tmp_path):
         lns.append(read_geojson(out).records)
     assert len(lns[0]) >= 1
     np.testing.assert_array_equal(lns[0], lns[1])
+    # Right images stamped 3 ms after their left ones (two drivers): the same LN; with
+    # exact stamps only, every pair is counted as a lone half, with its partner's offset.
+    apart = write_stamp_offset_copy(tiny_bag, tmp_path / "apart", 0.003)
+    r = run("ln", str(apart), "--odometry", str(odom), "--out", str(tmp_path / "a.geojson"),
+            "--model", "none", "--min-obs", "1")
+    assert r.returncode == 0, r.stderr
+    np.testing.assert_array_equal(read_geojson(tmp_path / "a.geojson").records, lns[0])
+    r = run("ln", str(apart), "--odometry", str(odom), "--out", str(tmp_path / "e.geojson"),
+            "--model", "none", "--min-obs", "1", "--stereo-sync-tolerance", "0")
+    assert r.returncode == 0, r.stderr
+    assert "the nearest right image is 3.0 ms from it" in r.stdout + r.stderr
+    assert "0 stereo pairs" in r.stdout and not read_geojson(tmp_path / "e.geojson").records.size
     # A distorting lens with D in its CameraInfo: rectified by default, and said so once
     # per side; --no-rectify reads the images as they come.
     distorted = write_raw_image_copy(tiny_bag, tmp_path / "distorted",

@@ -13,6 +13,8 @@ read here, the one way every node and offline CLI decodes a stereo image:
   topics when neither pair is complete);
 - :class:`TransportLock`: a node subscribes to both and keeps the first transport that
   delivers, so a bag that carries both is not read twice;
+- :class:`StereoHalves`: left and right images paired by header stamp, exact or within a
+  tolerance (cameras triggered together, stamped by their own drivers);
 - :class:`Rectifier`: a camera driver's images come as the sensor saw them, with the
   distortion (D) and rectifying rotation (R) in their CameraInfo; they are remapped to
   the rectified geometry of its P, as ROS's image_proc does. DESIGN.md's CameraInfo
@@ -224,6 +226,115 @@ class TransportLock:
             for topic in STEREO_TOPICS[transport]:
                 node.create_subscription(msgtype, topic,
                                          lambda msg, t=topic: deliver(t, msg), qos)
+
+
+#: Default of the nodes' and CLIs' stereo sync tolerance, seconds: left and right images
+#: whose header stamps differ by at most this much are one pair. Cameras triggered
+#: together but stamped by their own drivers differ by a few milliseconds; at the rover's
+#: 5 deg/s, 5 ms turns the view by 0.2 px at 460 px focal length.
+SYNC_TOLERANCE_S = 0.005
+#: The nodes' stereo sync parameter, described.
+SYNC_PARAMETER_HELP = (
+    "left and right images whose header stamps differ by at most this many seconds are one "
+    "stereo pair (stamped with the left's); 0: exact stamps only (stereo_image_proc's "
+    "ExactTime). Never more than half the interval between one camera's frames")
+
+
+class StereoHalves:
+    """Stereo images waiting for their other half, paired by header stamp.
+
+    Exact stamps pair first; otherwise a half pairs with the nearest waiting half of the
+    other side within the tolerance (what stereo_image_proc's ``approximate_sync`` does for
+    cameras that are triggered together and stamped apart). A pair is filed under the
+    left image's stamp, the reference camera's. The tolerance in use never exceeds half
+    the median interval between the recent frames of one side, so that a half cannot
+    pair with its neighbour's partner.
+
+    Args:
+        tolerance_s: most difference between the two stamps of a pair, seconds; 0: exact.
+        source: named in the error.
+
+    Raises:
+        ValueError: on a negative or non-finite tolerance, naming ``source``.
+    """
+
+    def __init__(self, tolerance_s: float = SYNC_TOLERANCE_S,
+                 source: str = "stereo sync tolerance") -> None:
+        if not np.isfinite(tolerance_s) or tolerance_s < 0:
+            raise ValueError(f"{source}: {tolerance_s} s: expected a tolerance >= 0 seconds")
+        self.tolerance_ns = round(float(tolerance_s) * 1e9)
+        #: stamp (ns) -> {"left": msg, "right": msg}, one or both halves.
+        self.slots: dict[int, dict[str, Any]] = {}
+        #: Largest difference between the stamps of a pair so far, ns.
+        self.max_offset_ns = 0
+        self._recent: dict[str, list[int]] = {"left": [], "right": []}  # last stamps per side
+
+    def tolerance_in_use_ns(self) -> int:
+        """The tolerance applied: the parameter's, less than half the median interval
+        between the recent frames of either side."""
+        tol = self.tolerance_ns
+        for recent in self._recent.values():
+            gaps = np.diff(np.unique(recent))
+            if len(gaps):
+                tol = min(tol, (int(np.median(gaps)) - 1) // 2)
+        return tol
+
+    def add(self, side: str, stamp_ns: int, msg: Any) -> int | None:
+        """File one half; returns the stamp of the slot it is in (the left's once paired),
+        or None when that side already holds an image of this stamp (a duplicate, not
+        filed)."""
+        slot = self.slots.get(stamp_ns)
+        if slot is not None and side in slot:
+            return None
+        self._recent[side] = (self._recent[side] + [stamp_ns])[-32:]
+        if slot is not None:
+            slot[side] = msg
+            return stamp_ns
+        other = "right" if side == "left" else "left"
+        tol = self.tolerance_in_use_ns() if self.tolerance_ns else 0
+        near = [s for s, sl in self.slots.items()
+                if side not in sl and other in sl and abs(s - stamp_ns) <= tol]
+        if not near:
+            self.slots[stamp_ns] = {side: msg}
+            return stamp_ns
+        partner = min(near, key=lambda s: (abs(s - stamp_ns), s))
+        slot = self.slots.pop(partner)
+        slot[side] = msg
+        self.max_offset_ns = max(self.max_offset_ns, abs(partner - stamp_ns))
+        key = stamp_ns if side == "left" else partner
+        self.slots[key] = slot
+        return key
+
+    def complete(self) -> list[int]:
+        """Stamps of the slots holding both halves, oldest first."""
+        return sorted(s for s, sl in self.slots.items() if len(sl) == 2)
+
+    def pop(self, stamp_ns: int) -> dict[str, Any]:
+        """Take a slot out: ``{"left": msg, "right": msg}`` or one of them."""
+        return self.slots.pop(stamp_ns)
+
+    def older_than(self, stamp_ns: int) -> list[int]:
+        """Stamps of the slots older than ``stamp_ns``, oldest first."""
+        return sorted(s for s in self.slots if s < stamp_ns)
+
+    def lone_detail(self, stamp_ns: int) -> str:
+        """Why a slot holds one half: the nearest stamp of the other side seen, when there
+        is one within a second (the two cameras stamped further apart than the
+        tolerance), else nothing."""
+        slot = self.slots.get(stamp_ns, {})
+        if len(slot) != 1:
+            return ""
+        side = next(iter(slot))
+        other = "right" if side == "left" else "left"
+        seen = [s for s in self._recent[other] if 0 < abs(s - stamp_ns) < 1_000_000_000]
+        if not seen:
+            return ""
+        gap = min(abs(s - stamp_ns) for s in seen)
+        return (f"; the nearest {other} image is {gap * 1e-6:.1f} ms from it, beyond the "
+                f"stereo sync tolerance ({self.tolerance_in_use_ns() * 1e-6:.1f} ms)")
+
+    def __len__(self) -> int:
+        return len(self.slots)
 
 
 #: CameraInfo distortion models the rectification reads (OpenCV's pinhole model takes the

@@ -1,9 +1,11 @@
-"""Test support shared by the packages' tests: a bag directory's copy with raw images.
+"""Test support shared by the packages' tests: copies of a bag directory as a field bag
+would record it.
 
-The simulator records the contract's compressed images; a field bag often carries raw
-``sensor_msgs/Image`` instead (roi_network.images). :func:`write_raw_image_copy` makes
-the second kind from the first, pixel for pixel, so a test can check that the pipeline
-reads both alike.
+The simulator records the contract's compressed images, left and right with one stamp; a
+field bag often carries raw ``sensor_msgs/Image`` instead (roi_network.images), and two
+cameras stamped apart. :func:`write_raw_image_copy` makes the raw kind from the first,
+pixel for pixel, and :func:`write_stamp_offset_copy` moves the right images' stamps, so
+a test can check that the pipeline reads them alike.
 """
 
 from __future__ import annotations
@@ -116,3 +118,109 @@ def _distortion_maps(info) -> tuple[np.ndarray, np.ndarray]:
     rect = cv2.undistortPoints(pts, k, np.asarray(info.d, float), P=p).reshape(
         info.height, info.width, 2).astype(np.float32)
     return rect[:, :, 0], rect[:, :, 1]
+
+
+def write_stamp_offset_copy(bag_dir: str | Path, out_dir: str | Path,
+                            right_offset_s: float, jitter_s: float = 0.0,
+                            seed: int = 0) -> Path:
+    """Copy bag directory ``bag_dir`` to ``out_dir`` with the right stereo images' header
+    stamps moved by ``right_offset_s`` (plus a uniform jitter of +-``jitter_s`` per image,
+    from ``seed``), either transport; every other message, the right images' pixels and
+    the log times as recorded. Two cameras triggered together and stamped by their own
+    drivers record this.
+
+    Returns:
+        ``out_dir``.
+    """
+    from rosbags.highlevel import AnyReader
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    bag_dir, out_dir = Path(bag_dir), Path(out_dir)
+    out_dir.mkdir(parents=True)
+    for item in bag_dir.iterdir():
+        if item.name != "rosbag":
+            copy = shutil.copytree if item.is_dir() else shutil.copy2
+            copy(item, out_dir / item.name)
+    store = get_typestore(Stores.ROS2_JAZZY)
+    rng = np.random.default_rng(seed)
+    right = {topic for topic in images.IMAGE_TOPICS if images.side_of(topic) == "right"}
+    with AnyReader([bag_dir / "rosbag"], default_typestore=store) as reader, \
+            Writer(out_dir / "rosbag", version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        out = {c.id: writer.add_connection(
+            c.topic, c.msgtype, typestore=store,
+            offered_qos_profiles=getattr(c.ext, "offered_qos_profiles", []))
+            for c in reader.connections}
+        for conn, t_ns, data in reader.messages():
+            if conn.topic in right:
+                msg = reader.deserialize(data, conn.msgtype)
+                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                stamp += round((right_offset_s + rng.uniform(-jitter_s, jitter_s)) * 1e9)
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+                data = store.serialize_cdr(msg, conn.msgtype)
+            writer.write(out[conn.id], t_ns, data)
+    return out_dir
+
+
+def write_tf_static_copy(bag_dir: str | Path, out_dir: str | Path) -> Path:
+    """Copy bag directory ``bag_dir`` to ``out_dir`` as a field bag records its calibration:
+    a ``/tf_static`` message (``tf2_msgs/TFMessage``, latched, at the bag's first time)
+    holding the base frame -> each sensor frame of its ``rover.yaml``, and no
+    ``rover.yaml`` (``globloc rover-yaml`` writes it back from the bag). Every message as
+    recorded.
+
+    Returns:
+        ``out_dir``.
+    """
+    import yaml
+    from rosbags.highlevel import AnyReader
+    from rosbags.interfaces import (
+        Qos,
+        QosDurability,
+        QosHistory,
+        QosLiveliness,
+        QosReliability,
+        QosTime,
+    )
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    bag_dir, out_dir = Path(bag_dir), Path(out_dir)
+    doc = yaml.safe_load((bag_dir / "rover.yaml").read_text())
+    params = next(v["ros__parameters"] for v in doc.values() if "ros__parameters" in v)
+    out_dir.mkdir(parents=True)
+    for item in bag_dir.iterdir():
+        if item.name not in ("rosbag", "rover.yaml"):
+            copy = shutil.copytree if item.is_dir() else shutil.copy2
+            copy(item, out_dir / item.name)
+    store = get_typestore(Stores.ROS2_JAZZY)
+    T = store.types
+    latched = Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE,
+                  QosDurability.TRANSIENT_LOCAL, QosTime(0, 0), QosTime(0, 0),
+                  QosLiveliness.AUTOMATIC, QosTime(0, 0), False)
+    with AnyReader([bag_dir / "rosbag"], default_typestore=store) as reader, \
+            Writer(out_dir / "rosbag", version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        out = {c.id: writer.add_connection(
+            c.topic, c.msgtype, typestore=store,
+            offered_qos_profiles=getattr(c.ext, "offered_qos_profiles", []))
+            for c in reader.connections}
+        start = reader.start_time
+        stamp = T["builtin_interfaces/msg/Time"](sec=start // 10**9, nanosec=start % 10**9)
+        transforms = []
+        for key, frame in (("base_to_left_camera", "left_camera_frame"),
+                           ("base_to_right_camera", "right_camera_frame"),
+                           ("base_to_imu", "imu_frame")):
+            x, y, z, qx, qy, qz, qw = (float(v) for v in params[key])
+            transforms.append(T["geometry_msgs/msg/TransformStamped"](
+                header=T["std_msgs/msg/Header"](stamp=stamp, frame_id=params["base_frame"]),
+                child_frame_id=params[frame],
+                transform=T["geometry_msgs/msg/Transform"](
+                    translation=T["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
+                    rotation=T["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw))))
+        msgtype = "tf2_msgs/msg/TFMessage"
+        tf = writer.add_connection("/tf_static", msgtype, typestore=store,
+                                   offered_qos_profiles=[latched])
+        writer.write(tf, start, store.serialize_cdr(T[msgtype](transforms=transforms), msgtype))
+        for conn, t_ns, data in reader.messages():
+            writer.write(out[conn.id], t_ns, data)
+    return out_dir

@@ -167,3 +167,54 @@ def test_rectifier_undoes_a_lens_distortion():
         Rectifier(_info(d=(0.1,), model="kannala"))
     with pytest.raises(ValueError, match="3 distortion coefficients"):
         Rectifier(_info(d=(0.1, 0.0, 0.0)))
+
+
+def test_stereo_halves_pair_exact_stamps_first_and_within_the_tolerance():
+    ms = 1_000_000
+    halves = images.StereoHalves(0.005)
+    # Exact stamps pair, in either arrival order.
+    assert halves.add("right", 0, "r0") == 0 and halves.add("left", 0, "l0") == 0
+    assert halves.complete() == [0] and halves.pop(0) == {"left": "l0", "right": "r0"}
+    # Cameras stamped apart: the right 3 ms late, then 2 ms early; the pair is filed
+    # under the left's stamp whichever half came first.
+    assert halves.add("left", 100 * ms, "l1") == 100 * ms
+    assert halves.add("right", 103 * ms, "r1") == 100 * ms
+    assert halves.add("right", 198 * ms, "r2") == 198 * ms
+    assert halves.add("left", 200 * ms, "l2") == 200 * ms
+    assert halves.complete() == [100 * ms, 200 * ms]
+    assert halves.pop(200 * ms) == {"left": "l2", "right": "r2"}
+    assert halves.max_offset_ns == 3 * ms
+    # Beyond the tolerance: two lone halves, and the one left says how far its partner was.
+    halves.pop(100 * ms)
+    halves.add("left", 300 * ms, "l3")
+    halves.add("right", 314 * ms, "r3")
+    assert halves.complete() == [] and halves.older_than(301 * ms) == [300 * ms]
+    assert "14.0 ms" in halves.lone_detail(300 * ms)
+    # A second image of one side at one stamp is refused, not filed over the first.
+    assert halves.add("left", 300 * ms, "again") is None
+    assert halves.slots[300 * ms] == {"left": "l3"}
+
+
+def test_stereo_halves_exact_only_and_never_across_frames():
+    ms = 1_000_000
+    exact = images.StereoHalves(0.0)
+    exact.add("left", 0, "l")
+    exact.add("right", 1, "r")  # 1 ns apart: not a pair with a zero tolerance
+    assert exact.complete() == []
+    # A 100 ms tolerance on a 20 Hz pair of cameras stamped 10 ms apart, whose right
+    # image of frame 2 is lost and whose right of frame 3 comes before its left: the
+    # tolerance in use drops under half the frame interval, so the left of frame 2 stays
+    # alone instead of taking frame 3's right.
+    wide = images.StereoHalves(0.1)
+    for k in range(6):
+        halves = [("left", k * 50 * ms), ("right", k * 50 * ms + 10 * ms)]
+        for side, t in (halves[:1] if k == 2 else halves[::-1] if k == 3 else halves):
+            wide.add(side, t, f"{side}{k}")
+    assert wide.tolerance_in_use_ns() < 25 * ms
+    pairs = [wide.pop(s) for s in wide.complete()]
+    assert [p["left"][4:] for p in pairs] == [p["right"][5:] for p in pairs]
+    assert [p["left"] for p in pairs] == ["left0", "left1", "left3", "left4", "left5"]
+    assert wide.slots == {100 * ms: {"left": "left2"}}
+    for bad in (-0.1, float("nan")):
+        with pytest.raises(ValueError, match="stereo_sync_tolerance_s"):
+            images.StereoHalves(bad, "parameter stereo_sync_tolerance_s")

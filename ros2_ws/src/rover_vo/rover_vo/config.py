@@ -42,6 +42,9 @@ class FeatureOptions:
     #: remap images whose CameraInfo has distortion (D) or a rectifying rotation (R) to
     #: its P, as image_proc does; false: read every image as rectified (DESIGN.md's are)
     rectify: bool = True
+    #: left and right images whose header stamps differ by at most this many seconds are
+    #: one pair, stamped with the left's (roi_network.images.StereoHalves); 0: exact stamps
+    stereo_sync_tolerance_s: float = 0.005
     stereo_max_dy_px: float = 1.0  #: rectified pair: |row difference| allowed (px)
     min_disparity_px: float = 1.0  #: farther points (smaller disparity) are not triangulated
     max_depth_m: float = 60.0  #: farther points are not used

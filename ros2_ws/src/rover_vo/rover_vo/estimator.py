@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from roi_network.images import StereoRectifiers, describe
+from roi_network.images import StereoHalves, StereoRectifiers, describe
 from rover_vo import messages as m
 from rover_vo.config import VoConfig
 from rover_vo.features import stereo_match, track
@@ -117,7 +117,11 @@ class VoEstimator:
         self.info: dict[str, Any] = {"left": None, "right": None}
         self.propagator: Propagator | None = None
         self._imu_prebuffer: list[tuple[float, np.ndarray, np.ndarray]] = []
+        # Images waiting for their other half, then pairs waiting for the IMU (by stamp).
+        self.halves = StereoHalves(self.cfg.features.stereo_sync_tolerance_s,
+                                   "features.stereo_sync_tolerance_s")
         self.pairs: dict[int, _Pair] = {}
+        self.lone_detail: dict[int, str] = {}  # why a lone half's partner did not pair
         # The topics the images arrive on (either transport), for the messages.
         self.image_topics = {"left": m.TOPIC_LEFT, "right": m.TOPIC_RIGHT}
         # Each side's rectifier of its last CameraInfo (identity for rectified images).
@@ -217,18 +221,34 @@ class VoEstimator:
                 self.bad(kind, f"{topic}: stamp {t_ns * 1e-9:.3f} s not after the last "
                          "processed pair: image dropped")
                 return []
-            pair = self.pairs.setdefault(t_ns, _Pair(t_ns))
-            if getattr(pair, side) is not None:
+            key = self.halves.add(side, t_ns, msg)
+            if key is None:
                 self.bad("stereo_duplicate", f"{topic}: two images with stamp "
                          f"{t_ns * 1e-9:.3f} s: the second dropped")
                 return []
-            setattr(pair, side, msg)
+            self._file_pairs(t_ns - int(self.cfg.imu.input_wait_s * 1e9))
             return self._drain(force=False)
         return []
 
     def finish(self) -> list[VoOutput]:
         """Process whatever is still waiting (end of a bag)."""
+        self._file_pairs(None)
         return self._drain(force=True)
+
+    def _file_pairs(self, give_up_ns: int | None) -> None:
+        """Move pairs, oldest first, from :attr:`halves` to :attr:`pairs`: the complete
+        ones, and a half whose partner has not come once images ``input_wait_s`` newer
+        have (``give_up_ns``; None: all, the end of the bag). A waiting half holds the
+        pairs after it back, so that pairs are processed in time order; a lone half is
+        processed as it is (counted missing, the IMU carries the odometry)."""
+        for key in sorted(self.halves.slots):
+            slot = self.halves.slots[key]
+            if len(slot) == 1:
+                if give_up_ns is not None and key >= give_up_ns:
+                    break
+                self.lone_detail[key] = self.halves.lone_detail(key)
+            self.halves.pop(key)
+            self.pairs[key] = _Pair(key, slot.get("left"), slot.get("right"))
 
     def _feed_imu(self, msg: Any) -> None:
         t = m.stamp_s(msg)
@@ -300,22 +320,20 @@ class VoEstimator:
 
     def _decode(self, pair: _Pair) -> tuple[np.ndarray, np.ndarray] | None:
         t = pair.t_ns * 1e-9
-        left_topic, right_topic = self.image_topics["left"], self.image_topics["right"]
-        if pair.left is None:
-            self.bad("missing_left", f"{left_topic}: no left image for the right one at "
-                     f"{t:.3f} s")
-            return None
-        if pair.right is None:
-            self.bad("missing_right", f"{right_topic}: no right image for the left one at "
-                     f"{t:.3f} s")
+        left_topic = self.image_topics["left"]
+        if pair.left is None or pair.right is None:
+            side = "left" if pair.left is None else "right"
+            other = "right" if side == "left" else "left"
+            self.bad(f"missing_{side}", f"{self.image_topics[side]}: no {side} image for "
+                     f"the {other} one at {t:.3f} s{self.lone_detail.pop(pair.t_ns, '')}")
             return None
         if not self._ensure_rig():
             self.bad("missing_camera_info", "/stereo/{left,right}/camera_info: no valid "
                      f"CameraInfo yet at {t:.3f} s: pair not used")
             return None
         images = []
-        for side, topic, msg in (("left", left_topic, pair.left),
-                                 ("right", right_topic, pair.right)):
+        for side, msg in (("left", pair.left), ("right", pair.right)):
+            topic = self.image_topics[side]
             img = m.decode_image(msg)
             if img is None:
                 self.bad("corrupt_image", f"{topic}: image at {t:.3f} s does not decode "

@@ -75,3 +75,31 @@ def test_a_distorting_lens_is_rectified_by_its_camera_info(tiny_bag, tiny_params
     assert np.all(as_they_come < 0.8 * reference), (reference, as_they_come)
     assert sum("rectified to its P" in text for text in logs) == 2  # once per side
     assert not any("rectified" in text for text in logs_off)
+
+
+def test_cameras_stamped_apart_pair_within_the_tolerance(tiny_bag, tiny_params, clean_run,
+                                                         tmp_path):
+    """Right images stamped 3 +- 1 ms after their left ones (two drivers): paired as the
+    simulator's exact stamps are, at the left's stamp; with exact stamps only, no pair
+    forms and each lone half is counted, with how far its partner was."""
+    import dataclasses
+
+    from roi_network.testing import write_stamp_offset_copy
+    from rover_vo.config import VoConfig
+
+    apart = list(read_messages(write_stamp_offset_copy(tiny_bag, tmp_path / "apart", 0.003,
+                                                       jitter_s=0.001)))
+    est, outputs, _ = run(apart, tiny_params)
+    _, reference, _ = clean_run
+    assert [o.stamp_ns for o in outputs] == [o.stamp_ns for o in reference]
+    err = [np.linalg.norm(o.state.p - r.state.p) for o, r in zip(outputs, reference,
+                                                                   strict=True)]
+    assert max(err) < 1e-6, max(err)  # the same pixels, paired alike
+    assert est.halves.max_offset_ns >= 2_000_000
+    exact = VoConfig(features=dataclasses.replace(VoConfig().features,
+                                                  stereo_sync_tolerance_s=0.0))
+    est0, _, logs0 = run(apart, tiny_params, exact)
+    status = est0.status()
+    assert status["bad_input.missing_right"] == len(reference)
+    assert status["vision_frames"] == 0
+    assert any("beyond the stereo sync tolerance (0.0 ms)" in text for _, text in logs0)
