@@ -1,5 +1,5 @@
 """The ``globloc`` command: ``play`` a bag, ``run`` the node graph on a bag, ``record`` outputs,
-``eval`` a run.
+``eval`` a run, ``rover-yaml`` a field bag's calibration file.
 
 Only argument mapping lives here; each subcommand is a function taking an options object.
 User errors (``GloblocError``) become one ``globloc: error: ...`` line on stderr and exit
@@ -156,6 +156,29 @@ def _add_salvage(sub: argparse._SubParsersAction) -> None:
                    help='rosbag2 directory to create')
 
 
+def _add_rover_yaml(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        'rover-yaml',
+        help="write a field bag's rover.yaml from the calibration the bag records",
+        description="Write BAG_DIR/rover.yaml, the rover's extrinsics and sensor constants "
+        'the nodes read (DESIGN.md), from what the bag records: /tf_static (composed along '
+        "the tree from the base frame to each sensor's header.frame_id), the CameraInfo "
+        "(intrinsics, baseline) and the IMU's stamps (rate). The IMU noise densities are "
+        "rover_vo's defaults, flagged in the file. An existing file is not overwritten.",
+    )
+    p.add_argument('bag', type=Path, metavar='BAG_DIR',
+                   help='bag directory (holding rosbag/) or a rosbag2 directory')
+    p.add_argument('--out', type=Path, metavar='FILE',
+                   help='file to write (default: rover.yaml in the bag directory)')
+    p.add_argument('--force', action='store_true', help='overwrite an existing file')
+    p.add_argument('--base-frame', default='base_link', metavar='FRAME',
+                   help='the rover body frame (default: %(default)s)')
+    for side in ('left', 'right', 'imu'):
+        p.add_argument(f'--{side}-frame', metavar='FRAME',
+                       help=f'the {side} sensor frame (default: the header.frame_id of its '
+                       'messages)')
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``globloc`` argument parser."""
     parser = argparse.ArgumentParser(
@@ -167,6 +190,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_record(sub)
     _add_eval(sub)
     _add_salvage(sub)
+    _add_rover_yaml(sub)
     return parser
 
 
@@ -203,6 +227,17 @@ def _dispatch(args: argparse.Namespace, ros: list[str]) -> int:
               f'into {report.out}; last at bag time {report.last_time_ns / 1e9:.3f} s'
               + (f'; reading stopped at: {report.stopped} (the incomplete rest is lost)'
                  if report.stopped else ''), file=sys.stderr)
+        return 0
+    if args.command == 'rover-yaml':
+        from rover_bringup.extrinsics import write_rover_yaml
+
+        frames = {side: getattr(args, f'{side}_frame') for side in ('left', 'right', 'imu')
+                  if getattr(args, f'{side}_frame')}
+        path, warnings = write_rover_yaml(args.bag, args.out, args.base_frame, frames,
+                                          args.force)
+        for warning in warnings:
+            print(f'{PROG}: warning: {warning}', file=sys.stderr)
+        print(f'{PROG}: wrote {path}', file=sys.stderr)
         return 0
     if args.command == 'eval':
         from rover_bringup.report import EvalOptions, evaluate_run

@@ -8,7 +8,7 @@ needs to create a publisher, so both are checked here before anything is publish
 from __future__ import annotations
 
 import importlib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 from rover_bringup.errors import GloblocError
 
@@ -67,4 +67,44 @@ def message_classes(topic_types: Mapping[str, str]) -> dict[str, type]:
                 f'topic {topic} has message type {msgtype} which is not available in this ROS '
                 'install'
             ) from None
+    return classes
+
+
+def playable_classes(topic_types: Mapping[str, str], requested: bool,
+                     warn: Callable[[str], None]) -> dict[str, type]:
+    """The message classes of the topics that can be played, the others left out.
+
+    A field bag records topics of message packages this ROS install does not have
+    (``/tf`` and ``/tf_static`` as ``tf2_msgs/TFMessage``, vendor drivers' types). No node
+    of the graph reads them, so they are left out, named in one ``warn`` line; the
+    pipeline's inputs are all of installed packages (DESIGN.md: standard message types).
+
+    Args:
+        topic_types: Topic name -> message type name.
+        requested: the topics were named by the user (``--topics``): any unavailable one
+            is an error, as :func:`message_classes` raises it.
+        warn: told once, naming the topics left out and their types.
+
+    Raises:
+        UnavailableTypeError: ``requested`` and a type is unavailable, or no topic is left.
+    """
+    if requested:
+        return message_classes(topic_types)
+    classes: dict[str, type] = {}
+    left_out: dict[str, str] = {}
+    for topic in sorted(topic_types):
+        try:
+            classes[topic] = message_class(topic_types[topic])
+        except UnavailableTypeError:
+            left_out[topic] = topic_types[topic]
+    if not classes:
+        topic = next(iter(left_out))
+        raise UnavailableTypeError(
+            f'topic {topic} has message type {left_out[topic]} which is not available in this '
+            'ROS install' + (f' (nor are the types of the other {len(left_out) - 1} topics)'
+                             if len(left_out) > 1 else ''))
+    if left_out:
+        warn('not played, their message types are not installed in this ROS environment '
+             '(no node of the graph reads them): '
+             + ', '.join(f'{t} ({m})' for t, m in left_out.items()))
     return classes

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 from rover_bringup.bag import Bag, open_bag
 from rover_bringup.errors import GloblocError
-from rover_bringup.msgtypes import message_classes
+from rover_bringup.msgtypes import playable_classes
 from rover_bringup.playback import NS_PER_S, PlaybackClock, Progress
 
 if TYPE_CHECKING:
@@ -28,6 +28,10 @@ EXIT_INTERRUPTED = 130
 
 #: Wall seconds the middleware gets to tear down (node, context) once playback has ended.
 TEARDOWN_TIMEOUT_S = 15.0
+
+
+def _warn(message: str) -> None:
+    print(f'globloc: warning: {message}', file=sys.stderr, flush=True)
 
 
 def _exit_if_teardown_hangs(status: int, timeout_s: float) -> threading.Timer:
@@ -134,7 +138,9 @@ def play(options: PlayOptions) -> int:
         if not bag.message_count:
             raise GloblocError(f'bag {bag.location.rosbag} has no messages')
         selected = bag.select(options.topics)
-        classes = message_classes({t.name: t.msgtype for t in selected})
+        classes = playable_classes({t.name: t.msgtype for t in selected},
+                                   bool(options.topics), _warn)
+        selected = [t for t in selected if t.name in classes]
         names = [t.name for t in selected]
         wait_topics = names if options.wait_topics is None else sorted(set(options.wait_topics))
         if unknown := [t for t in wait_topics if t not in names]:

@@ -37,11 +37,11 @@ from rover_bringup.graph import (
     substitute,
 )
 from rover_bringup.launcher import ManagedProcess, start, stop, tail
-from rover_bringup.msgtypes import message_classes
+from rover_bringup.msgtypes import playable_classes
 from rover_bringup.recording import count_messages
 from rover_bringup.respawn import Respawner
 from rover_bringup.run_outputs import export_outputs
-from rover_bringup.topics import OUTPUT_TOPICS, sensor_problems
+from rover_bringup.topics import OUTPUT_TOPICS, TF_STATIC, sensor_problems
 
 #: Packages whose nodes read the bag's stereo pairs, CameraInfo and IMU.
 SENSOR_READERS = ('rover_vo', 'roi_detector')
@@ -158,7 +158,9 @@ def _prepare(options: RunOptions) -> _Plan:
     location = locate_bag(options.bag)
     with Bag(location) as bag:
         bag_topics = {t.name: t.msgtype for t in bag.topics.values()}
-        message_classes(bag_topics)
+        # Topics of types this install lacks (a field bag's /tf) are not played: the
+        # player says which; the rest must be loadable.
+        playable_classes(bag_topics, False, lambda _message: None)
     graph_path = options.graph or config_file('graph.yaml')
     params_path = options.params or config_file('globloc.yaml')
     nodes = load_graph(graph_path)
@@ -184,6 +186,12 @@ def _prepare(options: RunOptions) -> _Plan:
     if readers := sorted({r.spec.name for r in resolved if r.spec.package in SENSOR_READERS}):
         for problem in sensor_problems(bag_topics, str(location.rosbag)):
             _warn(f'{problem} ({", ".join(readers)} will publish nothing)')
+        if not (location.root / 'rover.yaml').is_file():
+            hint = (f'write it from the bag\'s {TF_STATIC} with `globloc rover-yaml '
+                    f'{location.root}`' if TF_STATIC in bag_topics else 'write it by hand '
+                    '(docs/bringup.md)')
+            _warn(f'{location.root / "rover.yaml"} not found: {", ".join(readers)} read the '
+                  f'rover\'s extrinsics from it; {hint}')
     return _Plan(location, resolved, params, graph_path, params_path)
 
 

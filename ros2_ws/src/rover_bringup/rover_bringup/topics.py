@@ -53,6 +53,9 @@ OUTPUT_TOPICS: dict[str, TopicContract] = {
 }
 
 
+#: The static transforms of a field bag, whose sensor frames ``globloc rover-yaml`` reads.
+TF_STATIC = '/tf_static'
+
 #: The sensor topics the pipeline needs besides the stereo images.
 SENSOR_TOPICS = ('/stereo/left/camera_info', '/stereo/right/camera_info', '/imu/data')
 

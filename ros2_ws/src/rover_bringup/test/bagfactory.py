@@ -162,13 +162,26 @@ def write_bag(path: Path, spec: BagSpec | None = None) -> BagSpec:
 BAR_MSG = 'int32 value\nstring name\n'
 
 
-def write_custom_type_bag(path: Path, topics: Sequence[str] = ('/foo',)) -> None:
-    """A bag whose topics have type ``foo_msgs/msg/Bar``, unknown to this ROS install."""
+def write_custom_type_bag(path: Path, topics: Sequence[str] = ('/foo',),
+                          imu_messages: int = 0) -> None:
+    """A bag whose topics have type ``foo_msgs/msg/Bar``, unknown to this ROS install, and
+    ``imu_messages`` IMU messages on /imu/data beside them (a field bag's mix)."""
     ts = get_typestore(Stores.ROS2_JAZZY)
     ts.register(get_types_from_msg(BAR_MSG, 'foo_msgs/msg/Bar'))
     bar = ts.types['foo_msgs/msg/Bar']
+    imu_t = ts.types['sensor_msgs/msg/Imu']
+    vec, quat = ts.types['geometry_msgs/msg/Vector3'], ts.types['geometry_msgs/msg/Quaternion']
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         for topic in topics:
             conn = writer.add_connection(topic, 'foo_msgs/msg/Bar', typestore=ts)
             writer.write(conn, T0_NS, ts.serialize_cdr(bar(1, 'x'), 'foo_msgs/msg/Bar'))
-
+        if imu_messages:
+            conn = writer.add_connection(IMU_TOPIC, imu_t.__msgtype__, typestore=ts)
+            for i in range(imu_messages):
+                stamp = T0_NS + i * 10_000_000
+                msg = imu_t(ts.types['std_msgs/msg/Header'](
+                    ts.types['builtin_interfaces/msg/Time'](sec=stamp // 10**9,
+                                                             nanosec=stamp % 10**9),
+                    'imu_link'), quat(0.0, 0.0, 0.0, 1.0), np.zeros(9), vec(0.0, 0.0, 0.0),
+                    np.zeros(9), vec(0.0, 0.0, 9.81), np.zeros(9))
+                writer.write(conn, stamp, ts.serialize_cdr(msg, imu_t.__msgtype__))

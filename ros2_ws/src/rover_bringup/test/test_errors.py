@@ -63,7 +63,26 @@ def test_unknown_message_type(tmp_path: Path, bagfactory: ModuleType, globloc):
     bagfactory.write_custom_type_bag(tmp_path / 'bag', topics=['/foo'])
     line = _one_error_line(globloc(['play', str(tmp_path / 'bag')]))
     assert line == ('globloc: error: topic /foo has message type foo_msgs/msg/Bar which is not '
-                    'available in this ROS install')
+                    'available in this ROS install')  # nothing else to play
+
+
+@pytest.mark.ros
+def test_topics_of_types_not_installed_are_left_out(tmp_path: Path, bagfactory: ModuleType,
+                                                    globloc, ros_env: dict[str, str]):
+    """A field bag records topics of packages this install lacks (/tf_static's tf2_msgs):
+    the others play, and one warning names what was left out; named with --topics, such
+    a topic is an error."""
+    bagfactory.write_custom_type_bag(tmp_path / 'bag', topics=['/foo', '/tf_static'],
+                                     imu_messages=20)
+    result = globloc(['play', str(tmp_path / 'bag'), '--rate', '0', '--wait-subscribers', '0'],
+                     env=ros_env)
+    assert result.returncode == 0, result.stderr
+    warnings = [line for line in result.stderr.splitlines() if 'warning' in line]
+    assert len(warnings) == 1
+    assert '/foo (foo_msgs/msg/Bar), /tf_static (foo_msgs/msg/Bar)' in warnings[0]
+    assert 'not played' in warnings[0]
+    _one_error_line(globloc(['play', str(tmp_path / 'bag'), '--topics', '/foo', '/imu/data']),
+                    'topic /foo has message type foo_msgs/msg/Bar which is not available')
 
 
 def test_unknown_topic(tmp_path: Path, bagfactory: ModuleType, globloc):

@@ -1,0 +1,300 @@
+"""A field bag's ``rover.yaml``, from the calibration the bag itself records.
+
+The nodes take the rover's extrinsics from parameters (DESIGN.md: ``rover.yaml`` beside
+each bag; the simulator writes it). A field bag has no such file, but records what it
+holds: the sensor frames in ``/tf_static`` (``tf2_msgs/TFMessage``, what
+robot_state_publisher latches from the URDF), each sensor's frame in its messages'
+``header.frame_id``, the stereo baseline in the right CameraInfo's P, and the IMU rate in
+its stamps. :func:`bag_calibration` reads those and :func:`rover_parameters` composes
+them into the parameters the nodes read:
+
+- ``base_to_left_camera`` / ``base_to_right_camera`` / ``base_to_imu``: each sensor frame
+  in the base frame, ``[x, y, z, qx, qy, qz, qw]``, composed along the tree whatever the
+  frames between them (a mast, a pan-tilt unit);
+- ``baseline_m``, ``camera_height_m``, ``camera_tilt_deg``, ``image_width``,
+  ``image_height``, ``fx``, ``fy``, ``cx``, ``cy``: from the CameraInfo and the left
+  camera's pose (what the simulator's file says alongside);
+- ``imu_rate_hz`` from the IMU's stamps. The IMU's noise densities are not in a bag: they
+  are written at rover_vo's defaults and flagged for the user to set from the datasheet.
+
+Checks, each naming the frame or topic: the camera frames must be optical (REP-103: z
+forward, x right, y down), the baseline of the tree must agree with the CameraInfo's, and
+the right camera must sit on the left camera's +x axis (a rectified pair). No rclpy, no
+tf2: the transforms are composed here with numpy and scipy.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from rover_bringup.errors import GloblocError
+from rover_bringup.topics import TF_STATIC
+
+LEFT_INFO, RIGHT_INFO = '/stereo/left/camera_info', '/stereo/right/camera_info'
+IMU = '/imu/data'
+#: rover_vo's IMU noise defaults (rover_vo.config.ImuOptions), written when the bag has none.
+IMU_DEFAULTS = {'gyro_noise_density': 0.00017, 'gyro_bias_random_walk': 2.0e-05,
+                'gravity': 9.81}
+#: Most IMU samples read for the rate.
+IMU_SAMPLES = 2000
+#: The tree's baseline and the CameraInfo's may differ by this much before it is an error.
+BASELINE_TOLERANCE_M = 0.005
+
+
+class CalibrationError(GloblocError):
+    """The bag does not record what ``rover.yaml`` needs, or records it inconsistently."""
+
+
+@dataclass
+class BagCalibration:
+    """What a bag records of its rover's calibration.
+
+    Attributes:
+        source: the bag, named in errors.
+        transforms: ``(parent, child) -> 4x4`` of every ``/tf_static`` transform (the
+            latest of each pair).
+        frames: the sensors' ``header.frame_id``: ``left``, ``right`` (their CameraInfo,
+            else images), ``imu``.
+        left_info, right_info: the first CameraInfo of each side.
+        imu_stamps_ns: the first IMU stamps, for the rate.
+    """
+
+    source: str
+    transforms: dict[tuple[str, str], np.ndarray] = field(default_factory=dict)
+    frames: dict[str, str] = field(default_factory=dict)
+    left_info: Any = None
+    right_info: Any = None
+    imu_stamps_ns: list[int] = field(default_factory=list)
+
+
+def _matrix(translation: Any, rotation: Any) -> np.ndarray:
+    t = np.eye(4)
+    t[:3, :3] = Rotation.from_quat([rotation.x, rotation.y, rotation.z, rotation.w]).as_matrix()
+    t[:3, 3] = [translation.x, translation.y, translation.z]
+    return t
+
+
+def bag_calibration(rosbag: str | Path) -> BagCalibration:
+    """Read the calibration a rosbag2 directory records (see the module).
+
+    Raises:
+        CalibrationError: naming the bag when it cannot be read.
+    """
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    from roi_network import images
+
+    rosbag = Path(rosbag)
+    cal = BagCalibration(str(rosbag))
+    try:
+        with AnyReader([rosbag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+            wanted = {TF_STATIC, LEFT_INFO, RIGHT_INFO, IMU, *images.IMAGE_TOPICS}
+            conns = [c for c in reader.connections if c.topic in wanted]
+            frame_of: dict[str, str] = {}
+            for conn, _t, raw in reader.messages(connections=conns):
+                topic = conn.topic
+                if topic == IMU and len(cal.imu_stamps_ns) >= IMU_SAMPLES:
+                    continue
+                if topic in images.IMAGE_TOPICS and topic in frame_of:
+                    continue
+                msg = reader.deserialize(raw, conn.msgtype)
+                if topic == TF_STATIC:
+                    for tf in msg.transforms:
+                        key = (tf.header.frame_id.lstrip('/'), tf.child_frame_id.lstrip('/'))
+                        cal.transforms[key] = _matrix(tf.transform.translation,
+                                                      tf.transform.rotation)
+                    continue
+                frame_of.setdefault(topic, msg.header.frame_id.lstrip('/'))
+                if topic == IMU:
+                    cal.imu_stamps_ns.append(msg.header.stamp.sec * 1_000_000_000
+                                             + msg.header.stamp.nanosec)
+                elif topic == LEFT_INFO and cal.left_info is None:
+                    cal.left_info = msg
+                elif topic == RIGHT_INFO and cal.right_info is None:
+                    cal.right_info = msg
+    except (OSError, ValueError, KeyError) as exc:  # rosbags' errors derive from these
+        raise CalibrationError(f'{rosbag}: cannot read the bag ({exc})') from exc
+    for side, info in (('left', LEFT_INFO), ('right', RIGHT_INFO)):
+        image = next((frame_of[t] for t in sorted(images.IMAGE_TOPICS)
+                      if images.side_of(t) == side and t in frame_of), None)
+        if frame_of.get(info) or image:
+            cal.frames[side] = frame_of.get(info) or image
+    if frame_of.get(IMU):
+        cal.frames['imu'] = frame_of[IMU]
+    return cal
+
+
+def frame_transform(transforms: dict[tuple[str, str], np.ndarray], parent: str,
+                    child: str, source: str) -> np.ndarray:
+    """``child`` in ``parent`` (4x4: child-frame points to parent-frame points), composed
+    along the tree of ``transforms`` in either direction.
+
+    Raises:
+        CalibrationError: naming both frames, ``source`` and the frames the tree holds,
+            when no chain of transforms joins them.
+    """
+    edges: dict[str, list[tuple[str, np.ndarray]]] = {}
+    for (p, c), t in transforms.items():
+        edges.setdefault(p, []).append((c, t))
+        edges.setdefault(c, []).append((p, np.linalg.inv(t)))
+    # Breadth first from the parent: pose[f] = f in parent.
+    pose = {parent: np.eye(4)}
+    todo = deque([parent])
+    while todo:
+        f = todo.popleft()
+        for g, t in edges.get(f, []):
+            if g not in pose:
+                pose[g] = pose[f] @ t
+                todo.append(g)
+    if child not in pose:
+        known = ', '.join(sorted(edges)) or 'none'
+        raise CalibrationError(f'{source}: {TF_STATIC} joins no chain from frame '
+                               f"'{parent}' to frame '{child}' (frames: {known})")
+    return pose[child]
+
+
+def _pose_list(t: np.ndarray) -> list[float]:
+    q = Rotation.from_matrix(t[:3, :3]).as_quat()
+    if q[3] < 0:
+        q = -q
+    return [round(float(v), 9) for v in (*t[:3, 3], *q)]
+
+
+def rover_parameters(cal: BagCalibration, base_frame: str = 'base_link',
+                     frames: dict[str, str] | None = None) -> tuple[dict, list[str]]:
+    """The ``rover.yaml`` parameters of a bag's calibration, and warnings for the user.
+
+    Args:
+        cal: :func:`bag_calibration`'s reading.
+        base_frame: the rover body frame (REP-105's ``base_link``).
+        frames: ``left``, ``right``, ``imu`` frames in place of those the messages name.
+
+    Raises:
+        CalibrationError: naming what is missing or inconsistent.
+    """
+    src = cal.source
+    frames = {**cal.frames, **(frames or {})}
+    if not cal.transforms:
+        raise CalibrationError(f'{src}: no {TF_STATIC} transforms: the bag does not record '
+                               'its sensors\' frames; write rover.yaml by hand '
+                               '(docs/bringup.md, "A field bag\'s rover.yaml")')
+    for need, topic in (('left', LEFT_INFO), ('right', RIGHT_INFO)):
+        if not frames.get(need):
+            raise CalibrationError(f'{src}: no frame for the {need} camera: {topic} and '
+                                   f'its images carry no header.frame_id (give --{need}-frame)')
+    if cal.left_info is None or cal.right_info is None:
+        missing = LEFT_INFO if cal.left_info is None else RIGHT_INFO
+        raise CalibrationError(f'{src}: no {missing} message: the intrinsics and the '
+                               'baseline come from the CameraInfo')
+    warnings: list[str] = []
+    pose = {side: frame_transform(cal.transforms, base_frame, frames[side], src)
+            for side in ('left', 'right')}
+    for side in ('left', 'right'):
+        r = pose[side][:3, :3]
+        # Optical (REP-103): x right, y down; in base_link x forward, y left, z up.
+        if r[:, 1] @ [0, 0, 1] > -0.3 or r[:, 0] @ [0, 1, 0] > 0.3:
+            raise CalibrationError(
+                f"{src}: frame '{frames[side]}' ({side} camera) is not an optical frame "
+                f'(REP-103: z forward, x right, y down): in {base_frame} its x axis points '
+                f'{np.round(r[:, 0], 2).tolist()} and its y axis {np.round(r[:, 1], 2).tolist()}'
+                f'; give the optical child frame (--{side}-frame)')
+    p_right = np.asarray(cal.right_info.p, float)
+    p_left = np.asarray(cal.left_info.p, float)
+    if not (p_right[0] > 0 and p_right[3] < 0):
+        raise CalibrationError(f'{src}: {RIGHT_INFO}: P[3] = {p_right[3]} gives no baseline '
+                               '(a rectified pair has P[3] = -fx * baseline < 0)')
+    baseline = -p_right[3] / p_right[0]
+    right_in_left = np.linalg.inv(pose['left']) @ pose['right']
+    offset = right_in_left[:3, 3]
+    if abs(np.linalg.norm(offset) - baseline) > BASELINE_TOLERANCE_M:
+        raise CalibrationError(
+            f"{src}: the tree puts '{frames['right']}' {np.linalg.norm(offset):.4f} m from "
+            f"'{frames['left']}', {RIGHT_INFO}'s P a baseline of {baseline:.4f} m")
+    if offset[0] <= 0 or np.hypot(offset[1], offset[2]) > 0.1 * baseline:
+        warnings.append(f"'{frames['right']}' is not on the +x axis of '{frames['left']}' "
+                        f'({np.round(offset, 4).tolist()} m): the CameraInfo must describe '
+                        'the rectified pair, whose frames are the rectified cameras\'')
+    fx, fy, cx, cy = p_left[0], p_left[5], p_left[2], p_left[6]
+    axis = pose['left'][:3, 2]
+    params: dict[str, Any] = {
+        'base_frame': base_frame,
+        'left_camera_frame': frames['left'],
+        'right_camera_frame': frames['right'],
+        'base_to_left_camera': _pose_list(pose['left']),
+        'base_to_right_camera': _pose_list(pose['right']),
+    }
+    if frames.get('imu'):
+        params['imu_frame'] = frames['imu']
+        params['base_to_imu'] = _pose_list(
+            frame_transform(cal.transforms, base_frame, frames['imu'], src))
+    else:
+        warnings.append(f'no {IMU} frame: base_to_imu left out (the IMU taken as aligned '
+                        f'with {base_frame})')
+    params.update({
+        'baseline_m': round(float(baseline), 6),
+        'camera_height_m': round(float(pose['left'][2, 3]), 6),
+        'camera_tilt_deg': round(float(np.degrees(np.arcsin(-np.clip(axis[2], -1, 1)))), 4),
+        'image_width': int(cal.left_info.width), 'image_height': int(cal.left_info.height),
+        'fx': float(fx), 'fy': float(fy), 'cx': float(cx), 'cy': float(cy),
+    })
+    stamps = np.unique(cal.imu_stamps_ns)
+    if len(stamps) >= 10:
+        params['imu_rate_hz'] = round(float(1e9 / np.median(np.diff(stamps))), 3)
+    else:
+        warnings.append(f'{IMU}: {len(stamps)} samples: imu_rate_hz left out '
+                        '(rover_vo assumes 50 Hz)')
+    params.update(IMU_DEFAULTS)
+    warnings.append('gyro_noise_density, gyro_bias_random_walk and gravity are rover_vo\'s '
+                    'defaults, not this IMU\'s: set them from its datasheet and the site')
+    return params, warnings
+
+
+HEADER = """\
+# Rover extrinsics and sensor constants for this bag, as ROS 2 node parameters
+# (use with --ros-args --params-file rover.yaml). Written by `globloc rover-yaml` from
+# {source}: the frames of /tf_static, the sensors' header.frame_id, the CameraInfo and
+# the IMU's stamps (rover_bringup.extrinsics). Same layout as the simulator's rover.yaml.
+# base_to_*: pose of a sensor frame in the base frame as [x, y, z, qx, qy, qz, qw]
+#   (metres; quaternion rotates sensor-frame vectors into the base frame).
+{notes}"""
+
+
+def rover_yaml_text(params: dict, warnings: list[str], source: str) -> str:
+    """The text of ``rover.yaml``: a header naming the source, the warnings as comments,
+    and the parameters under ``/**: ros__parameters``."""
+    import yaml
+
+    notes = ''.join(f'# NOTE: {w}\n' for w in warnings)
+    body = yaml.safe_dump({'/**': {'ros__parameters': params}}, sort_keys=False,
+                          default_flow_style=None, width=100)
+    return HEADER.format(source=source, notes=notes) + body
+
+
+def write_rover_yaml(bag: str | Path, out: str | Path | None = None,
+                     base_frame: str = 'base_link', frames: dict[str, str] | None = None,
+                     force: bool = False) -> tuple[Path, list[str]]:
+    """Write a bag directory's ``rover.yaml`` (default ``BAG/rover.yaml``) from what the bag
+    records; returns the file and the warnings.
+
+    Raises:
+        CalibrationError: the bag lacks or contradicts what the file needs, or the file
+            exists and ``force`` is not given (it is never overwritten silently).
+    """
+    from rover_bringup.bag import locate_bag
+
+    location = locate_bag(bag)
+    path = Path(out) if out is not None else location.root / 'rover.yaml'
+    if path.exists() and not force:
+        raise CalibrationError(f'{path} exists: not overwritten (give --force, or --out)')
+    params, warnings = rover_parameters(bag_calibration(location.rosbag), base_frame, frames)
+    tmp = path.with_name(path.name + '.tmp')
+    tmp.write_text(rover_yaml_text(params, warnings, str(location.rosbag)))
+    tmp.replace(path)
+    return path, warnings

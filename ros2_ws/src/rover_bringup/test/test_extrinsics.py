@@ -1,0 +1,213 @@
+"""``globloc rover-yaml``: a field bag's rover.yaml from its /tf_static, CameraInfo and IMU.
+
+The bags here are written at test time: a rover whose cameras hang off a mast and a
+pan-tilt head (five frames between base_link and each optical frame), recorded as
+robot_state_publisher latches them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+from scipy.spatial.transform import Rotation
+
+from rover_bringup.cli import main
+from rover_bringup.extrinsics import (
+    CalibrationError,
+    bag_calibration,
+    frame_transform,
+    rover_parameters,
+)
+
+FX, BASELINE, TILT_DEG, PAN_DEG = 457.0, 0.2, 20.0, 10.0
+#: optical frame in its camera link (x forward, y left, z up -> z forward, x right, y down)
+OPTICAL = Rotation.from_matrix([[0, 0, 1], [-1, 0, 0], [0, -1, 0]])
+
+
+def _tree() -> list[tuple[str, str, list[float], Rotation]]:
+    """(parent, child, translation, rotation) of the rover's static frames."""
+    return [
+        ('base_link', 'mast', [0.4, 0.0, 0.9], Rotation.identity()),
+        ('mast', 'pan', [0.0, 0.0, 0.5], Rotation.from_euler('z', PAN_DEG, degrees=True)),
+        ('pan', 'tilt', [0.0, 0.0, 0.14], Rotation.from_euler('y', TILT_DEG, degrees=True)),
+        ('tilt', 'left_camera_link', [0.0, BASELINE / 2, 0.0], Rotation.identity()),
+        ('tilt', 'right_camera_link', [0.0, -BASELINE / 2, 0.0], Rotation.identity()),
+        ('left_camera_link', 'left_camera_optical', [0.0, 0.0, 0.0], OPTICAL),
+        ('right_camera_link', 'right_camera_optical', [0.0, 0.0, 0.0], OPTICAL),
+        ('base_link', 'imu_link', [0.1, 0.0, 0.3], Rotation.from_euler('x', 180, degrees=True)),
+    ]
+
+
+def _expected(child: str) -> np.ndarray:
+    """``child`` in base_link, composed by hand along :func:`_tree`."""
+    parent_of = {c: (p, t, r) for p, c, t, r in _tree()}
+    out = np.eye(4)
+    while child != 'base_link':
+        parent, t, r = parent_of[child]
+        step = np.eye(4)
+        step[:3, :3], step[:3, 3] = r.as_matrix(), t
+        out = step @ out
+        child = parent
+    return out
+
+
+def write_field_bag(path, tree=True, camera_frame='left_camera_optical', imu=True,
+                    baseline=BASELINE, imu_hz=200.0):
+    """A bag directory ``path`` (rosbag/ only) recording a field rover's calibration."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    T = store.types
+    stamp = lambda ns: T['builtin_interfaces/msg/Time'](sec=ns // 10**9, nanosec=ns % 10**9)  # noqa: E731
+    header = lambda ns, frame: T['std_msgs/msg/Header'](stamp=stamp(ns), frame_id=frame)  # noqa: E731
+    path.mkdir(parents=True)
+    with Writer(path / 'rosbag', version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        def conn(topic, msgtype):
+            return writer.add_connection(topic, msgtype, typestore=store)
+
+        if tree:
+            tfs = []
+            for parent, child, t, r in _tree():
+                q = r.as_quat()
+                tfs.append(T['geometry_msgs/msg/TransformStamped'](
+                    header=header(0, parent), child_frame_id=child,
+                    transform=T['geometry_msgs/msg/Transform'](
+                        translation=T['geometry_msgs/msg/Vector3'](x=t[0], y=t[1], z=t[2]),
+                        rotation=T['geometry_msgs/msg/Quaternion'](x=q[0], y=q[1], z=q[2],
+                                                                   w=q[3]))))
+            msg = T['tf2_msgs/msg/TFMessage'](transforms=tfs)
+            writer.write(conn('/tf_static', 'tf2_msgs/msg/TFMessage'), 0,
+                         store.serialize_cdr(msg, 'tf2_msgs/msg/TFMessage'))
+        for side in ('left', 'right'):
+            frame = camera_frame if side == 'left' else 'right_camera_optical'
+            tx = 0.0 if side == 'left' else -FX * baseline
+            info = T['sensor_msgs/msg/CameraInfo'](
+                header=header(1, frame), height=480, width=640, distortion_model='plumb_bob',
+                d=np.zeros(5), k=np.array([FX, 0, 319.5, 0, FX, 239.5, 0, 0, 1.0]),
+                r=np.eye(3).ravel(), p=np.array([FX, 0, 319.5, tx, 0, FX, 239.5, 0, 0, 0, 1, 0]),
+                binning_x=0, binning_y=0,
+                roi=T['sensor_msgs/msg/RegionOfInterest'](x_offset=0, y_offset=0, height=0,
+                                                          width=0, do_rectify=False))
+            writer.write(conn(f'/stereo/{side}/camera_info', 'sensor_msgs/msg/CameraInfo'), 1,
+                         store.serialize_cdr(info, 'sensor_msgs/msg/CameraInfo'))
+        if imu:
+            c = conn('/imu/data', 'sensor_msgs/msg/Imu')
+            v3 = T['geometry_msgs/msg/Vector3'](x=0.0, y=0.0, z=0.0)
+            for k in range(200):
+                ns = 10**9 + round(k * 1e9 / imu_hz)
+                m = T['sensor_msgs/msg/Imu'](
+                    header=header(ns, 'imu_link'),
+                    orientation=T['geometry_msgs/msg/Quaternion'](x=0.0, y=0.0, z=0.0, w=1.0),
+                    orientation_covariance=np.zeros(9), angular_velocity=v3,
+                    angular_velocity_covariance=np.zeros(9), linear_acceleration=v3,
+                    linear_acceleration_covariance=np.zeros(9))
+                writer.write(c, ns, store.serialize_cdr(m, 'sensor_msgs/msg/Imu'))
+    return path
+
+
+def test_tree_composed_to_the_parameters_the_nodes_read(tmp_path):
+    bag = write_field_bag(tmp_path / 'field')
+    params, warnings = rover_parameters(bag_calibration(bag / 'rosbag'))
+    for key, frame in (('base_to_left_camera', 'left_camera_optical'),
+                       ('base_to_right_camera', 'right_camera_optical'),
+                       ('base_to_imu', 'imu_link')):
+        got = np.asarray(params[key])
+        want = _expected(frame)
+        np.testing.assert_allclose(got[:3], want[:3, 3], atol=1e-9)
+        np.testing.assert_allclose(Rotation.from_quat(got[3:]).as_matrix(), want[:3, :3],
+                                   atol=1e-8)
+    assert params['baseline_m'] == pytest.approx(BASELINE)
+    assert params['camera_tilt_deg'] == pytest.approx(TILT_DEG, abs=1e-6)
+    assert params['camera_height_m'] == pytest.approx(1.54)
+    assert params['imu_rate_hz'] == pytest.approx(200.0)
+    assert (params['fx'], params['cx'], params['image_width']) == (FX, 319.5, 640)
+    assert any('datasheet' in w for w in warnings)
+    # The vo's rig reads the file the CLI writes.
+    from rover_vo.rig import pose_matrix
+
+    assert main(['rover-yaml', str(bag)]) == 0
+    text = (bag / 'rover.yaml').read_text()
+    assert text.startswith('# Rover extrinsics') and '# NOTE: ' in text
+    written = yaml.safe_load(text)['/**']['ros__parameters']
+    np.testing.assert_allclose(pose_matrix(written['base_to_left_camera'], 'x'),
+                               _expected('left_camera_optical'), atol=1e-8)
+    # Never overwritten without --force.
+    assert main(['rover-yaml', str(bag)]) == 1
+    assert (bag / 'rover.yaml').read_text() == text
+    assert main(['rover-yaml', str(bag), '--force']) == 0
+
+
+def test_what_the_bag_lacks_or_contradicts_is_named(tmp_path, capsys):
+    with pytest.raises(CalibrationError, match='no /tf_static transforms'):
+        rover_parameters(bag_calibration(write_field_bag(tmp_path / 'a', tree=False)
+                                         / 'rosbag'))
+    # A camera frame that is the link (x forward), not its optical child.
+    cal = bag_calibration(write_field_bag(tmp_path / 'b', camera_frame='left_camera_link')
+                          / 'rosbag')
+    with pytest.raises(CalibrationError, match=r"'left_camera_link' .* not an optical frame"):
+        rover_parameters(cal)
+    params, _ = rover_parameters(cal, frames={'left': 'left_camera_optical'})  # --left-frame
+    assert params['left_camera_frame'] == 'left_camera_optical'
+    with pytest.raises(CalibrationError, match="from frame 'chassis' to frame"):
+        rover_parameters(cal, base_frame='chassis')
+    # The tree's baseline and the CameraInfo's disagree.
+    cal = bag_calibration(write_field_bag(tmp_path / 'c', baseline=0.25) / 'rosbag')
+    with pytest.raises(CalibrationError, match=r'baseline of 0\.2500 m'):
+        rover_parameters(cal)
+    # No IMU: the file is still written, without base_to_imu, and says so.
+    params, warnings = rover_parameters(bag_calibration(write_field_bag(tmp_path / 'd',
+                                                                        imu=False) / 'rosbag'))
+    assert 'base_to_imu' not in params and any('no /imu/data frame' in w for w in warnings)
+    assert main(['rover-yaml', str(tmp_path / 'a')]) == 1
+    assert 'no /tf_static transforms' in capsys.readouterr().err
+
+
+def test_frame_transform_inverts_edges_and_names_the_frames():
+    a_T_b = np.eye(4)
+    a_T_b[:3, 3] = [1, 2, 3]
+    transforms = {('a', 'b'): a_T_b}
+    np.testing.assert_allclose(frame_transform(transforms, 'b', 'a', 'x'), np.linalg.inv(a_T_b))
+    with pytest.raises(CalibrationError, match=r"x: /tf_static joins no chain .*frames: a, b"):
+        frame_transform(transforms, 'a', 'c', 'x')
+
+
+def test_run_warns_of_a_missing_rover_yaml_and_names_the_command(tmp_path, capsys):
+    from rover_bringup.run import RunOptions, _prepare
+
+    bag = write_field_bag(tmp_path / 'field')
+    _prepare(RunOptions(bag=bag))
+    err = capsys.readouterr().err
+    assert f'{bag / "rover.yaml"} not found' in err
+    assert f'globloc rover-yaml {bag}' in err
+    assert main(['rover-yaml', str(bag)]) == 0
+    capsys.readouterr()
+    _prepare(RunOptions(bag=bag))
+    assert 'rover.yaml' not in capsys.readouterr().err
+
+
+def test_the_simulators_rover_yaml_comes_back_from_its_tf_static(tmp_path):
+    """A simulator bag dressed as a field bag (roi_network.testing.write_tf_static_copy:
+    its rover.yaml's frames as /tf_static, no rover.yaml) gets its extrinsics back."""
+    from atacama_sim.camera import StereoRig
+    from atacama_sim.config import make_config
+    from atacama_sim.truth import rover_params, write_rover_yaml
+    from roi_network.testing import write_tf_static_copy
+
+    cfg = make_config('tiny', 7)
+    rig = StereoRig.from_config(cfg.camera)
+    sim = write_field_bag(tmp_path / 'sim', tree=False, baseline=cfg.camera.baseline_m,
+                          imu_hz=rover_params(rig, cfg)['/**']['ros__parameters']['imu_rate_hz'])
+    write_rover_yaml(sim / 'rover.yaml', rig, cfg)
+    field = write_tf_static_copy(sim, tmp_path / 'field')
+    assert not (field / 'rover.yaml').exists()
+    assert main(['rover-yaml', str(field)]) == 0
+    load = lambda p: yaml.safe_load(p.read_text())['/**']['ros__parameters']  # noqa: E731
+    want, got = load(sim / 'rover.yaml'), load(field / 'rover.yaml')
+    for key in ('base_to_left_camera', 'base_to_right_camera', 'base_to_imu'):
+        np.testing.assert_allclose(got[key][:3], want[key][:3], atol=1e-9)
+        rot = Rotation.from_quat(got[key][3:]) * Rotation.from_quat(want[key][3:]).inv()
+        assert rot.magnitude() < 1e-8, key
+    for key in ('baseline_m', 'camera_height_m', 'camera_tilt_deg', 'imu_rate_hz'):
+        assert got[key] == pytest.approx(want[key], abs=1e-6), key
