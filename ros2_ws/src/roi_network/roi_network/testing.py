@@ -11,11 +11,40 @@ a test can check that the pipeline reads them alike.
 from __future__ import annotations
 
 import shutil
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from roi_network import images
+
+
+@contextmanager
+def _copying(bag_dir: Path, out_dir: Path, leave_out: tuple[str, ...] = ()):
+    """Open a copy of bag directory ``bag_dir`` at ``out_dir``: its side files copied
+    (but ``leave_out``), and ``(typestore, reader, writer)`` of its rosbag2 given."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    out_dir.mkdir(parents=True)
+    for item in bag_dir.iterdir():
+        if item.name != "rosbag" and item.name not in leave_out:
+            copy = shutil.copytree if item.is_dir() else shutil.copy2
+            copy(item, out_dir / item.name)
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with AnyReader([bag_dir / "rosbag"], default_typestore=store) as reader, \
+            Writer(out_dir / "rosbag", version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        yield store, reader, writer
+
+
+def _mirror(store, reader, writer) -> dict:
+    """Each of the reader's connections added to the writer as recorded (topic, type,
+    offered QoS): reader connection id -> writer connection."""
+    return {c.id: writer.add_connection(
+        c.topic, c.msgtype, typestore=store,
+        offered_qos_profiles=getattr(c.ext, "offered_qos_profiles", []))
+        for c in reader.connections}
 
 
 def write_raw_image_copy(bag_dir: str | Path, out_dir: str | Path,
@@ -36,22 +65,11 @@ def write_raw_image_copy(bag_dir: str | Path, out_dir: str | Path,
     Returns:
         ``out_dir``.
     """
-    from rosbags.highlevel import AnyReader
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
-
     bag_dir, out_dir = Path(bag_dir), Path(out_dir)
-    out_dir.mkdir(parents=True)
-    for item in bag_dir.iterdir():
-        if item.name != "rosbag":
-            copy = shutil.copytree if item.is_dir() else shutil.copy2
-            copy(item, out_dir / item.name)
-    store = get_typestore(Stores.ROS2_JAZZY)
     raw_topic = {c: r for c, r in zip(images.STEREO_TOPICS[images.COMPRESSED],
                                       images.STEREO_TOPICS[images.RAW], strict=True)}
     image_type = images.MSGTYPES[images.RAW]
-    with AnyReader([bag_dir / "rosbag"], default_typestore=store) as reader, \
-            Writer(out_dir / "rosbag", version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+    with _copying(bag_dir, out_dir) as (store, reader, writer):
         out, raw_out = {}, {}
         for conn in reader.connections:
             qos = getattr(conn.ext, "offered_qos_profiles", [])
@@ -132,25 +150,10 @@ def write_stamp_offset_copy(bag_dir: str | Path, out_dir: str | Path,
     Returns:
         ``out_dir``.
     """
-    from rosbags.highlevel import AnyReader
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    bag_dir, out_dir = Path(bag_dir), Path(out_dir)
-    out_dir.mkdir(parents=True)
-    for item in bag_dir.iterdir():
-        if item.name != "rosbag":
-            copy = shutil.copytree if item.is_dir() else shutil.copy2
-            copy(item, out_dir / item.name)
-    store = get_typestore(Stores.ROS2_JAZZY)
     rng = np.random.default_rng(seed)
     right = {topic for topic in images.IMAGE_TOPICS if images.side_of(topic) == "right"}
-    with AnyReader([bag_dir / "rosbag"], default_typestore=store) as reader, \
-            Writer(out_dir / "rosbag", version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        out = {c.id: writer.add_connection(
-            c.topic, c.msgtype, typestore=store,
-            offered_qos_profiles=getattr(c.ext, "offered_qos_profiles", []))
-            for c in reader.connections}
+    with _copying(Path(bag_dir), Path(out_dir)) as (store, reader, writer):
+        out = _mirror(store, reader, writer)
         for conn, t_ns, data in reader.messages():
             if conn.topic in right:
                 msg = reader.deserialize(data, conn.msgtype)
@@ -159,7 +162,7 @@ def write_stamp_offset_copy(bag_dir: str | Path, out_dir: str | Path,
                 msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
                 data = store.serialize_cdr(msg, conn.msgtype)
             writer.write(out[conn.id], t_ns, data)
-    return out_dir
+    return Path(out_dir)
 
 
 def write_tf_static_copy(bag_dir: str | Path, out_dir: str | Path) -> Path:
@@ -173,37 +176,18 @@ def write_tf_static_copy(bag_dir: str | Path, out_dir: str | Path) -> Path:
         ``out_dir``.
     """
     import yaml
-    from rosbags.highlevel import AnyReader
-    from rosbags.interfaces import (
-        Qos,
-        QosDurability,
-        QosHistory,
-        QosLiveliness,
-        QosReliability,
-        QosTime,
-    )
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness
+    from rosbags.interfaces import QosReliability as Rel
+    from rosbags.interfaces import QosTime as Time
 
-    bag_dir, out_dir = Path(bag_dir), Path(out_dir)
+    bag_dir = Path(bag_dir)
     doc = yaml.safe_load((bag_dir / "rover.yaml").read_text())
     params = next(v["ros__parameters"] for v in doc.values() if "ros__parameters" in v)
-    out_dir.mkdir(parents=True)
-    for item in bag_dir.iterdir():
-        if item.name not in ("rosbag", "rover.yaml"):
-            copy = shutil.copytree if item.is_dir() else shutil.copy2
-            copy(item, out_dir / item.name)
-    store = get_typestore(Stores.ROS2_JAZZY)
-    T = store.types
-    latched = Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE,
-                  QosDurability.TRANSIENT_LOCAL, QosTime(0, 0), QosTime(0, 0),
-                  QosLiveliness.AUTOMATIC, QosTime(0, 0), False)
-    with AnyReader([bag_dir / "rosbag"], default_typestore=store) as reader, \
-            Writer(out_dir / "rosbag", version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        out = {c.id: writer.add_connection(
-            c.topic, c.msgtype, typestore=store,
-            offered_qos_profiles=getattr(c.ext, "offered_qos_profiles", []))
-            for c in reader.connections}
+    latched = Qos(QosHistory.KEEP_LAST, 1, Rel.RELIABLE, QosDurability.TRANSIENT_LOCAL,
+                  Time(0, 0), Time(0, 0), QosLiveliness.AUTOMATIC, Time(0, 0), False)
+    with _copying(bag_dir, Path(out_dir), ("rover.yaml",)) as (store, reader, writer):
+        T = store.types
+        out = _mirror(store, reader, writer)
         start = reader.start_time
         stamp = T["builtin_interfaces/msg/Time"](sec=start // 10**9, nanosec=start % 10**9)
         transforms = []
@@ -223,4 +207,4 @@ def write_tf_static_copy(bag_dir: str | Path, out_dir: str | Path) -> Path:
         writer.write(tf, start, store.serialize_cdr(T[msgtype](transforms=transforms), msgtype))
         for conn, t_ns, data in reader.messages():
             writer.write(out[conn.id], t_ns, data)
-    return out_dir
+    return Path(out_dir)
