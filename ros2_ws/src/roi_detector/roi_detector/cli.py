@@ -29,6 +29,7 @@ from roi_detector.far_rocks import FAR_KINDS, FAR_POPULATIONS, FarRockConfig
 from roi_detector.inputs import (
     POSE_COVARIANCE_FILE,
     BadInput,
+    PairSpacing,
     load_rover_params,
     read_pose_covariance,
     read_stereo_frames,
@@ -117,7 +118,8 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
              every: int = 1, drift_frac: float = 0.01, log=print, trace=None,
              mapper: DriveMapper | None = None, describe: bool = False,
              odometry_cov: str | Path | None = None, rectify: bool = True,
-             sync_tolerance_s: float = images.SYNC_TOLERANCE_S) -> tuple:
+             sync_tolerance_s: float = images.SYNC_TOLERANCE_S,
+             spacing: PairSpacing | None = None) -> tuple:
     """Run detection, tracking and the LN over a bag with an odometry file.
 
     ``odometry_cov``: the odometry's pose covariance file (a row per odometry stamp,
@@ -134,6 +136,8 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
     ``rectify``: rectify images whose CameraInfo has a distortion
     (:class:`~roi_detector.inputs.FrameMaker`); False reads them all as rectified.
     ``sync_tolerance_s``: most difference between a stereo pair's two stamps, seconds.
+    ``spacing``: which pairs are read, by the odometry at their stamps (default
+    :class:`~roi_detector.inputs.PairSpacing`'s, as the node's).
 
     Returns (LocalNetwork, stats dict).
     """
@@ -151,9 +155,15 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
     n_pairs = n_dets = 0
     t_detect = 0.0
     last = None
+    spacing = spacing if spacing is not None else PairSpacing()
+
+    def keep(stamp_ns: int) -> bool:
+        pose = track.at(stamp_ns * 1e-9)
+        return pose is None or spacing.keep(stamp_ns * 1e-9, pose)  # a gap: counted below
+
     for frame in read_stereo_frames(bag_dir, bad, every=every, rectify=rectify,
                                     log=lambda m: log(f"roi_detector: {m}"),
-                                    sync_tolerance_s=sync_tolerance_s):
+                                    sync_tolerance_s=sync_tolerance_s, keep=keep):
         n_pairs += 1
         t0 = time.perf_counter()
         obs = detector.observe(frame)
@@ -170,7 +180,8 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
     if n_pairs and last is not None:
         mapper.finish(*last)
         mapper.update_ln()
-    stats = {"pairs": n_pairs, "detections": n_dets, "tracks": mapper.n_tracks,
+    stats = {"pairs": n_pairs, "pairs_spaced_out": spacing.skipped, "detections": n_dets,
+             "tracks": mapper.n_tracks,
              "ln_nodes": len(mapper.ln), "bad_input": dict(bad.counts),
              "detect_s_per_pair": t_detect / max(n_pairs, 1)}
     return mapper.ln, stats
@@ -191,14 +202,18 @@ def _cmd_ln(args) -> int:
     cov_file = odometry_covariance_file(args.odometry, args.covariance)
     ln, stats = build_ln(args.bag, args.odometry, args.model, cfg, args.every, args.drift,
                          odometry_cov=cov_file, rectify=not args.no_rectify,
-                         sync_tolerance_s=args.stereo_sync_tolerance)
+                         sync_tolerance_s=args.stereo_sync_tolerance,
+                         spacing=PairSpacing(min_travel_m=args.min_pair_travel))
     meta = {"source_bag": str(Path(args.bag).resolve()), "odometry": str(args.odometry),
             "odometry_covariance": str(cov_file) if cov_file is not None
             else f"{args.drift:g} of the distance travelled, 1 sigma (--drift)",
             "model": args.model or str(_installed_model()), **stats}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     ln.save(args.out, meta)
-    print(f"roi_detector ln: {stats['pairs']} stereo pairs, {stats['detections']} detections, "
+    spaced = (f" ({stats['pairs_spaced_out']} more not read: under --min-pair-travel "
+              f"{args.min_pair_travel:g} m from the last)" if stats["pairs_spaced_out"] else "")
+    print(f"roi_detector ln: {stats['pairs']} stereo pairs{spaced}, "
+          f"{stats['detections']} detections, "
           f"{stats['tracks']} tracks -> {len(ln)} LN nodes in {args.out} "
           f"({stats['detect_s_per_pair']:.3f} s/pair detection); node covariance from "
           f"{meta['odometry_covariance']}")
@@ -314,6 +329,12 @@ def main(argv: list[str] | None = None) -> int:
                    metavar="S", help="left and right images whose stamps differ by at most "
                    "this many seconds are one pair (default %(default)g; 0: exact stamps; "
                    "the node's parameter stereo_sync_tolerance_s)")
+    p.add_argument("--min-pair-travel", type=float, default=PairSpacing().min_travel_m,
+                   metavar="M", help="read a stereo pair once the rover moved this far since "
+                   f"the last read (or turned {PairSpacing().min_turn_deg:g} deg, or "
+                   f"{PairSpacing().max_interval_s:g} s passed): a field camera's stream "
+                   "thinned to the spacing the detector is set at (default %(default)g; 0: "
+                   "every pair; the node's parameter min_pair_travel_m)")
     p.add_argument("--covariance", default=None, metavar="FILE",
                    help="the odometry's pose covariance (t and 36 numbers per odometry stamp, "
                    f"as rover_vo writes it; default: {POSE_COVARIANCE_FILE} beside the "

@@ -28,7 +28,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
 from roi_detector.elevation_map import DEFAULT_OUTCROP_RULE, OUTCROP_RULES, outcrop_rule
 from roi_detector.far_rocks import FAR_POPULATIONS, FarRockConfig
-from roi_detector.inputs import BadInput, FrameMaker, OdometryBuffer
+from roi_detector.inputs import BadInput, FrameMaker, OdometryBuffer, PairSpacing
 from roi_detector.rover_pipeline import (
     METHODS,
     DriveMapper,
@@ -136,6 +136,18 @@ class RoiDetectorNode(Node):
             d(description="rectify images whose CameraInfo has distortion (D) or a "
               "rectifying rotation (R) to its P, as image_proc does; false: read every "
               "image as rectified (DESIGN.md's are)")).value
+        spacing = PairSpacing()
+        travel = self.declare_parameter(
+            "min_pair_travel_m", spacing.min_travel_m,
+            d(description="read a stereo pair once the odometry moved this far since the last "
+              "read (a field camera's stream thinned to the spacing the detector is set at; "
+              "0: every pair)")).value
+        turn = self.declare_parameter(
+            "min_pair_turn_deg", spacing.min_turn_deg,
+            d(description="... or turned this much")).value
+        interval = self.declare_parameter(
+            "max_pair_interval_s", spacing.max_interval_s,
+            d(description="... or this long passed (a stopped rover)")).value
         sync_tolerance = self.declare_parameter(
             "stereo_sync_tolerance_s", images.SYNC_TOLERANCE_S,
             d(description=images.SYNC_PARAMETER_HELP)).value
@@ -166,11 +178,17 @@ class RoiDetectorNode(Node):
         self.mapper = DriveMapper(cfg, classifier=classifier)
         self.odometry = OdometryBuffer(self.max_gap_s)
         try:
+            self.spacing = PairSpacing(float(travel), float(turn), float(interval))
+        except ValueError as e:
+            raise ValueError(f"parameters min_pair_travel_m, min_pair_turn_deg, "
+                             f"max_pair_interval_s: {e}") from None
+        try:
             self.halves = images.StereoHalves(float(sync_tolerance),
                                               "parameter stereo_sync_tolerance_s")
         except (TypeError, ValueError) as e:
             raise ValueError(str(e)) from None
-        self.waiting: list = []  # (stamp s, header stamp, PairObservation) awaiting odometry
+        # Pairs awaiting their odometry pose: (stamp s, header stamp, stamp ns, left, right).
+        self.waiting: list = []
         self.frames = FrameMaker(self.bad, bool(rectify), self.get_logger().info)
         self.n_pairs = 0
         self.id_base = session_id_base(time.time())
@@ -210,24 +228,24 @@ class RoiDetectorNode(Node):
             return
         for stamp in self.halves.complete():
             pair = self.halves.pop(stamp)
-            self.process_pair(stamp, pair["left"], pair["right"])
+            left = pair["left"]
+            self.waiting.append((_stamp_s(left.header.stamp), left.header.stamp, stamp, left,
+                                 pair["right"]))
+        self._track_waiting()
 
-    def process_pair(self, stamp: int, left_msg, right_msg) -> None:
-        """Detect, publish detections, track when the odometry pose is known."""
+    def observe(self, stamp: int, left_msg, right_msg):
+        """The pair's observation (detections or stereo points); None (counted) when it
+        cannot be decoded or measured."""
         frame = self.frames.frame(stamp, left_msg, right_msg)
         if frame is None:  # undecodable, or a CameraInfo it cannot rectify with
-            self.publish_status(left_msg.header.stamp)  # the skip shows at once
-            return
+            return None
         try:
             obs = self.detector.observe(frame)
         except ValueError as exc:  # inconsistent CameraInfo: named field
             self.bad("bad camera_info", str(exc))
-            self.publish_status(left_msg.header.stamp)
-            return
+            return None
         self.n_pairs += 1
-        self.waiting.append((_stamp_s(left_msg.header.stamp), left_msg.header.stamp, obs))
-        self._track_waiting()
-        self.publish_status(left_msg.header.stamp)
+        return obs
 
     def on_odometry(self, msg: Odometry) -> None:
         """Buffer the odometry pose and x-y covariance; resolve waiting detections."""
@@ -241,18 +259,25 @@ class RoiDetectorNode(Node):
                                     [q.x, q.y, q.z, q.w], cov):
             self.bad("odometry out of order", "a /vo/odometry stamp went backwards")
             return
-        gaps = self.bad.counts.get("odometry gap", 0)
         self._track_waiting()
-        if self.bad.counts.get("odometry gap", 0) != gaps:
-            self.publish_status(msg.header.stamp)
 
     def _track_waiting(self) -> None:
+        """Pairs whose odometry pose has come: read those the spacing keeps (detect, map,
+        publish); a pair whose pose does not come within odometry_wait_s is counted."""
         latest = self.odometry.latest_t
         keep = []
-        changed = None
-        for t, header_stamp, obs in self.waiting:
+        changed = tracks = None
+        status = None
+        for item in self.waiting:
+            t, header_stamp, stamp, left_msg, right_msg = item
             pose = self.odometry.at(t)
             if pose is not None:
+                status = header_stamp
+                if not self.spacing.keep(t, pose):
+                    continue
+                obs = self.observe(stamp, left_msg, right_msg)
+                if obs is None:
+                    continue
                 tracks = self.mapper.add_pair(obs, t, pose, self.detector.camera)
                 seen = obs.records if obs.records is not None else records_in_view(
                     tracks, pose, self.detector.camera, self.mapper.cfg.elevation_map.max_range_m)
@@ -261,14 +286,18 @@ class RoiDetectorNode(Node):
                 changed = t
             elif latest is not None and latest > t + self.odometry_wait_s:
                 self.bad("odometry gap", f"no odometry pose at {t:.3f} s")
+                status = header_stamp
             elif latest is None and self.waiting[-1][0] > t + self.odometry_wait_s:
                 self.bad("odometry gap", f"no odometry at all by {self.waiting[-1][0]:.3f} s")
+                status = header_stamp
             else:
-                keep.append((t, header_stamp, obs))
+                keep.append(item)
         self.waiting = keep
         if changed is not None:
             stamp = round(changed * 1e9)
             self.track_pub.publish(to_pointcloud2(self._session_ids(tracks), "odom", stamp=stamp))
+        if status is not None:
+            self.publish_status(status)
 
     def _session_ids(self, records: np.ndarray) -> np.ndarray:
         """The records with this start's id offset added (``session_id_base``)."""
@@ -285,6 +314,7 @@ class RoiDetectorNode(Node):
                   "confirmed": int((self.mapper.current_tracks()["n_obs"]
                                     >= self.mapper.cfg.ln.min_obs).sum()),
                   "waiting_for_odometry": len(self.waiting),
+                  "pairs_spaced_out": self.spacing.skipped,
                   "stereo_sync_max_offset_ms": round(self.halves.max_offset_ns * 1e-6, 3), **{
                       f"skipped: {k}": v for k, v in self.bad.counts.items()}}
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]

@@ -145,6 +145,7 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
                        rectify: bool = True,
                        log: Callable[[str], None] = print,
                        sync_tolerance_s: float = images.SYNC_TOLERANCE_S,
+                       keep: Callable[[int], bool] | None = None,
                        ) -> Iterator[StereoFrame]:
     """Stereo pairs of a bag directory (``BAG/rosbag``), paired by header stamp
     (exact, or within ``sync_tolerance_s``: :class:`roi_network.images.StereoHalves`).
@@ -156,6 +157,8 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
         rectify: rectify images whose CameraInfo has distortion (:class:`FrameMaker`).
         log: told once per side when the images are rectified.
         sync_tolerance_s: most difference between a pair's two stamps, seconds.
+        keep: ``keep(stamp_ns)`` decides, before a pair is decoded, whether it is read
+            (:class:`PairSpacing`); None: every pair.
 
     The images are those of the transport the bag carries (compressed, the contract,
     when it carries both; :func:`roi_network.images.bag_transport`).
@@ -206,6 +209,8 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
             if not maker.ready:
                 continue
             for stamp_r, slot_r in ready:
+                if keep is not None and not keep(stamp_r):
+                    continue
                 frame = maker.frame(stamp_r, slot_r["left"], slot_r["right"])
                 if frame is not None:
                     yield frame
@@ -262,6 +267,54 @@ class PoseTrack:
         pos = (1 - w) * self.p[i - 1] + w * self.p[i]
         cov = None if self.cov is None else (1 - w) * self.cov[i - 1] + w * self.cov[i]
         return rot, pos, cov
+
+
+@dataclass
+class PairSpacing:
+    """Which stereo pairs the detector reads: one each ``min_travel_m`` of travel, each
+    ``min_turn_deg`` of heading, and at least each ``max_interval_s`` (a stopped rover).
+
+    The elevation map and its statistics (a cell observed once 3 pairs saw it, a detection
+    round every 3 pairs, one pair's weight capped) were set at the simulator's spacing, a
+    pair each 0.45 m. A field camera streams at 1-15 Hz, a pair every 1-15 cm at rover
+    speed: read as they come, the pairs would outrun the detector (4-6 per second on one
+    core) and DDS would drop the excess uncounted, and every cell would count 10x the
+    views. The decision reads the odometry at the pair's stamp, before the pair is decoded.
+    The defaults keep every pair of the simulator's bags (0.45 m apart while moving, 10 s
+    while stopped, at most 4.3 deg of heading between two at its tightest turn).
+
+    Args:
+        min_travel_m: a pair is read once the rover moved this far since the last read
+            (0: every pair is read).
+        min_turn_deg: ... or turned this much.
+        max_interval_s: ... or this long passed.
+    """
+
+    min_travel_m: float = 0.4
+    min_turn_deg: float = 10.0
+    max_interval_s: float = 5.0
+    last: tuple[float, np.ndarray, np.ndarray] | None = None  # t, R_odom_base, t_odom_base
+    skipped: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("min_travel_m", "min_turn_deg", "max_interval_s"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value < 0:
+                raise ValueError(f"pair spacing: {name} {value}: expected >= 0")
+
+    def keep(self, t: float, pose) -> bool:
+        """Whether the pair at ``t`` (odometry pose ``(R, p, cov)`` there) is read; a read
+        pair becomes the reference of the next decision."""
+        rot, pos = pose[0], pose[1]
+        if self.min_travel_m > 0 and self.last is not None:
+            t0, rot0, pos0 = self.last
+            turn = np.degrees(np.arccos(np.clip((np.trace(rot0.T @ rot) - 1) / 2, -1, 1)))
+            if (np.linalg.norm(pos - pos0) < self.min_travel_m and turn < self.min_turn_deg
+                    and t - t0 < self.max_interval_s):
+                self.skipped += 1
+                return False
+        self.last = (t, rot, pos)
+        return True
 
 
 class OdometryBuffer:

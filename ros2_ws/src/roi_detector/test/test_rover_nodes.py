@@ -268,6 +268,7 @@ def test_roi_detector_and_ln_builder_nodes_on_tiny(tiny_bag, tmp_path):
         status = last_status()
         assert int(status["skipped: undecodable image"]) == 1
         assert int(status["skipped: odometry gap"]) >= 1
+        assert status["pairs_spaced_out"] == "0"  # 0.45 m apart: every pair is read
         assert det.poll() is None and lnb.poll() is None
         # The LN is on disk; a killed ln_builder restarts with it.
         saved = read_geojson(tmp_path / "ln.geojson")

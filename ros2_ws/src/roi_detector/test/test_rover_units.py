@@ -9,6 +9,7 @@ from sensor_msgs.msg import CompressedImage
 
 from roi_detector.inputs import (
     BadInput,
+    PairSpacing,
     PoseTrack,
     decode_image,
     read_pose_covariance,
@@ -219,6 +220,33 @@ def test_bad_input_logged_once_per_kind():
     assert len(lines) == 2
     assert decode_image(CompressedImage(format="jpeg", data=list(b"not a jpeg"))) is None
     assert decode_image(CompressedImage(format="jpeg")) is None
+
+
+def test_pair_spacing_thins_a_dense_stream_and_keeps_a_sparse_one():
+    """A 10 Hz camera at 0.15 m/s gives a pair each 1.5 cm: one in ~27 is read, 0.4-0.42 m
+    apart; the simulator's pairs (0.45 m apart moving, 10 s stopped, 4.3 deg in its
+    tightest turn) are all read; a turn on the spot is read every 10 deg."""
+    def pose(x, yaw_deg=0.0):
+        return Rotation.from_euler("z", yaw_deg, degrees=True).as_matrix(), \
+            np.array([x, 0.0, 0.0]), None
+
+    dense = PairSpacing()
+    kept = [k for k in range(400) if dense.keep(0.1 * k, pose(0.015 * k))]
+    gaps = np.diff(np.asarray(kept) * 0.015)
+    assert len(kept) == 15 and dense.skipped == 385
+    assert np.all((gaps >= 0.4) & (gaps < 0.42))
+    sim = PairSpacing()
+    stamps = [3.0 * k for k in range(20)] + [67.0 + 10 * k for k in range(6)]
+    places = [0.45 * k for k in range(20)] + [0.45 * 19] * 6
+    turns = [4.3 * k for k in range(20)] + [4.3 * 19] * 6
+    assert all(sim.keep(t, pose(x, a)) for t, x, a in zip(stamps, places, turns, strict=True))
+    spin = PairSpacing()
+    turned = [k for k in range(91) if spin.keep(0.1 * k, pose(0.0, 1.0 * k))]
+    assert set(np.diff(turned)) <= {10, 11} and len(turned) >= 9
+    every = PairSpacing(min_travel_m=0.0)
+    assert all(every.keep(0.1 * k, pose(0.0)) for k in range(10))
+    with pytest.raises(ValueError, match="min_travel_m"):
+        PairSpacing(min_travel_m=-1.0)
 
 
 def test_pose_track_interpolates_and_reports_gaps(tmp_path):
