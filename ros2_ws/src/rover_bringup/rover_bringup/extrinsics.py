@@ -131,6 +131,45 @@ def bag_calibration(rosbag: str | Path) -> BagCalibration:
     return cal
 
 
+def stereo_stamp_offsets(rosbag: str | Path, pairs: int = 20) -> list[float]:
+    """How far apart a bag's left and right images are stamped: for each of its first
+    ``pairs`` left images, the distance to the nearest right image's stamp among the first
+    images, seconds, sorted. Empty when the bag has no stereo pair.
+
+    Raises:
+        CalibrationError: naming the bag when it cannot be read.
+    """
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    from roi_network import images
+
+    stamps: dict[str, list[int]] = {'left': [], 'right': []}
+    try:
+        with AnyReader([Path(rosbag)], default_typestore=get_typestore(Stores.ROS2_JAZZY)) \
+                as reader:
+            try:
+                transport = images.bag_transport(
+                    {c.topic: c.msgtype for c in reader.connections}, str(rosbag))
+            except ValueError:
+                return []
+            conns = [c for c in reader.connections
+                     if c.topic in images.STEREO_TOPICS[transport]]
+            for conn, _t, raw in reader.messages(connections=conns):
+                side = images.side_of(conn.topic)
+                if len(stamps[side]) < 2 * pairs:
+                    h = reader.deserialize(raw, conn.msgtype).header.stamp
+                    stamps[side].append(h.sec * 1_000_000_000 + h.nanosec)
+                if len(stamps['left']) >= 2 * pairs and len(stamps['right']) >= 2 * pairs:
+                    break
+    except (OSError, ValueError, KeyError) as exc:
+        raise CalibrationError(f'{rosbag}: cannot read the bag ({exc})') from exc
+    right = np.asarray(stamps['right'], np.int64)
+    if not len(right):
+        return []
+    return sorted(float(np.min(np.abs(right - t))) * 1e-9 for t in stamps['left'][:pairs])
+
+
 def frame_transform(transforms: dict[tuple[str, str], np.ndarray], parent: str,
                     child: str, source: str) -> np.ndarray:
     """``child`` in ``parent`` (4x4: child-frame points to parent-frame points), composed

@@ -22,6 +22,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from rover_bringup.bag import Bag, BagLocation, locate_bag
@@ -186,6 +187,8 @@ def _prepare(options: RunOptions) -> _Plan:
     if readers := sorted({r.spec.name for r in resolved if r.spec.package in SENSOR_READERS}):
         for problem in sensor_problems(bag_topics, str(location.rosbag)):
             _warn(f'{problem} ({", ".join(readers)} will publish nothing)')
+        _check_stereo_sync(location, params,
+                           [(r.spec.name, r.spec.executable) for r in resolved])
         if not (location.root / 'rover.yaml').is_file():
             hint = (f'write it from the bag\'s {TF_STATIC} with `globloc rover-yaml '
                     f'{location.root}`' if TF_STATIC in bag_topics else 'write it by hand '
@@ -193,6 +196,37 @@ def _prepare(options: RunOptions) -> _Plan:
             _warn(f'{location.root / "rover.yaml"} not found: {", ".join(readers)} read the '
                   f'rover\'s extrinsics from it; {hint}')
     return _Plan(location, resolved, params, graph_path, params_path)
+
+
+#: The stereo readers' sync parameters (roi_network.images.StereoHalves), by executable.
+SYNC_PARAMETERS = {'rover_vo': 'features.stereo_sync_tolerance_s',
+                   'roi_detector': 'stereo_sync_tolerance_s'}
+
+
+def _check_stereo_sync(location: BagLocation, params: dict[str, Any],
+                       nodes: list[tuple[str, str | None]]) -> None:
+    """Warn when the bag's left and right images are stamped further apart than a stereo
+    reader's sync tolerance (``nodes``: name and executable of the graph's nodes): that
+    node would pair none of them."""
+    from roi_network.images import SYNC_TOLERANCE_S
+    from rover_bringup.extrinsics import stereo_stamp_offsets
+
+    offsets = stereo_stamp_offsets(location.rosbag)
+    if not offsets:
+        return
+    median = float(np.median(offsets))
+    for node, executable in nodes:
+        key = SYNC_PARAMETERS.get(executable or '')
+        if key is None:
+            continue
+        own = params.get(node, {}).get('ros__parameters', {})
+        shared = params.get('/**', {}).get('ros__parameters', {})
+        tolerance = float(own.get(key, shared.get(key, SYNC_TOLERANCE_S)))
+        if median > tolerance:
+            _warn(f'{location.rosbag}: its left and right images are stamped '
+                  f'{median * 1e3:.1f} ms apart (median of the first {len(offsets)}), beyond '
+                  f'{node}\'s {key} ({tolerance * 1e3:g} ms): it will pair none of them; '
+                  'set the parameter in the params file (--params)')
 
 
 def _write_params(plan: _Plan, run_dir: Path, variables: dict[str, str]) -> list[Path]:

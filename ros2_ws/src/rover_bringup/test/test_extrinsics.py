@@ -53,7 +53,7 @@ def _expected(child: str) -> np.ndarray:
 
 
 def write_field_bag(path, tree=True, camera_frame='left_camera_optical', imu=True,
-                    baseline=BASELINE, imu_hz=200.0):
+                    baseline=BASELINE, imu_hz=200.0, right_late_ms=None):
     """A bag directory ``path`` (rosbag/ only) recording a field rover's calibration."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
@@ -92,6 +92,16 @@ def write_field_bag(path, tree=True, camera_frame='left_camera_optical', imu=Tru
                                                           width=0, do_rectify=False))
             writer.write(conn(f'/stereo/{side}/camera_info', 'sensor_msgs/msg/CameraInfo'), 1,
                          store.serialize_cdr(info, 'sensor_msgs/msg/CameraInfo'))
+        if right_late_ms is not None:  # 10 Hz pairs, their payload no image
+            image = 'sensor_msgs/msg/CompressedImage'
+            sides = {side: conn(f'/stereo/{side}/image_raw/compressed', image)
+                     for side in ('left', 'right')}
+            for k in range(30):
+                for side, late in (('left', 0), ('right', round(right_late_ms * 1e6))):
+                    ns = 10**9 + k * 100_000_000 + late
+                    m = T[image](header=header(ns, f'{side}_camera_optical'), format='jpeg',
+                                 data=np.zeros(4, np.uint8))
+                    writer.write(sides[side], ns, store.serialize_cdr(m, image))
         if imu:
             c = conn('/imu/data', 'sensor_msgs/msg/Imu')
             v3 = T['geometry_msgs/msg/Vector3'](x=0.0, y=0.0, z=0.0)
@@ -211,3 +221,29 @@ def test_the_simulators_rover_yaml_comes_back_from_its_tf_static(tmp_path):
         assert rot.magnitude() < 1e-8, key
     for key in ('baseline_m', 'camera_height_m', 'camera_tilt_deg', 'imu_rate_hz'):
         assert got[key] == pytest.approx(want[key], abs=1e-6), key
+
+
+def test_run_warns_of_cameras_stamped_beyond_the_sync_tolerance(tmp_path, capsys):
+    from rover_bringup.extrinsics import stereo_stamp_offsets
+    from rover_bringup.run import RunOptions, _prepare
+
+    near = write_field_bag(tmp_path / 'near', right_late_ms=3.0)
+    far = write_field_bag(tmp_path / 'far', right_late_ms=14.0)
+    offsets = stereo_stamp_offsets(far / 'rosbag')
+    assert len(offsets) == 20 and offsets[10] == pytest.approx(0.014)
+    for bag in (near, far):
+        main(['rover-yaml', str(bag)])
+    capsys.readouterr()
+    _prepare(RunOptions(bag=near))  # within the 5 ms default
+    assert 'stamped' not in capsys.readouterr().err
+    _prepare(RunOptions(bag=far))
+    err = capsys.readouterr().err
+    for node, key in (('rover_vo', 'features.stereo_sync_tolerance_s'),
+                      ('roi_detector', 'stereo_sync_tolerance_s')):
+        assert f"14.0 ms apart (median of the first 20), beyond {node}'s {key} (5 ms)" in err
+    # A params file raises roi_detector's tolerance: only rover_vo is left to warn of.
+    params = {'roi_detector': {'ros__parameters': {'stereo_sync_tolerance_s': 0.02}}}
+    (tmp_path / 'params.yaml').write_text(yaml.safe_dump(params))
+    _prepare(RunOptions(bag=far, params=tmp_path / 'params.yaml'))
+    err = capsys.readouterr().err
+    assert "rover_vo's" in err and "roi_detector's" not in err
