@@ -204,6 +204,10 @@ def _cmd_ln(args) -> int:
                          odometry_cov=cov_file, rectify=not args.no_rectify,
                          sync_tolerance_s=args.stereo_sync_tolerance,
                          spacing=PairSpacing(min_travel_m=args.min_pair_travel))
+    if not stats["pairs"]:
+        skipped = ", ".join(f"{k} {v}" for k, v in sorted(stats["bad_input"].items()))
+        raise ValueError(f"{args.bag}: no stereo pair read ({skipped or 'no stereo images'}): "
+                         f"{args.out} not written")
     meta = {"source_bag": str(Path(args.bag).resolve()), "odometry": str(args.odometry),
             "odometry_covariance": str(cov_file) if cov_file is not None
             else f"{args.drift:g} of the distance travelled, 1 sigma (--drift)",
