@@ -650,8 +650,16 @@ class VoEstimator:
         self.last_image = left
         tracked_frac = kf.n_alive / max(len(kf.points), 1)
         w = cfg.window
-        if (w.frame_to_frame or tracked_frac < w.keyframe_min_tracked
-                or kf.frames >= w.keyframe_max_frames):
+        if w.frame_to_frame:
+            # The paper's mode: the last frame becomes the reference once it is far enough
+            # from the one before (each pair of a 0.45 m-spaced bag; every few pairs of a
+            # camera that streams), or tracking thins.
+            turn = np.degrees(np.arccos(np.clip((np.trace(kf_R_b) - 1) / 2, -1, 1)))
+            replace = (span >= w.frame_to_frame_min_travel_m or turn >= 5.0
+                       or tracked_frac < w.keyframe_min_tracked)
+        else:
+            replace = tracked_frac < w.keyframe_min_tracked or kf.frames >= w.keyframe_max_frames
+        if replace:
             if iv is not None:
                 # Gyro bias from the vision rotation over the keyframe span (one update per
                 # keyframe: the frames inside a span share their measurements).

@@ -68,6 +68,28 @@ def test_tracks_the_tiny_bag(tiny_bag, tiny_messages, clean_run):
     assert sig[-1] > sig[len(sig) // 3] > sig[1] >= 0.0
 
 
+def test_paper_mode_keeps_a_reference_until_the_rover_moved(tiny_messages, tiny_params,
+                                                            clean_run):
+    """Frame to frame, the last frame replaces the reference once it is
+    frame_to_frame_min_travel_m (0.3 m) from it: each pair of a bag 0.45 m apart (the tiny
+    bag: one keyframe per pair), every few pairs of a denser
+    stream (asked here of 1 m on the tiny bag: fewer keyframes, the same poses within the
+    VO's own error)."""
+    import dataclasses
+
+    from rover_vo.config import VoConfig
+
+    est, outputs, _ = clean_run
+    assert est.counts.keyframes == est.counts.pairs  # (a failed frame starts one too)
+    far = VoConfig(window=dataclasses.replace(VoConfig().window,
+                                              frame_to_frame_min_travel_m=1.0))
+    est1, outputs1, _ = run(tiny_messages, tiny_params, far)
+    assert est1.counts.keyframes < est.counts.keyframes
+    err = max(np.linalg.norm(a.state.p - b.state.p) for a, b in zip(outputs, outputs1,
+                                                                      strict=True))
+    assert err < 0.05 * outputs[-1].state.distance_m, err
+
+
 def _standing_still_stream(messages, n_pairs=5, gyro_bias=(0.003, -0.002, 0.001),
                            yaw_rate=0.0, textureless_after_first=False):
     """Infos, then the same stereo pair every 10 s with 50 Hz IMU samples in between."""
