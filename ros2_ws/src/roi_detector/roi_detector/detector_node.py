@@ -217,10 +217,8 @@ class RoiDetectorNode(Node):
             self.bad("duplicate image", f"{topic}: two images with stamp "
                      f"{stamp * 1e-9:.3f} s: the second dropped")
             return
-        for old in self.halves.older_than(stamp - 2_000_000_000):
-            self.bad("missing pair half", f"stereo pair at {old * 1e-9:.3f} s has one "
-                     f"image{self.halves.lone_detail(old)}")
-            self.halves.pop(old)
+        for line in self.halves.give_up(stamp - 2_000_000_000):
+            self.bad("missing pair half", line)
         self._process_ready()
 
     def _process_ready(self) -> None:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -201,10 +201,8 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
                     if (index - 1) % every == 0:
                         ready.append((key, slot))
                 # A pair half that never comes: older pending stamps are given up.
-                for old in pending.older_than(stamp - 2_000_000_000):
-                    bad("missing pair half", f"stereo pair at {old * 1e-9:.3f} s has one "
-                        f"image{pending.lone_detail(old)}")
-                    pending.pop(old)
+                for line in pending.give_up(stamp - 2_000_000_000):
+                    bad("missing pair half", line)
             # CameraInfo is recorded after the images of its stamp: pairs wait for it.
             if not maker.ready:
                 continue
@@ -215,9 +213,8 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
                 if frame is not None:
                     yield frame
             ready.clear()
-    for old in pending.older_than(2 ** 63 - 1):
-        bad("missing pair half", f"stereo pair at {old * 1e-9:.3f} s has one "
-            f"image{pending.lone_detail(old)}")
+    for line in pending.give_up(2 ** 63 - 1):
+        bad("missing pair half", line)
     if ready:
         bad("no camera_info", f"{len(ready)} stereo pair(s) and no CameraInfo")
 
@@ -293,8 +290,10 @@ class PairSpacing:
     min_travel_m: float = 0.4
     min_turn_deg: float = 10.0
     max_interval_s: float = 5.0
-    last: tuple[float, np.ndarray, np.ndarray] | None = None  # t, R_odom_base, t_odom_base
-    skipped: int = 0
+    #: the last pair read: t, R_odom_base, t_odom_base
+    last: tuple[float, np.ndarray, np.ndarray] | None = field(default=None, init=False,
+                                                              repr=False)
+    skipped: int = field(default=0, init=False)  #: pairs not read
 
     def __post_init__(self) -> None:
         for name in ("min_travel_m", "min_turn_deg", "max_interval_s"):
@@ -308,7 +307,7 @@ class PairSpacing:
         rot, pos = pose[0], pose[1]
         if self.min_travel_m > 0 and self.last is not None:
             t0, rot0, pos0 = self.last
-            turn = np.degrees(np.arccos(np.clip((np.trace(rot0.T @ rot) - 1) / 2, -1, 1)))
+            turn = np.degrees(Rotation.from_matrix(rot0.T @ rot).magnitude())
             if (np.linalg.norm(pos - pos0) < self.min_travel_m and turn < self.min_turn_deg
                     and t - t0 < self.max_interval_s):
                 self.skipped += 1

@@ -333,8 +333,16 @@ class StereoHalves:
         return (f"; the nearest {other} image is {gap * 1e-6:.1f} ms from it, beyond the "
                 f"stereo sync tolerance ({self.tolerance_in_use_ns() * 1e-6:.1f} ms)")
 
-    def __len__(self) -> int:
-        return len(self.slots)
+    def give_up(self, before_ns: int) -> list[str]:
+        """Take out the slots older than ``before_ns`` (a half whose partner never came),
+        oldest first; one line each for the bad-input count, naming its stamp and how far
+        the nearest image of the other side was (:meth:`lone_detail`)."""
+        lines = []
+        for stamp in self.older_than(before_ns):
+            lines.append(f"stereo pair at {stamp * 1e-9:.3f} s has one "
+                         f"image{self.lone_detail(stamp)}")
+            self.slots.pop(stamp)
+        return lines
 
 
 #: CameraInfo distortion models the rectification reads (OpenCV's pinhole model takes the

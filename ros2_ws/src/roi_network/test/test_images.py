@@ -190,6 +190,12 @@ def test_stereo_halves_pair_exact_stamps_first_and_within_the_tolerance():
     halves.add("right", 314 * ms, "r3")
     assert halves.complete() == [] and halves.older_than(301 * ms) == [300 * ms]
     assert "14.0 ms" in halves.lone_detail(300 * ms)
+    # Given up: taken out, one line each, the stamp and the partner's offset named.
+    lines = halves.give_up(301 * ms)
+    assert lines == ["stereo pair at 0.300 s has one image; the nearest right image is "
+                     "14.0 ms from it, beyond the stereo sync tolerance (5.0 ms)"]
+    assert list(halves.slots) == [314 * ms]
+    halves.add("left", 300 * ms, "l3")  # back, for the duplicate check below
     # A second image of one side at one stamp is refused, not filed over the first.
     assert halves.add("left", 300 * ms, "again") is None
     assert halves.slots[300 * ms] == {"left": "l3"}

@@ -654,7 +654,7 @@ class VoEstimator:
             # The paper's mode: the last frame becomes the reference once it is far enough
             # from the one before (each pair of a 0.45 m-spaced bag; every few pairs of a
             # camera that streams), or tracking thins.
-            turn = np.degrees(np.arccos(np.clip((np.trace(kf_R_b) - 1) / 2, -1, 1)))
+            turn = np.degrees(Rotation.from_matrix(kf_R_b).magnitude())
             replace = (span >= w.frame_to_frame_min_travel_m or turn >= 5.0
                        or tracked_frac < w.keyframe_min_tracked)
         else:
