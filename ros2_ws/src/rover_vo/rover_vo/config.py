@@ -66,10 +66,12 @@ class WindowOptions:
     """Keyframes (``keyframes.py``)."""
 
     frame_to_frame: bool = False  #: the paper's mode: the reference is the last frame ...
-    #: ... once the rover moved this far from the reference or turned 5 deg (Curiosity runs
-    #: VO about each metre; a camera streaming at 10 Hz would otherwise make every 1.5 cm
-    #: step a measurement of its own); 0: always the last frame
+    #: ... once the rover moved this far from the reference or turned
+    #: ``frame_to_frame_min_turn_deg`` (Curiosity runs VO about each metre; a camera
+    #: streaming at 10 Hz would otherwise make every 1.5 cm step a measurement of its
+    #: own); 0: always the last frame
     frame_to_frame_min_travel_m: float = 0.3
+    frame_to_frame_min_turn_deg: float = 5.0  #: ... or turned this far from it
     keyframe_min_tracked: float = 0.3  #: new keyframe when fewer of its points are tracked
     keyframe_max_frames: int = 4  #: new keyframe at the latest after this many frames
     track_from_keyframe: bool = True  #: track from the keyframe image (else frame to frame)

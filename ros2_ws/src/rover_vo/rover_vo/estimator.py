@@ -655,7 +655,8 @@ class VoEstimator:
             # from the one before (each pair of a 0.45 m-spaced bag; every few pairs of a
             # camera that streams), or tracking thins.
             turn = np.degrees(Rotation.from_matrix(kf_R_b).magnitude())
-            replace = (span >= w.frame_to_frame_min_travel_m or turn >= 5.0
+            replace = (span >= w.frame_to_frame_min_travel_m
+                       or turn >= w.frame_to_frame_min_turn_deg
                        or tracked_frac < w.keyframe_min_tracked)
         else:
             replace = tracked_frac < w.keyframe_min_tracked or kf.frames >= w.keyframe_max_frames
