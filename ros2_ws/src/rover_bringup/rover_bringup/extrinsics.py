@@ -133,8 +133,14 @@ def bag_calibration(rosbag: str | Path) -> BagCalibration:
 
 def stereo_stamp_offsets(rosbag: str | Path, pairs: int = 20) -> list[float]:
     """How far apart a bag's left and right images are stamped: for each of its first
-    ``pairs`` left images, the distance to the nearest right image's stamp among the first
-    images, seconds, sorted. Empty when the bag has no stereo pair.
+    ``pairs`` left images taken while the right camera streamed (within one of its
+    intervals of its first and last image read), the distance to the nearest right
+    image's stamp among the first images, seconds, sorted. Empty when the bag has no
+    stereo pair.
+
+    Reads the bag's first images only: it stops once both cameras gave ``2 pairs``
+    images, or one of them ``READ_LIMIT`` times that (the other stopped early, or streams
+    far slower).
 
     Raises:
         CalibrationError: naming the bag when it cannot be read.
@@ -145,6 +151,7 @@ def stereo_stamp_offsets(rosbag: str | Path, pairs: int = 20) -> list[float]:
     from roi_network import images
 
     stamps: dict[str, list[int]] = {'left': [], 'right': []}
+    seen = {'left': 0, 'right': 0}
     try:
         with AnyReader([Path(rosbag)], default_typestore=get_typestore(Stores.ROS2_JAZZY)) \
                 as reader:
@@ -157,17 +164,26 @@ def stereo_stamp_offsets(rosbag: str | Path, pairs: int = 20) -> list[float]:
                      if c.topic in images.STEREO_TOPICS[transport]]
             for conn, _t, raw in reader.messages(connections=conns):
                 side = images.side_of(conn.topic)
+                seen[side] += 1
                 if len(stamps[side]) < 2 * pairs:
                     h = reader.deserialize(raw, conn.msgtype).header.stamp
                     stamps[side].append(h.sec * 1_000_000_000 + h.nanosec)
-                if len(stamps['left']) >= 2 * pairs and len(stamps['right']) >= 2 * pairs:
+                if min(seen.values()) >= 2 * pairs \
+                        or max(seen.values()) >= READ_LIMIT * 2 * pairs:
                     break
     except (OSError, ValueError, KeyError) as exc:
         raise CalibrationError(f'{rosbag}: cannot read the bag ({exc})') from exc
-    right = np.asarray(stamps['right'], np.int64)
+    right = np.sort(np.asarray(stamps['right'], np.int64))
     if not len(right):
         return []
-    return sorted(float(np.min(np.abs(right - t))) * 1e-9 for t in stamps['left'][:pairs])
+    step = int(np.median(np.diff(right))) if len(right) > 1 else 1_000_000_000
+    left = [t for t in stamps['left'] if right[0] - step <= t <= right[-1] + step][:pairs]
+    return sorted(float(np.min(np.abs(right - t))) * 1e-9 for t in left)
+
+
+#: :func:`stereo_stamp_offsets` reads at most this many times the images it needs of one
+#: camera while waiting for the other's.
+READ_LIMIT = 4
 
 
 def frame_transform(transforms: dict[tuple[str, str], np.ndarray], parent: str,

@@ -13,6 +13,7 @@ stop nodes, then the recorder, with SIGTERM; write ``run.yaml``. Output layout::
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
 import time
@@ -207,26 +208,68 @@ def _check_stereo_sync(location: BagLocation, params: dict[str, Any],
                        nodes: list[tuple[str, str | None]]) -> None:
     """Warn when the bag's left and right images are stamped further apart than a stereo
     reader's sync tolerance (``nodes``: name and executable of the graph's nodes): that
-    node would pair none of them."""
+    node would pair none of them. The tolerance is read as the node will get it: from the
+    params file, then the bag's ``rover.yaml`` (given to every node after it)."""
     from roi_network.images import SYNC_TOLERANCE_S
     from rover_bringup.extrinsics import stereo_stamp_offsets
 
     offsets = stereo_stamp_offsets(location.rosbag)
     if not offsets:
         return
+    files = [params]
+    if (rover := location.root / 'rover.yaml').is_file():
+        # The nodes that read a broken rover.yaml name what is wrong with it.
+        with contextlib.suppress(OSError, yaml.YAMLError):
+            files.append(yaml.safe_load(rover.read_text()) or {})
     median = float(np.median(offsets))
     for node, executable in nodes:
         key = SYNC_PARAMETERS.get(executable or '')
         if key is None:
             continue
-        own = params.get(node, {}).get('ros__parameters', {})
-        shared = params.get('/**', {}).get('ros__parameters', {})
-        tolerance = float(own.get(key, shared.get(key, SYNC_TOLERANCE_S)))
+        tolerance = float(node_parameter(files, node, key, SYNC_TOLERANCE_S))
         if median > tolerance:
             _warn(f'{location.rosbag}: its left and right images are stamped '
                   f'{median * 1e3:.1f} ms apart (median of the first {len(offsets)}), beyond '
                   f'{node}\'s {key} ({tolerance * 1e3:g} ms): it will pair none of them; '
                   'set the parameter in the params file (--params)')
+
+
+def node_parameter(files: list[dict[str, Any]], node: str, key: str, default: Any) -> Any:
+    """The value of parameter ``key`` (dotted: ``features.stereo_sync_tolerance_s``) that
+    node ``node`` gets from params files ``files`` (parsed, in the order given), as a ROS 2
+    params file gives it: under the ``/**`` wildcard or the node's name, with or without
+    its leading slash, the key dotted or nested (``features: {stereo_sync_tolerance_s:
+    ...}``); the node's own entry over the wildcard, a later file over an earlier one.
+    ``default`` when no file sets it."""
+    value = default
+    bare = node.lstrip('/')
+    for params in files:
+        for name in ('/**', '**', bare, '/' + bare):
+            section = params.get(name) if isinstance(params, dict) else None
+            found = _nested(section.get('ros__parameters') if isinstance(section, dict)
+                            else None, key.split('.'))
+            if found is not _UNSET:
+                value = found
+    return value
+
+
+_UNSET = object()
+
+
+def _nested(section: Any, parts: list[str]) -> Any:
+    """``parts`` of a dotted key looked up in a parameters mapping whose keys may join any
+    run of them with dots; ``_UNSET`` when absent."""
+    if not isinstance(section, dict):
+        return _UNSET
+    for i in range(len(parts), 0, -1):
+        head = '.'.join(parts[:i])
+        if head in section:
+            if i == len(parts):
+                return section[head]
+            found = _nested(section[head], parts[i:])
+            if found is not _UNSET:
+                return found
+    return _UNSET
 
 
 def _write_params(plan: _Plan, run_dir: Path, variables: dict[str, str]) -> list[Path]:

@@ -53,8 +53,11 @@ def _expected(child: str) -> np.ndarray:
 
 
 def write_field_bag(path, tree=True, camera_frame='left_camera_optical', imu=True,
-                    baseline=BASELINE, imu_hz=200.0, right_late_ms=None):
-    """A bag directory ``path`` (rosbag/ only) recording a field rover's calibration."""
+                    baseline=BASELINE, imu_hz=200.0, right_late_ms=None, images=30,
+                    right_images=None):
+    """A bag directory ``path`` (rosbag/ only) recording a field rover's calibration;
+    with ``right_late_ms``, ``images`` stereo pairs at 10 Hz, the right camera's stamped
+    that late and stopping after ``right_images`` (None: none missing)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -96,8 +99,10 @@ def write_field_bag(path, tree=True, camera_frame='left_camera_optical', imu=Tru
             image = 'sensor_msgs/msg/CompressedImage'
             sides = {side: conn(f'/stereo/{side}/image_raw/compressed', image)
                      for side in ('left', 'right')}
-            for k in range(30):
+            for k in range(images):
                 for side, late in (('left', 0), ('right', round(right_late_ms * 1e6))):
+                    if side == 'right' and right_images is not None and k >= right_images:
+                        continue
                     ns = 10**9 + k * 100_000_000 + late
                     m = T[image](header=header(ns, f'{side}_camera_optical'), format='jpeg',
                                  data=np.zeros(4, np.uint8))
@@ -247,3 +252,54 @@ def test_run_warns_of_cameras_stamped_beyond_the_sync_tolerance(tmp_path, capsys
     _prepare(RunOptions(bag=far, params=tmp_path / 'params.yaml'))
     err = capsys.readouterr().err
     assert "rover_vo's" in err and "roi_detector's" not in err
+
+
+def test_the_sync_tolerance_is_read_as_the_node_gets_it(tmp_path, capsys):
+    """Nested keys, a leading slash, the wildcard and rover.yaml set the tolerance the
+    warning compares with, as they set the node's."""
+    from rover_bringup.run import RunOptions, _prepare, node_parameter
+
+    key = 'features.stereo_sync_tolerance_s'
+    files = [{'/**': {'ros__parameters': {'features': {'stereo_sync_tolerance_s': 0.01}}}},
+             {'/rover_vo': {'ros__parameters': {'features.stereo_sync_tolerance_s': 0.03}}}]
+    assert node_parameter(files, 'rover_vo', key, 0.005) == 0.03
+    assert node_parameter(files[:1], 'rover_vo', key, 0.005) == 0.01
+    assert node_parameter(files[:1], 'rover_vo', 'features.other', 0.005) == 0.005
+    far = write_field_bag(tmp_path / 'far', right_late_ms=14.0)
+    main(['rover-yaml', str(far)])
+    params = {'rover_vo': {'ros__parameters': {'features': {'stereo_sync_tolerance_s': 0.02}}},
+              '/roi_detector': {'ros__parameters': {'stereo_sync_tolerance_s': 0.02}}}
+    (tmp_path / 'params.yaml').write_text(yaml.safe_dump(params))
+    capsys.readouterr()
+    _prepare(RunOptions(bag=far, params=tmp_path / 'params.yaml'))
+    assert 'stamped' not in capsys.readouterr().err
+    # rover.yaml comes after the params file: its tolerance wins.
+    rover = yaml.safe_load((far / 'rover.yaml').read_text())
+    rover['roi_detector'] = {'ros__parameters': {'stereo_sync_tolerance_s': 0.01}}
+    (far / 'rover.yaml').write_text(yaml.safe_dump(rover))
+    _prepare(RunOptions(bag=far, params=tmp_path / 'params.yaml'))
+    err = capsys.readouterr().err
+    assert "roi_detector's stereo_sync_tolerance_s (10 ms)" in err and "rover_vo's" not in err
+
+
+def test_stamp_offsets_of_a_right_camera_that_stops_early(tmp_path, monkeypatch):
+    """Only the left images taken while the right camera streamed are compared, and the
+    bag is not read to its end."""
+    from rosbags.highlevel import AnyReader
+
+    from rover_bringup.extrinsics import READ_LIMIT, stereo_stamp_offsets
+
+    bag = write_field_bag(tmp_path / 'bag', right_late_ms=3.0, images=400, right_images=5)
+    read = []
+    messages = AnyReader.messages
+
+    def counted(self, *args, **kwargs):
+        for item in messages(self, *args, **kwargs):
+            read.append(item[0].topic)
+            yield item
+
+    monkeypatch.setattr(AnyReader, 'messages', counted)
+    offsets = stereo_stamp_offsets(bag / 'rosbag')
+    assert 5 <= len(offsets) <= 6
+    assert offsets[:5] == pytest.approx([0.003] * 5)
+    assert read.count('/stereo/left/image_raw/compressed') == READ_LIMIT * 2 * 20
