@@ -38,19 +38,18 @@ RESULTS = Path(__file__).resolve().parent / "results"
 CATEGORIES = ("class", "clutter rock", "catalogued rock off-centre", "low clutter", "none")
 
 
-def categorise(node: np.ndarray, matches_other_class: bool, rocks_xy: np.ndarray,
-               clutter_xy: np.ndarray, clutter_h: np.ndarray, near: float = 0.5,
-               tall: float = 0.25, off: float = 3.0) -> str:
-    """The category of one false rock node at ``node`` ((2,), map, m) (module
-    docstring). ``rocks_xy``: (R, 2) catalogued rocks; ``clutter_xy``, ``clutter_h``:
-    (C, 2) positions and (C,) heights of the clutter rocks, m."""
+def categorise(matches_other_class: bool, nearest_rock_m: float, clutter_m: np.ndarray,
+               clutter_h: np.ndarray, near: float = 0.5, tall: float = 0.25,
+               off: float = 3.0) -> str:
+    """The category of one false rock node (module docstring), from its distance to the
+    nearest catalogued rock (m; inf: none) and to each clutter rock ((C,) m, their (C,)
+    heights, m)."""
     if matches_other_class:
         return "class"
-    d_clutter = np.linalg.norm(clutter_xy - node, axis=1) if len(clutter_xy) else np.zeros(0)
-    close = d_clutter <= near
+    close = clutter_m <= near
     if np.any(close & (clutter_h >= tall)):
         return "clutter rock"
-    if len(rocks_xy) and np.min(np.linalg.norm(rocks_xy - node, axis=1)) <= off:
+    if nearest_rock_m <= off:
         return "catalogued rock off-centre"
     return "low clutter" if np.any(close) else "none"
 
@@ -86,21 +85,22 @@ def false_nodes(bag: Path, ln_path: Path, **tests: float) -> list[dict]:
     ln = read_geojson(ln_path).records
     pts, j_any = match_nodes(ln, truth)
     true = true_nodes(ln, truth.rois, j_any, ROCK)
-    cat_xy, cat_label = xy(truth.rois), truth.rois["label"]
+    cat_label = truth.rois["label"]
     clutter_xy, clutter_h = world_clutter(bag)
     rows = []
     for i in np.flatnonzero((ln["label"] == ROCK) & ~true):
-        node = pts[i, :2]
-        other = bool(j_any[i] >= 0 and cat_label[j_any[i]] != ROCK)
-        d_clutter = np.linalg.norm(clutter_xy - node, axis=1)
+        d_cat = np.linalg.norm(xy(truth.rois) - pts[i, :2], axis=1)
+        d_rock = d_cat[cat_label == ROCK]
+        d_clutter = np.linalg.norm(clutter_xy - pts[i, :2], axis=1)
         k = int(np.argmin(d_clutter))
+        other = bool(j_any[i] >= 0 and cat_label[j_any[i]] != ROCK)
         rows.append({
             "bag": bag.name, "node": int(ln["id"][i]),
             "height_m": float(ln["height_m"][i]), "area_m2": float(ln["area_m2"][i]),
             "score": float(ln["score"][i]),
-            "nearest_catalogued_m": float(np.min(np.linalg.norm(cat_xy - node, axis=1))),
+            "nearest_catalogued_m": float(d_cat.min()),
             "nearest_clutter_m": float(d_clutter[k]), "nearest_clutter_h_m": float(clutter_h[k]),
-            "category": categorise(node, other, cat_xy[cat_label == ROCK], clutter_xy,
+            "category": categorise(other, float(d_rock.min(initial=np.inf)), d_clutter,
                                    clutter_h, **tests)})
     return rows
 

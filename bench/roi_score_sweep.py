@@ -93,15 +93,16 @@ def main(argv: list[str] | None = None) -> int:
     by_variant: dict[str, list[tuple[str, Path]]] = defaultdict(list)
     for variant, bag, ln in specs:
         by_variant[variant].append((bag, ln))
+    collections = {ln: json.loads(ln.read_text()) for _, _, ln in specs}
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "ln.geojson"
         for variant, lns in by_variant.items():
             for t in thresholds:
                 row = {"variant": variant, "threshold": t, "bags": len(lns), "found": 0,
                        "wanted": 0, "true": 0, "nodes": 0}
                 for bag, ln in lns:
-                    path = Path(tmp) / "ln.geojson"
-                    path.write_text(json.dumps(keep_rocks_over(json.loads(ln.read_text()), t)))
+                    path.write_text(json.dumps(keep_rocks_over(collections[ln], t)))
                     rock = evaluate_ln(str(path), bag)["per_class"]["rock"]
                     row["found"] += rock["truth_found"]
                     row["wanted"] += rock["truth_wanted"]

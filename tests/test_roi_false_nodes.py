@@ -13,19 +13,17 @@ def false_nodes(bench_script):
 
 def test_categories_in_order(false_nodes):
     cat = false_nodes.categorise
-    rocks = np.array([[10.0, 0.0]])
-    clutter = np.array([[0.3, 0.0], [8.5, 0.0], [20.0, 0.0]])
+    clutter_m = np.array([0.3, 8.5, 20.0])  # the node's distance to each clutter rock
     heights = np.array([0.4, 0.1, 0.1])
-    node = np.zeros(2)
-    assert cat(node, True, rocks, clutter, heights) == "class"
-    assert cat(node, False, rocks, clutter, heights) == "clutter rock"
+    assert cat(True, 10.0, clutter_m, heights) == "class"
+    assert cat(False, 10.0, clutter_m, heights) == "clutter rock"
     # The same clutter rock under the height threshold: nothing tall here.
-    assert cat(node, False, rocks, clutter, np.array([0.2, 0.1, 0.1])) == "low clutter"
+    assert cat(False, 10.0, clutter_m, np.array([0.2, 0.1, 0.1])) == "low clutter"
     # A catalogued rock 1.6 m off wins over low clutter beside the node.
-    assert cat(np.array([8.4, 0.0]), False, rocks, clutter, heights) == \
+    assert cat(False, 1.6, np.array([0.1, 8.5]), np.array([0.1, 0.1])) == \
         "catalogued rock off-centre"
-    assert cat(np.array([40.0, 0.0]), False, rocks, clutter, heights) == "none"
-    assert cat(node, False, rocks, np.zeros((0, 2)), np.zeros(0)) == "none"
+    assert cat(False, 40.0, np.array([31.6, 40.0]), heights[:2]) == "none"
+    assert cat(False, np.inf, np.zeros(0), np.zeros(0)) == "none"
 
 
 def test_markdown_counts_the_categories(false_nodes):

@@ -131,6 +131,11 @@ def bag_calibration(rosbag: str | Path) -> BagCalibration:
     return cal
 
 
+#: :func:`stereo_stamp_offsets` reads at most this many times the images it needs of one
+#: camera while waiting for the other's.
+READ_LIMIT = 4
+
+
 def stereo_stamp_offsets(rosbag: str | Path, pairs: int = 20) -> list[float]:
     """How far apart a bag's left and right images are stamped: for each of its first
     ``pairs`` left images taken while the right camera streamed (within one of its
@@ -179,11 +184,6 @@ def stereo_stamp_offsets(rosbag: str | Path, pairs: int = 20) -> list[float]:
     step = int(np.median(np.diff(right))) if len(right) > 1 else 1_000_000_000
     left = [t for t in stamps['left'] if right[0] - step <= t <= right[-1] + step][:pairs]
     return sorted(float(np.min(np.abs(right - t))) * 1e-9 for t in left)
-
-
-#: :func:`stereo_stamp_offsets` reads at most this many times the images it needs of one
-#: camera while waiting for the other's.
-READ_LIMIT = 4
 
 
 def frame_transform(transforms: dict[tuple[str, str], np.ndarray], parent: str,

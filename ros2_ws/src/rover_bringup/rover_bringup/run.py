@@ -234,42 +234,19 @@ def _check_stereo_sync(location: BagLocation, params: dict[str, Any],
                   'set the parameter in the params file (--params)')
 
 
-def node_parameter(files: list[dict[str, Any]], node: str, key: str, default: Any) -> Any:
+def node_parameter(files: list[Any], node: str, key: str, default: Any) -> Any:
     """The value of parameter ``key`` (dotted: ``features.stereo_sync_tolerance_s``) that
     node ``node`` gets from params files ``files`` (parsed, in the order given), as a ROS 2
-    params file gives it: under the ``/**`` wildcard or the node's name, with or without
-    its leading slash, the key dotted or nested (``features: {stereo_sync_tolerance_s:
-    ...}``); the node's own entry over the wildcard, a later file over an earlier one.
-    ``default`` when no file sets it."""
+    params file gives it (:func:`roi_network.params.node_parameters`: the key dotted or
+    nested, under ``/**`` or the node's name with or without its slash, the node's own
+    entry over the wildcard), a later file over an earlier one. ``default`` when no file
+    sets it."""
+    from roi_network.params import node_parameters
+
     value = default
-    bare = node.lstrip('/')
-    for params in files:
-        for name in ('/**', '**', bare, '/' + bare):
-            section = params.get(name) if isinstance(params, dict) else None
-            found = _nested(section.get('ros__parameters') if isinstance(section, dict)
-                            else None, key.split('.'))
-            if found is not _UNSET:
-                value = found
+    for doc in files:
+        value = node_parameters(doc, node).get(key, value)
     return value
-
-
-_UNSET = object()
-
-
-def _nested(section: Any, parts: list[str]) -> Any:
-    """``parts`` of a dotted key looked up in a parameters mapping whose keys may join any
-    run of them with dots; ``_UNSET`` when absent."""
-    if not isinstance(section, dict):
-        return _UNSET
-    for i in range(len(parts), 0, -1):
-        head = '.'.join(parts[:i])
-        if head in section:
-            if i == len(parts):
-                return section[head]
-            found = _nested(section[head], parts[i:])
-            if found is not _UNSET:
-                return found
-    return _UNSET
 
 
 def _write_params(plan: _Plan, run_dir: Path, variables: dict[str, str]) -> list[Path]:

@@ -22,6 +22,8 @@ from typing import Any
 
 import yaml
 
+from roi_network.params import node_parameters
+
 MODES = ("paper", "vo", "keyframes")
 
 
@@ -185,17 +187,6 @@ def config_from_flat(values: dict[str, Any], base: VoConfig | None = None) -> Vo
     return VoConfig(mode=mode, **sections)
 
 
-def _flatten(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for k, v in tree.items():
-        key = f"{prefix}{k}"
-        if isinstance(v, dict):
-            out.update(_flatten(v, key + "."))
-        else:
-            out[key] = v
-    return out
-
-
 def read_ros_params(path: str | Path, node_name: str = "rover_vo") -> dict[str, Any]:
     """The ``ros__parameters`` a ROS params file gives ``node_name`` (``/**`` first).
 
@@ -211,9 +202,4 @@ def read_ros_params(path: str | Path, node_name: str = "rover_vo") -> dict[str, 
         raise ValueError(f"{path}: cannot read ROS params YAML: {exc}") from exc
     if not isinstance(doc, dict):
         raise ValueError(f"{path}: not a ROS params file (expected a mapping at the top)")
-    out: dict[str, Any] = {}
-    for key in ("/**", node_name, "/" + node_name):
-        section = doc.get(key)
-        if isinstance(section, dict) and isinstance(section.get("ros__parameters"), dict):
-            out.update(_flatten(section["ros__parameters"]))
-    return out
+    return node_parameters(doc, node_name)
