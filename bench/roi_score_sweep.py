@@ -10,8 +10,9 @@ in the LN, so the sweep starts there. Two detectors (or two models) compared on 
 bags are then compared along their whole curve, not at one operating point: a variant
 that finds more rocks at less precision may only have moved along the same curve.
 
-Counts by DESIGN.md's matching rule (:func:`roi_detector.evaluation.evaluate_ln`),
-summed over the bags. Evaluation code: it reads each bag's truth.
+Counts by DESIGN.md's matching rule (:func:`roi_detector.evaluation.count_ln`, what
+``roi_detector eval`` counts, without its matcher run), summed over the bags; each bag's
+truth is read once. Evaluation code: it reads each bag's truth.
 
 Usage::
 
@@ -26,23 +27,23 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
 from collections import defaultdict
 from pathlib import Path
+
+import numpy as np
 
 RESULTS = Path(__file__).resolve().parent / "results"
 THRESHOLDS = (0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.98)
 
 
-def keep_rocks_over(collection: dict, threshold: float) -> dict:
-    """An LN FeatureCollection without its rock nodes scored under ``threshold`` (nodes
-    of other classes, and rocks with no score, kept)."""
-    def kept(feature: dict) -> bool:
-        props = feature["properties"]
-        score = props.get("score")
-        return props.get("class") != "rock" or score is None or score >= threshold
+def keep_rocks_over(records: np.ndarray, threshold: float) -> np.ndarray:
+    """LN records (:data:`~roi_network.records.ROI_DTYPE`) without the rock nodes scored
+    under ``threshold`` (nodes of other classes, and rocks with no score, NaN, kept)."""
+    from roi_network.records import ROCK
 
-    return {**collection, "features": [f for f in collection["features"] if kept(f)]}
+    score = records["score"]
+    drop = (records["label"] == ROCK) & np.isfinite(score) & (score < threshold)
+    return records[~drop]
 
 
 def parse_ln(spec: str) -> tuple[str, str, Path]:
@@ -78,7 +79,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="an LN GeoJSON built on a bag, under a variant's name (repeat)")
     p.add_argument("--thresholds", default=",".join(f"{t:g}" for t in THRESHOLDS))
     args = p.parse_args(argv)
-    from roi_detector.evaluation import evaluate_ln
+    from roi_detector.evaluation import count_ln, counted_rois
+    from roi_detector.truth import Truth
+    from roi_network.geojson import read_geojson
 
     try:
         specs = [parse_ln(s) for s in args.ln]
@@ -93,24 +96,25 @@ def main(argv: list[str] | None = None) -> int:
     by_variant: dict[str, list[tuple[str, Path]]] = defaultdict(list)
     for variant, bag, ln in specs:
         by_variant[variant].append((bag, ln))
-    collections = {ln: json.loads(ln.read_text()) for _, _, ln in specs}
+    lns = {ln: read_geojson(ln).records for _, _, ln in specs}
+    truths = {}
+    for bag in dict.fromkeys(bag for _, bag, _ in specs):
+        truth = Truth.load(bag)
+        truths[bag] = (truth, *counted_rois(truth, bag))
     rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "ln.geojson"
-        for variant, lns in by_variant.items():
-            for t in thresholds:
-                row = {"variant": variant, "threshold": t, "bags": len(lns), "found": 0,
-                       "wanted": 0, "true": 0, "nodes": 0}
-                for bag, ln in lns:
-                    path.write_text(json.dumps(keep_rocks_over(collections[ln], t)))
-                    rock = evaluate_ln(str(path), bag)["per_class"]["rock"]
-                    row["found"] += rock["truth_found"]
-                    row["wanted"] += rock["truth_wanted"]
-                    row["true"] += rock["true_nodes"]
-                    row["nodes"] += rock["ln_nodes"]
-                rows.append(row)
-                print(f"{variant} t={t:g}: rocks {row['found']}/{row['wanted']}, true rock "
-                      f"nodes {row['true']}/{row['nodes']}", flush=True)
+    for variant, runs in by_variant.items():
+        for t in thresholds:
+            row = {"variant": variant, "threshold": t, "bags": len(runs), "found": 0,
+                   "wanted": 0, "true": 0, "nodes": 0}
+            for bag, ln in runs:
+                rock = count_ln(keep_rocks_over(lns[ln], t), *truths[bag])["per_class"]["rock"]
+                row["found"] += rock["truth_found"]
+                row["wanted"] += rock["truth_wanted"]
+                row["true"] += rock["true_nodes"]
+                row["nodes"] += rock["ln_nodes"]
+            rows.append(row)
+            print(f"{variant} t={t:g}: rocks {row['found']}/{row['wanted']}, true rock "
+                  f"nodes {row['true']}/{row['nodes']}", flush=True)
     command = "python bench/roi_score_sweep.py " + " ".join(sys.argv[1:] if argv is None
                                                               else argv)
     RESULTS.mkdir(exist_ok=True)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 
@@ -10,19 +11,17 @@ def sweep(bench_script):
     return bench_script("roi_score_sweep")
 
 
-def _feature(cls: str, score: float | None) -> dict:
-    props = {"class": cls} if score is None else {"class": cls, "score": score}
-    return {"type": "Feature", "properties": props}
-
-
 def test_only_rocks_under_the_threshold_are_dropped(sweep):
-    ln = {"type": "FeatureCollection", "metadata": {"frame": "odom"},
-          "features": [_feature("rock", 0.4), _feature("rock", 0.7),
-                       _feature("outcrop", 0.1), _feature("rock", None)]}
+    from roi_network.records import OUTCROP, ROCK, ROI_DTYPE
+
+    ln = np.zeros(4, dtype=ROI_DTYPE)
+    ln["id"] = [1, 2, 3, 4]
+    ln["label"] = [ROCK, ROCK, OUTCROP, ROCK]
+    ln["score"] = [0.4, 0.7, 0.1, np.nan]
     kept = sweep.keep_rocks_over(ln, 0.6)
-    assert [(f["properties"]["class"], f["properties"].get("score"))
-            for f in kept["features"]] == [("rock", 0.7), ("outcrop", 0.1), ("rock", None)]
-    assert kept["metadata"] == ln["metadata"] and len(ln["features"]) == 4
+    assert kept["id"].tolist() == [2, 3, 4]
+    assert len(ln) == 4
+    assert sweep.keep_rocks_over(ln, 0.3)["id"].tolist() == [1, 2, 3, 4]
 
 
 def test_ln_specs_are_checked(sweep):

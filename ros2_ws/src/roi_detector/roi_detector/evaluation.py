@@ -32,24 +32,55 @@ def evaluate_ln(ln_path: str, bag_dir: str, gn: str | None = None,
         bag_dir: the bag directory with ``truth/``.
         gn: optional GN GeoJSON (map) to match against, besides the truth GN.
         plot: optional PNG path: truth ROIs, route and LN nodes in map.
-        radius_m: recall counts truth ROIs above the rover thresholds this close to the
-            route, metres.
-        view_depth_m, min_views: the second recall (``recall_in_view``) counts only the
-            truth ROIs whose centre was in the left image, at most ``view_depth_m``
-            deep, in at least ``min_views`` stereo pairs (:meth:`Truth.views`): a fixed
-            45 deg camera never sees many ROIs within 15 m of the route.
+        radius_m, view_depth_m, min_views: which truth ROIs the recalls count
+            (:func:`counted_rois`).
     """
     truth = Truth.load(bag_dir)
     ln = read_geojson(ln_path).records
-    t = truth.rois
-    pts, j_any = match_nodes(ln, truth)
+    wanted, in_view = counted_rois(truth, bag_dir, radius_m, view_depth_m, min_views)
+    report: dict = {"ln": str(ln_path), "bag": str(bag_dir),
+                    "in_view_rule": f">= {min_views} stereo pairs with the centre in the "
+                    f"left image at most {view_depth_m:g} m deep",
+                    **count_ln(ln, truth, wanted, in_view)}
+    report["matcher"] = {"truth_gn": _match(ln, read_geojson(Path(bag_dir) / "truth" /
+                                                             "rois.geojson"), truth)}
+    if gn:
+        report["matcher"]["gn"] = _match(ln, read_geojson(gn), truth)
+    if plot:
+        _plot(plot, truth, match_nodes(ln, truth)[0], ln, wanted)
+    return report
+
+
+def counted_rois(truth: Truth, bag_dir: str | Path, radius_m: float = 15.0,
+                 view_depth_m: float = 20.0, min_views: int = 3
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The truth ROIs the two recalls count, as masks over ``truth.rois``.
+
+    Args:
+        truth: the bag's truth.
+        bag_dir: the bag directory (its ``rover.yaml`` gives the camera).
+        radius_m: the issue's recall counts truth ROIs above the rover thresholds this
+            close to the route, metres.
+        view_depth_m, min_views: the second recall (``recall_in_view``) counts only those
+            whose centre was in the left image, at most ``view_depth_m`` deep, in at
+            least ``min_views`` stereo pairs (:meth:`Truth.views`): a fixed forward
+            camera never sees many ROIs within 15 m of the route.
+    """
     wanted = truth.counted(radius_m)
     in_view = wanted & (truth.views(load_rover_params(Path(bag_dir) / "rover.yaml"),
                                     view_depth_m) >= min_views)
-    report: dict = {"ln": str(ln_path), "bag": str(bag_dir), "ln_nodes": len(ln),
-                    "truth_wanted": int(wanted.sum()), "truth_in_view": int(in_view.sum()),
-                    "in_view_rule": f">= {min_views} stereo pairs with the centre in the "
-                    f"left image at most {view_depth_m:g} m deep", "per_class": {}}
+    return wanted, in_view
+
+
+def count_ln(ln: np.ndarray, truth: Truth, wanted: np.ndarray, in_view: np.ndarray) -> dict:
+    """An LN's nodes (records, ``odom``) counted against the truth by DESIGN.md's rule:
+    per class, its nodes, the true ones and the counted truth ROIs found (``wanted``,
+    ``in_view``: :func:`counted_rois`); the classification accuracy and the true nodes'
+    position error. No matcher: :func:`evaluate_ln` adds it."""
+    t = truth.rois
+    pts, j_any = match_nodes(ln, truth)
+    report: dict = {"ln_nodes": len(ln), "truth_wanted": int(wanted.sum()),
+                    "truth_in_view": int(in_view.sum()), "per_class": {}}
     for label in (ROCK, OUTCROP):
         name = LABEL_NAMES[label]
         mine = ln["label"] == label
@@ -73,18 +104,12 @@ def evaluate_ln(ln_path: str, bag_dir: str, gn: str | None = None,
     report["nodes_matching_any_truth"] = int(matched.sum())
     tp = np.flatnonzero(correct)
     if len(tp):
-        err = np.linalg.norm(pts[tp, :2] - xy(t)[j_any[tp]], axis=2 - 1)
+        err = np.linalg.norm(pts[tp, :2] - xy(t)[j_any[tp]], axis=1)
         report["node_error_m"] = {"median": float(np.median(err)), "p90":
                                   float(np.percentile(err, 90)), "max": float(err.max()),
                                   "n": len(err)}
         sig = np.sqrt(0.5 * (ln["cov_xx"][tp] + ln["cov_yy"][tp]))
         report["node_error_over_sigma_median"] = float(np.median(err / np.maximum(sig, 1e-6)))
-    report["matcher"] = {"truth_gn": _match(ln, read_geojson(Path(bag_dir) / "truth" /
-                                                             "rois.geojson"), truth)}
-    if gn:
-        report["matcher"]["gn"] = _match(ln, read_geojson(gn), truth)
-    if plot:
-        _plot(plot, truth, pts, ln, wanted)
     return report
 
 

@@ -8,6 +8,7 @@ from the truth trajectory (re-expressed in odom), as rover_vo would.
 """
 
 import functools
+import json
 import os
 import shutil
 import signal
@@ -117,6 +118,11 @@ def test_cli_ln_and_eval_on_tiny(tiny_bag, tmp_path):
             "--plot", str(tmp_path / "e.png"))
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "e.json").is_file() and (tmp_path / "e.png").stat().st_size > 1000
+    report = json.loads((tmp_path / "e.json").read_text())
+    assert report["per_class"]["rock"]["ln_nodes"] == int(
+        (ln.records["label"] == ROCK).sum())
+    assert "truth_gn" in report["matcher"]
+    _count_ln_counts_the_truth(tiny_bag)
     # The odometry's own covariance beside it (as rover_vo and globloc run write it):
     # the nodes take it, in place of the drift model, and the file says so.
     poses = np.loadtxt(odom, comments="#", ndmin=2)
@@ -457,3 +463,28 @@ def test_roi_detector_node_reads_raw_images(tiny_bag, tmp_path):
     assert "images arrive in both transports; reading the " in log
     assert "missing pair half" not in log and "undecodable" not in log
     assert "Traceback" not in log
+
+
+def _count_ln_counts_the_truth(bag: Path) -> None:
+    """count_ln (what `roi_detector eval` and bench/roi_score_sweep.py count): the truth
+    catalogue placed in odom finds every counted ROI at full precision; one counted rock
+    left out and a node on no ROI lower the recall and the precision by one each."""
+    from roi_detector.evaluation import count_ln, counted_rois
+    from roi_detector.truth import Truth
+
+    truth = Truth.load(bag)
+    wanted, in_view = counted_rois(truth, bag)
+    rocks = np.flatnonzero(wanted & (truth.rois["label"] == ROCK))
+    assert len(rocks) >= 2, "the tiny bag's route passes too few rocks for this test"
+    odom = truth.rois.copy()
+    pos = np.column_stack([odom["x"], odom["y"], odom["z"]]) - truth.trajectory.p[0]
+    odom["x"], odom["y"], odom["z"] = truth._odom_in_map().inv().apply(pos).T
+    full = count_ln(odom, truth, wanted, in_view)["per_class"]["rock"]
+    assert full["truth_found"] == full["truth_wanted"] == len(rocks)
+    assert full["true_nodes"] == full["ln_nodes"] and full["precision"] == 1.0
+    stray = odom[rocks[:1]].copy()
+    stray["x"] += 1e4
+    fewer = np.concatenate([np.delete(odom, rocks[0]), stray])
+    part = count_ln(fewer, truth, wanted, in_view)["per_class"]["rock"]
+    assert part["truth_found"] == len(rocks) - 1
+    assert part["ln_nodes"] == full["ln_nodes"] and part["true_nodes"] == full["ln_nodes"] - 1
