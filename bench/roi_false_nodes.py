@@ -85,11 +85,11 @@ def false_nodes(bag: Path, ln_path: Path, **tests: float) -> list[dict]:
     ln = read_geojson(ln_path).records
     pts, j_any = match_nodes(ln, truth)
     true = true_nodes(ln, truth.rois, j_any, ROCK)
-    cat_label = truth.rois["label"]
+    cat_xy, cat_label = xy(truth.rois), truth.rois["label"]
     clutter_xy, clutter_h = world_clutter(bag)
     rows = []
     for i in np.flatnonzero((ln["label"] == ROCK) & ~true):
-        d_cat = np.linalg.norm(xy(truth.rois) - pts[i, :2], axis=1)
+        d_cat = np.linalg.norm(cat_xy - pts[i, :2], axis=1)
         d_rock = d_cat[cat_label == ROCK]
         d_clutter = np.linalg.norm(clutter_xy - pts[i, :2], axis=1)
         k = int(np.argmin(d_clutter))

@@ -122,7 +122,6 @@ def test_cli_ln_and_eval_on_tiny(tiny_bag, tmp_path):
     assert report["per_class"]["rock"]["ln_nodes"] == int(
         (ln.records["label"] == ROCK).sum())
     assert "truth_gn" in report["matcher"]
-    _count_ln_counts_the_truth(tiny_bag)
     # The odometry's own covariance beside it (as rover_vo and globloc run write it):
     # the nodes take it, in place of the drift model, and the file says so.
     poses = np.loadtxt(odom, comments="#", ndmin=2)
@@ -465,15 +464,15 @@ def test_roi_detector_node_reads_raw_images(tiny_bag, tmp_path):
     assert "Traceback" not in log
 
 
-def _count_ln_counts_the_truth(bag: Path) -> None:
+def test_count_ln_counts_the_truth(tiny_bag):
     """count_ln (what `roi_detector eval` and bench/roi_score_sweep.py count): the truth
     catalogue placed in odom finds every counted ROI at full precision; one counted rock
     left out and a node on no ROI lower the recall and the precision by one each."""
     from roi_detector.evaluation import count_ln, counted_rois
     from roi_detector.truth import Truth
 
-    truth = Truth.load(bag)
-    wanted, in_view = counted_rois(truth, bag)
+    truth = Truth.load(tiny_bag)
+    wanted, in_view = counted_rois(truth, tiny_bag)
     rocks = np.flatnonzero(wanted & (truth.rois["label"] == ROCK))
     assert len(rocks) >= 2, "the tiny bag's route passes too few rocks for this test"
     odom = truth.rois.copy()
