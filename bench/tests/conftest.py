@@ -1,4 +1,4 @@
-"""Shared fixtures of tests/: a script of bench/ (not a package) imported under test."""
+"""Shared fixtures of bench/tests/: a script of bench/ (not a package) imported under test."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from types import ModuleType
 import numpy as np
 import pytest
 
-BENCH_DIR = Path(__file__).resolve().parents[1] / "bench"
+BENCH_DIR = Path(__file__).resolve().parents[1]
 
 
 def load_bench(name: str) -> ModuleType:
@@ -24,7 +24,7 @@ def load_bench(name: str) -> ModuleType:
 
 @pytest.fixture(scope="session")
 def bench_script():
-    """:func:`load_bench`, as a fixture (tests/ is not on sys.path under importlib)."""
+    """:func:`load_bench`, as a fixture (bench/ is not on sys.path under importlib)."""
     return load_bench
 
 
