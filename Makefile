@@ -19,7 +19,7 @@ RUN_ID := $(shell date +%Y%m%d-%H%M%S)
 endif
 RUN_ENV := source ./env.sh &&
 
-.PHONY: setup sysdeps test demo lint clean training-bags orbital-training-worlds \
+.PHONY: setup sysdeps test demo bench lint clean training-bags orbital-training-worlds \
         orbital-model rover-model models
 setup: sysdeps $(VENV)/.installed $(WS)/install/.built
 
@@ -42,6 +42,14 @@ $(WS)/install/.built: $(VENV)/.installed $(PKG_META)
 
 test: setup
 	$(RUN_ENV) python -m pytest $(PYTEST_ARGS)
+
+# Every benchmark the README and docs quote, into bench/results/current/ at one commit
+# (bench/run_all.py): TIER=quick (default) on the demo bag, under an hour on 2 cores;
+# TIER=full also on atacama_1km seeds 1-3 (generated when missing) with the committed
+# table sizes. BENCH_ARGS=--dry-run prints the commands.
+TIER ?= quick
+bench: setup
+	$(RUN_ENV) python bench/run_all.py --tier $(TIER) $(BENCH_ARGS)
 
 lint: setup
 	$(RUN_ENV) ruff check ros2_ws/src tests bench

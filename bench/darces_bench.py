@@ -1,4 +1,4 @@
-"""DARCES matcher benchmarks; results go to bench/results/darces_<mode>.{json,md}.
+"""DARCES matcher benchmarks; results go to RESULTS/darces_<mode>.{json,md}.
 
 Modes:
     paper   the paper's protocol (Sec. 7.2-7.3) on a generated 174-ROI GN, every LN the
@@ -40,6 +40,7 @@ from __future__ import annotations
 import argparse
 import gc
 import json
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -62,13 +63,19 @@ from roi_network.geojson import read_geojson, write_geojson
 from roi_network.records import xy
 from roi_network.transform import Rigid2D
 
-RESULTS = Path(__file__).resolve().parent / "results"
-GN_FILE = RESULTS / "darces_gn174.geojson"
+#: Where result files go: $BENCH_RESULTS (`make bench`: bench/results/current/), else
+#: out/bench/results/.
+RESULTS = Path(os.environ.get("BENCH_RESULTS")
+               or Path(__file__).resolve().parents[1] / "out" / "bench" / "results")
+#: Scratch space of the runs (caches, LNs, plots): $BENCH_WORK, else out/bench/work/.
+WORK = Path(os.environ.get("BENCH_WORK")
+            or Path(__file__).resolve().parents[1] / "out" / "bench" / "work")
+GN_FILE = WORK / "darces_gn174.geojson"
 
 
 def _gn_file() -> Path:
     """The 174-ROI benchmark GN (generator seed 1), written once."""
-    RESULTS.mkdir(parents=True, exist_ok=True)
+    GN_FILE.parent.mkdir(parents=True, exist_ok=True)
     if not GN_FILE.exists():
         write_geojson(generate_gn(GnSpec(n_rois=174), seed=1), GN_FILE)
     return GN_FILE
@@ -83,8 +90,8 @@ def _eval(mode: str, extra: list[str], baseline_lns: int, tag: str = "") -> dict
     darces_eval(argv)
     report = json.loads(out.read_text())
     report["command"] = "darces_eval " + " ".join(
-        a if a != str(out) else f"bench/results/darces_{name}.json" for a in argv
-    ).replace(str(GN_FILE), "bench/results/darces_gn174.geojson")
+        a if a != str(out) else f"darces_{name}.json" for a in argv
+    ).replace(str(GN_FILE), "darces_gn174.geojson")
     report["bench_wall_s"] = time.perf_counter() - t0
     out.write_text(json.dumps(report, indent=2) + "\n")
     _write_eval_md(name, report)
@@ -215,8 +222,7 @@ def _generality_stem(tag: str) -> Path:
 
 def _generality_parts(tag: str) -> Path:
     """The directory of the GN rows of a generality table (one JSON file per GN)."""
-    stem = _generality_stem(tag)
-    return stem.with_name(f"{stem.name}_parts")
+    return WORK / f"{_generality_stem(tag).name}_parts"
 
 
 def generality(names: list[str], n_lns: int, stress_lns: int, seed: int,

@@ -1,5 +1,5 @@
 """End-to-end benchmark: the whole graph on bags, judged by ``globloc eval``, beside the
-paper's end-of-route alignment. Results go to bench/results/e2e_<tag>.{json,md}.
+paper's end-of-route alignment. Results go to RESULTS/e2e_<tag>.{json,md}.
 
 For each bag:
 
@@ -48,7 +48,10 @@ from roi_network.files import write_atomic
 from rover_bringup.evaluation import MAX_STAMP_DIFF_S, PAPER_FINAL_ERROR_M, read_tum
 from rover_bringup.run_outputs import LOCAL_NETWORK, VO_TUM, read_records_csv
 
-RESULTS = Path(__file__).resolve().parent / "results"
+#: Where result files go: $BENCH_RESULTS (`make bench`: bench/results/current/), else
+#: out/bench/results/.
+RESULTS = Path(os.environ.get("BENCH_RESULTS")
+               or Path(__file__).resolve().parents[1] / "out" / "bench" / "results")
 #: Metrics of the continuous estimate aggregated over bags.
 METRICS = ("final_error_m", "rmse_after_first_fix_m", "distance_before_first_fix_m",
            "false_fixes", "consistency_3sigma")
@@ -388,7 +391,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("bags", nargs="+", type=Path, help="bag directories bags/<name>/")
     ap.add_argument("--rate", type=float, default=5.0, help="playback rate (default 5)")
     ap.add_argument("--out", type=Path, default=Path("out/bench"), help="run output root")
-    ap.add_argument("--tag", default="e2e", help="results name: bench/results/e2e_<tag>.*")
+    ap.add_argument("--tag", default="e2e", help="results name: RESULTS/e2e_<tag>.*")
     ap.add_argument("--graph", type=Path, help="graph file (default: the package's)")
     ap.add_argument("--params", type=Path, help="params file (default: the package's)")
     ap.add_argument("--results", type=Path, default=RESULTS, help="results directory")

@@ -5,7 +5,7 @@
     python bench/orbital_gn_bench.py scale --ortho bags/X/orbital.tif --tiles 2 4 ...
     python bench/orbital_gn_bench.py matcher --bag BAG --gn GN.geojson... [--length M --step M]
 
-Writes bench/results/orbital_gn_<part>.json and a markdown table beside it. Every
+Writes RESULTS/orbital_gn_<part>.json and a markdown table beside it. Every
 ``orbital_gn prepare`` runs as its own process (as a user runs it), with its wall time
 and the peak resident memory of its process tree (main process + dask workers, sampled
 every 0.2 s with psutil).
@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -30,8 +31,12 @@ from xml.sax.saxutils import escape
 import psutil
 
 ROOT = Path(__file__).resolve().parents[1]
-RESULTS = ROOT / "bench" / "results"
-WORK = ROOT / "out" / "bench_orbital_gn"
+#: Where result files go: $BENCH_RESULTS (`make bench`: bench/results/current/), else
+#: out/bench/results/.
+RESULTS = Path(os.environ.get("BENCH_RESULTS") or ROOT / "out" / "bench" / "results")
+#: Scratch space (GNs, previews, the paper recipe's model): $BENCH_WORK/orbital_gn, else
+#: out/bench/work/orbital_gn/.
+WORK = Path(os.environ.get("BENCH_WORK") or ROOT / "out" / "bench" / "work") / "orbital_gn"
 DEFAULT_BAGS = [str(ROOT / "bags" / n) for n in ("atacama_1km_s1", "atacama_1km_s2",
                                                  "atacama_1km_s3", "quick")]
 #: The committed models' training set (``make orbital-model``).

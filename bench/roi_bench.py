@@ -1,4 +1,4 @@
-"""Rover ROI detection, tracking and LN benchmarks; results in bench/results/roi_<name>.{json,md}.
+"""Rover ROI detection, tracking and LN benchmarks; results in RESULTS/roi_<name>.{json,md}.
 
 For each bag: the LN built by ``roi_detector ln`` (same library code) with the truth
 trajectory re-expressed in odom as odometry (detection geometry alone) and, when a
@@ -27,7 +27,13 @@ import sys
 import time
 from pathlib import Path
 
-RESULTS = Path(__file__).resolve().parent / "results"
+#: Where result files go: $BENCH_RESULTS (`make bench`: bench/results/current/), else
+#: out/bench/results/.
+RESULTS = Path(os.environ.get("BENCH_RESULTS")
+               or Path(__file__).resolve().parents[1] / "out" / "bench" / "results")
+#: Scratch space of the runs (caches, LNs, plots): $BENCH_WORK, else out/bench/work/.
+WORK = Path(os.environ.get("BENCH_WORK")
+            or Path(__file__).resolve().parents[1] / "out" / "bench" / "work")
 
 
 def _one_thread() -> None:
@@ -199,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
                         args.model))
     vo = dict(v.split("=", 1) for v in args.vo)
     gns = dict(v.split("=", 1) for v in args.gn)
-    work = RESULTS / f"roi_{args.name}_work"
+    work = WORK / f"roi_{args.name}"
     results = []
     for bag in args.bags:
         for tag, cfg, model in configs:
@@ -208,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
     meta = {"name": args.name, "command": "python bench/roi_bench.py " + " ".join(
         argv if argv is not None else sys.argv[1:]), "date": time.strftime("%Y-%m-%d %H:%M"),
             "machine": f"{os.cpu_count()} cores, shared with other jobs"}
-    RESULTS.mkdir(exist_ok=True)
+    RESULTS.mkdir(parents=True, exist_ok=True)
     out = RESULTS / f"roi_{args.name}.json"
     out.write_text(json.dumps({"meta": meta, "results": results}, indent=1) + "\n")
     write_markdown(RESULTS / f"roi_{args.name}.md", results, meta)

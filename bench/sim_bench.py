@@ -1,4 +1,4 @@
-"""Benchmark of the atacama_sim bag generator (issue 3).
+"""Benchmark of the atacama_sim bag generator.
 
 Generates one preset in this process and records: generation time (total, per stereo
 frame, per phase), peak resident memory, bag size, ROI counts, route statistics and ORB
@@ -7,8 +7,9 @@ features per left frame (OpenCV ORB, nfeatures=3000, every 10th frame).
     source env.sh
     python bench/sim_bench.py --preset atacama_1km --seed 1 --out bags/atacama_1km
 
-Writes bench/sim_results.json (one entry per preset and seed, updated in place) and
-bench/sim_results.md (a table of every entry), and prints the entry.
+Writes RESULTS/sim_results.json (one entry per preset and seed, updated in place) and
+RESULTS/sim_results.md (a table of every entry), and prints the entry; RESULTS is
+$BENCH_RESULTS, else out/bench/results/.
 ``--md-only`` rewrites the markdown from the JSON without generating anything.
 """
 
@@ -25,6 +26,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
+#: Where result files go: $BENCH_RESULTS, else out/bench/results/.
+RESULTS = Path(os.environ.get("BENCH_RESULTS")
+               or Path(__file__).resolve().parents[1] / "out" / "bench" / "results")
 
 
 def dir_size(path: Path) -> int:
@@ -136,7 +141,7 @@ def main() -> None:
     ap.add_argument("--preset", default="atacama_1km")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--out", type=Path, default=None)
-    ap.add_argument("--results", type=Path, default=Path(__file__).with_name("sim_results.json"))
+    ap.add_argument("--results", type=Path, default=RESULTS / "sim_results.json")
     ap.add_argument("--md-only", action="store_true")
     args = ap.parse_args()
     md = args.results.with_suffix(".md")

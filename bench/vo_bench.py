@@ -8,9 +8,9 @@ through ``rover_vo.evaluation.evaluate`` (evo: KITTI-style drift over 100..800 m
 heading drift per 100 m, aligned APE, final error), and for rover_vo the covariance
 against the actual error (is it honest?).
 
-Each method's run on each bag is cached in bench/results/vo_runs/<bag>/<method>/ (rerun
-with --force); the summary of every cached run of the given bags goes to
-bench/results/vo_bench.{json,md}.
+Each method's run on each bag is cached in WORK/vo_runs/<bag>/<method>/ (rerun with
+--force); the summary of every cached run of the given bags goes to
+RESULTS/vo_bench.{json,md}.
 
 Usage (repository root, after ``source env.sh``)::
 
@@ -34,7 +34,13 @@ from roi_network.files import write_atomic
 from roi_network.trajectory import read_pose_covariance_rows, read_tum_rows
 from rover_vo.evaluation import evaluate, plot_trajectories
 
-RESULTS = Path(__file__).resolve().parent / "results"
+#: Where result files go: $BENCH_RESULTS (`make bench`: bench/results/current/), else
+#: out/bench/results/.
+RESULTS = Path(os.environ.get("BENCH_RESULTS")
+               or Path(__file__).resolve().parents[1] / "out" / "bench" / "results")
+#: Scratch space of the runs (caches, LNs, plots): $BENCH_WORK, else out/bench/work/.
+WORK = Path(os.environ.get("BENCH_WORK")
+            or Path(__file__).resolve().parents[1] / "out" / "bench" / "work")
 MODES = ("paper", "vo", "keyframes")
 ONE_CORE = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
@@ -150,8 +156,8 @@ def covariance_honesty(run: Path, truth: Path) -> dict:
 
 
 def bench_method(bag: Path, method: str, force: bool) -> dict:
-    """One method on one bag, cached in bench/results/vo_runs/<bag>/<method>/row.json."""
-    out = RESULTS / "vo_runs" / bag.name / method
+    """One method on one bag, cached in WORK/vo_runs/<bag>/<method>/row.json."""
+    out = WORK / "vo_runs" / bag.name / method
     truth = bag / "truth" / "trajectory.tum"
     row_path = out / "row.json"
     if row_path.is_file() and not force:
@@ -185,7 +191,7 @@ def collect(bag: Path) -> dict:
     """Every cached method row of a bag."""
     rows = {}
     for method in (*MODES, *THIRD_PARTY):
-        row_path = RESULTS / "vo_runs" / bag.name / method / "row.json"
+        row_path = WORK / "vo_runs" / bag.name / method / "row.json"
         if row_path.is_file():
             rows[method] = json.loads(row_path.read_text())
     return {"bag": str(bag), "rows": rows}

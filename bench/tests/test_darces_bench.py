@@ -14,6 +14,7 @@ def bench(bench_script):
 
 def test_a_tagged_generality_table_is_its_own(bench, tmp_path, monkeypatch):
     monkeypatch.setattr(bench, "RESULTS", tmp_path)
+    monkeypatch.setattr(bench, "WORK", tmp_path / "work")
     main = tmp_path / "darces_generality.md"
     main.write_text("the main table\n")
     bench.generality(["poisson_50"], 2, 0, 7, ["darces"], tag="large")
@@ -26,7 +27,7 @@ def test_a_tagged_generality_table_is_its_own(bench, tmp_path, monkeypatch):
     assert report["command"].endswith("generality --merge --tag large")
     table = (tmp_path / "darces_generality_large.md").read_text()
     assert "| poisson_50 |" in table
-    assert (tmp_path / "darces_generality_large_parts" / "poisson_50.json").exists()
+    assert (tmp_path / "work" / "darces_generality_large_parts" / "poisson_50.json").exists()
     # The merge rebuilds the tagged table from its own rows only.
     (tmp_path / "darces_generality_large.md").unlink()
     bench.merge_generality("large")

@@ -1,0 +1,78 @@
+"""bench/run_all.py: the commands of each tier, and one driver run on stand-in benches."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import pytest
+
+
+@pytest.fixture(scope="module")
+def run_all(bench_script):
+    return bench_script("run_all")
+
+
+def test_quick_tier_dry_run_lists_every_bench_on_the_demo_bag(run_all, tmp_path, capsys):
+    results = tmp_path / "current"
+    assert run_all.main(["--dry-run", "--bags-dir", str(tmp_path), "--results",
+                         str(results)]) == 0
+    out = capsys.readouterr().out
+    lines = [ln for ln in out.splitlines() if ln.startswith("[")]
+    steps = [ln.split("]")[0][1:] for ln in lines]
+    assert steps[:2] == ["bags", "bags"] and set(steps) == set(run_all.STEPS)
+    assert f"atacama_sim generate --preset quick --seed 1 --no-progress --out {tmp_path}/quick" \
+        in out
+    assert "skipped" not in out  # nothing exists under tmp_path: everything is generated
+    assert f"e2e_bench.py {tmp_path}/quick --rate 5 --tag evaluation" in out
+    assert f"--vo quick=<e2e run of quick>/vo.tum --gn quick={tmp_path}/quick/gn.geojson" in out
+    assert "quality --bags" in out and "--recipes sun_aware" in out
+    assert "generality --max-lns 120 --stress-lns 100 --seed 7 --gns" in out
+    assert "atacama_1km" not in out and "darces_bench.py paper" not in out
+    assert not results.exists()  # a dry run writes nothing
+
+
+def test_full_tier_adds_the_1km_seeds_and_the_paper_protocol(run_all, tmp_path, capsys):
+    (tmp_path / "atacama_1km_s2" / "rosbag").mkdir(parents=True)
+    assert run_all.main(["--tier", "full", "--dry-run", "--bags-dir", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    for seed in (1, 3):
+        assert (f"generate --preset atacama_1km --seed {seed} --no-progress "
+                f"--out {tmp_path}/atacama_1km_s{seed}") in out
+    assert "--seed 2 --no-progress" in out.split("skipped")[0].splitlines()[-1]
+    assert f"{tmp_path}/atacama_1km_s3 --rate 5" in out
+    assert "darces_bench.py paper" in out and "darces_bench.py stress" in out
+    assert "--recipes" not in out and "--methods darces" not in out
+
+
+def test_a_run_stamps_every_result_and_summarises_it(run_all, tmp_path, monkeypatch):
+    results = tmp_path / "current"
+    results.mkdir()
+    (results / "stale.md").write_text("# from another commit\n")
+    e2e = {"bags": [{"bag": "bags/quick", "run_dir": "out/bench/quick/r1",
+                     "continuous": {"route_length_m": 399.6, "distance_before_first_fix_m": 154.04,
+                                    "final_error_m": 0.384, "rmse_after_first_fix_m": 0.391,
+                                    "false_fixes": 0, "consistency_3sigma": 1.0},
+                     "end_of_route": {"status": "fix", "final_error_m": 1.5, "rmse_m": 2.25}}]}
+    vo_md = ("# rover_vo benchmark\n\nMade by ...\n\n"
+             "| bag | method |\n|---|---|\n| quick | paper |\n")
+    write = ("import json, os, pathlib, sys; r = pathlib.Path(os.environ['BENCH_RESULTS']); "
+             "r.joinpath(sys.argv[1]).write_text(sys.argv[2])")
+    cmds = [run_all.Command("e2e", [sys.executable, "-c", write, "e2e_evaluation.json",
+                                    json.dumps(e2e)]),
+            run_all.Command("vo", [sys.executable, "-c", write, "vo_bench.md", vo_md]),
+            run_all.Command("roi", [sys.executable, "-c", "raise SystemExit(3)"]),
+            run_all.Command("bags", ["false"], skip_if=lambda: True, why_skip="exists")]
+    monkeypatch.setattr(run_all, "plan", lambda *a, **k: cmds)
+    assert run_all.main(["--results", str(results)]) == 1  # the roi stand-in failed
+    assert not (results / "stale.md").exists()
+    doc = json.loads((results / "e2e_evaluation.json").read_text())
+    prov = doc["provenance"]
+    assert len(prov["commit"]) == 40 and isinstance(prov["dirty"], bool)
+    assert prov["tier"] == "quick" and prov["machine"]["cpus"] >= 1
+    assert prov["command"].startswith("python bench/run_all.py")
+    vo = (results / "vo_bench.md").read_text().splitlines()
+    assert vo[0] == "# rover_vo benchmark" and vo[2].startswith("Provenance: Commit `")
+    summary = (results / "summary.md").read_text()
+    assert "| quick | 400 | 154.0 | 0.38 | 0.39 | 0 | 100.0 % | 1.50 / 2.25 |" in summary
+    assert "| quick | paper |" in summary and "Failed: `python -c raise SystemExit(3)`" in summary
