@@ -11,7 +11,7 @@ Modes:
             family (``gn_generator.FAMILY``), the odds decision (``darces``: Chernoff
             and Markov bounds, decided again on the EM's alignment when the hard refit
             falls short) beside the same decision on the hard refit alone
-            (``darces_hard``, before 2026-11-26) and the fixed counts
+            (``darces_hard``) and the fixed counts
             (``darces_counts``), in one table.
     firstfix    the paper protocol's LNs fed as prefixes, node by node (as the rover
             drives): nodes and distance at the first fix, and whether it is right.
@@ -308,13 +308,11 @@ def _write_generality_md(report: dict[str, Any], path: Path) -> None:
         "stress: 30 % outliers + 10 % label flips. `darces`: the odds decision, chance "
         "alignments bounded by Chernoff's inequality and Markov's, decided again on the "
         "EM's maximum-likelihood alignment when the hard refit falls short, control "
-        "triplets over the candidate cap tried last and votes by alignment (since "
-        "2026-11-27), the odds of the triangle hypothesis that found the alignment "
-        "and a floor under the Chernoff bound (since 2026-11-28, twelfth session); "
-        "`top3`: the odds leaving out the three largest node terms, no floor (before "
-        "it); `hard`: the "
-        "decision on the hard refit alone (before 2026-11-26); `counts`: the fixed "
-        "support/margin counts (the matcher before issue 13). "
+        "triplets over the candidate cap tried last and votes by alignment, the odds "
+        "of the triangle hypothesis that found the alignment and a floor under the "
+        "Chernoff bound; `top3`: the odds leaving out the three largest node terms, no "
+        "floor; `hard`: the decision on the hard refit alone; `counts`: fixed "
+        "support/margin counts. "
         "no fix | oracle: abstentions among the LNs the oracle fits within 2 m. "
         f"{report['timing']}.",
         "",

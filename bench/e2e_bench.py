@@ -7,7 +7,7 @@ For each bag:
    ``--graph``), while the CPU time of every process of the run is sampled (psutil), so
    each stage's share of CPU is known;
 2. ``globloc eval RUN_DIR --json``: final error, RMSE after the first fix, distance before
-   the first fix, false fixes, 3-sigma consistency (docs/e2e.md);
+   the first fix, false fixes, 3-sigma consistency (docs/evaluation.md);
 3. the paper's protocol on the same run: one DARCES fit of the whole final LN (the last
    /local_network) on the GN, then the whole VO trajectory (vo.tum) mapped with that one
    transform; its error at the end of the route and its RMSE over the route;
@@ -16,9 +16,8 @@ For each bag:
    wall seconds; and whether the graph kept up (a /global_pose for every /vo/odometry
    after the first fix).
 
-A bag the graph could not localize gets n/a, never a number made up. Until orbital_gn,
-rover_vo, roi_detector and ln_builder are built, ``globloc run`` skips them and the
-results say which nodes ran.
+A bag the graph could not localize gets n/a, never a number made up; the results say
+which nodes ran.
 
 Usage (from the repository root, after ``source env.sh``)::
 

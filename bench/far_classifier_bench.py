@@ -52,7 +52,7 @@ THRESHOLDS = (0.3, 0.5, 0.7)
 def samples(bag: str, cache: Path) -> dict:
     """The bag's measured far tracks (cached), with the counted truth rock each true one
     finds (-1: none) and whether it passes the geometric tests; and its map rock regions
-    (``map_x``, ``map_y``) when the cache holds them (caches written since 2026-11-28)."""
+    (``map_x``, ``map_y``) when the cache holds them (older caches do not)."""
     from roi_detector.far_rocks import FarRockConfig, far_feature_names
     from roi_detector.training import far_rock_samples, near_rock_distance
     from roi_detector.truth import Truth, match_to_truth

@@ -21,8 +21,7 @@ the GN (e.g. ``BAG_DIR/truth/rois.geojson``, the truth catalogue: what a perfect
 detector would give); ``--cov-scale`` scales the LN nodes' covariance.
 Each LN goes with the odometry covariance its nodes were observed with
 (``darces_matcher.ln_drift.NodeOdometry``, fed as the node feeds it); the variant
-``records_only`` leaves it out (the records' covariance alone, the node before
-2026-11-26).
+``records_only`` leaves it out (the records' covariance alone).
 """
 
 from __future__ import annotations
@@ -69,7 +68,7 @@ VARIANTS: dict[str, tuple[dict, bool]] = {
     "complete_cov": ({"association_covariance": False}, True),
 }
 #: variants that do not read the odometry covariance each node was observed with
-#: (darces_matcher.ln_drift): the records' covariance alone, as before 2026-11-26
+#: (darces_matcher.ln_drift): the records' covariance alone
 RECORDS_ONLY = ("records_only",)
 VARIANTS["records_only"] = ({}, True)
 #: chi-square, 2 degrees of freedom, 99.73 % (3 sigma)

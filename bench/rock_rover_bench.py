@@ -47,7 +47,7 @@ def _load(bag: str, cache: Path) -> dict:
     data = samples(bag, cache)
     if "map_x" not in data:
         raise SystemExit(f"{cache / Path(bag).name}.npz: a cache without the map's rock "
-                         "regions (written before 2026-11-28); delete it to sample the bag "
+                         "regions (an older cache); delete it to sample the bag "
                          "again")
     return data
 

@@ -166,9 +166,8 @@ def main(argv: list[str] | None = None) -> int:
                     "0), beside the default, which resamples a camera finer than its "
                     "working resolution")
     ap.add_argument("--per-cell-outcrops", action="store_true",
-                    help="also the map's outcrops by the per-cell rule alone (the default "
-                    "before 2026-11-28, eighteenth session), beside the default (the Outcrop "
-                    "Rover on the averaged_wide rule's candidates)")
+                    help="also the map's outcrops by the per-cell rule alone, beside the "
+                    "default (the Outcrop Rover on the averaged_wide rule's candidates)")
     ap.add_argument("--outcrops", default=None, metavar="RULE",
                     help="the map's outcrops on the candidates of outcrop rule RULE in place "
                     "of the default's (rows elevation_map_RULE_outcrops), decided by the "
