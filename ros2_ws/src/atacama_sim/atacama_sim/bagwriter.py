@@ -23,6 +23,9 @@ from rosbags.typesys import Stores, get_typestore
 
 from atacama_sim.camera import StereoRig
 
+#: Bag time of the first sample, ns since the Unix epoch (fixed: the bag is deterministic).
+BAG_EPOCH_NS = 1_700_000_000_000_000_000
+
 FRAME_BASE = "base_link"
 FRAME_LEFT = "left_camera_optical"
 FRAME_RIGHT = "right_camera_optical"

@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from atacama_sim.config import PRESETS, make_config
+from atacama_sim.config import PRESETS, add_site, make_config
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -37,13 +37,7 @@ def main(argv: list[str] | None = None) -> int:
         overrides = parse_overrides(args.set)
     except ValueError as exc:
         parser.error(str(exc))
-    if args.crs:
-        overrides.setdefault("site", {})["crs"] = args.crs
-    if args.site_lonlat:
-        overrides.setdefault("site", {})["site_lonlat"] = tuple(args.site_lonlat)
-    if args.crs and args.crs.upper().startswith("IAU_2015:499") and not args.site_lonlat:
-        overrides["site"]["site_lonlat"] = (-24.55, 18.2)  # Oxia Planum, Mars
-        overrides.setdefault("imu", {}).setdefault("gravity", 3.721)
+    add_site(overrides, args.crs, tuple(args.site_lonlat) if args.site_lonlat else None)
     try:
         cfg = make_config(args.preset, args.seed, overrides)
     except (KeyError, TypeError, ValueError) as exc:

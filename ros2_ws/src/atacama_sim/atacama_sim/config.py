@@ -1,13 +1,16 @@
 """Typed configuration of the synthetic world, its sensors and the traverse.
 
-Every generation parameter has its default here and nowhere else; ``world.yaml`` is this
-object written out (``asdict``), so a bag records exactly what made it. Presets only
-override fields of these defaults.
+The parameters a preset, a CLI option or a user varies have their defaults here and
+nowhere else; ``world.yaml`` is this object written out (``asdict``), so with the code
+version a bag records exactly what made it. Presets only override fields of these
+defaults. The parameters nobody varies are named constants beside the code that uses
+them (:data:`CONSTANT_FIELDS` lists them).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import importlib
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -18,45 +21,35 @@ import numpy as np
 class SiteConfig:
     """Where the world sits on the planet.
 
-    The map frame is the projected CRS shifted by ``origin`` (easting, northing, metres),
-    which is the projection of ``site_lonlat`` rounded to the metre (DESIGN.md, Frames).
-    The world square spans map coordinates [-extent/2, extent/2] in x and y.
+    The map frame is the projected CRS shifted by the projection of ``site_lonlat``
+    rounded to the metre (DESIGN.md, Frames). The world square spans map coordinates
+    [-extent_m/2, extent_m/2] in x and y.
+
+    Attributes:
+        crs: projected CRS of the map frame ("EPSG:32719", WGS 84 / UTM zone 19S;
+            "IAU_2015:49910" for Mars).
+        site_lonlat: longitude and latitude of the map-frame origin, degrees (Atacama,
+            near Yungay).
+        extent_m: side of the square world and of the orbital image footprint, m.
     """
 
-    crs: str = "EPSG:32719"  # WGS 84 / UTM zone 19S; "IAU_2015:49910" for Mars
-    site_lonlat: tuple[float, float] = (-69.95, -24.10)  # Atacama, near Yungay (deg)
-    extent_m: float = 1500.0  # side of the square world = orbital image footprint
+    crs: str = "EPSG:32719"
+    site_lonlat: tuple[float, float] = (-69.95, -24.10)
+    extent_m: float = 1500.0
 
 
 @dataclass
 class TerrainConfig:
-    """Height field: spectral (FFT) synthesis of three bands plus a fine roughness tile."""
+    """Large relief of the height field (the finer bands are :mod:`atacama_sim.terrain`'s
+    constants).
 
-    res_m: float = 0.5  # base height-grid spacing
-    large_rms_m: float = 5.0  # relief band rms, wavelengths large_wavelengths_m
+    Attributes:
+        large_rms_m: rms height of the relief band, m.
+        large_wavelengths_m: shortest and longest wavelength of the relief band, m.
+    """
+
+    large_rms_m: float = 5.0
     large_wavelengths_m: tuple[float, float] = (150.0, 1500.0)
-    medium_rms_m: float = 0.30  # undulation band
-    medium_wavelengths_m: tuple[float, float] = (4.0, 40.0)
-    rough_rms_m: float = 0.012  # small roughness, a periodic tile
-    rough_res_m: float = 0.025
-    rough_tile_px: int = 1024  # tile period = rough_tile_px * rough_res_m
-
-
-@dataclass
-class AlbedoConfig:
-    """Multi-scale albedo: three surface materials mixed by smooth random fields, each with
-    its own cm-scale detail texture (grains, pebbles, varnished clasts)."""
-
-    res_m: float = 0.5  # material-map spacing (same grid as the height field)
-    soil_rgb: tuple[float, float, float] = (0.56, 0.45, 0.35)
-    gravel_rgb: tuple[float, float, float] = (0.46, 0.41, 0.36)
-    pavement_rgb: tuple[float, float, float] = (0.30, 0.23, 0.18)
-    gravel_cover: float = 0.30  # fraction of the area
-    pavement_cover: float = 0.25
-    patch_wavelength_m: float = 25.0  # typical size of material patches
-    detail_res_m: float = 0.01  # detail texture texel (pebbles)
-    detail_tile_px: int = 2048  # 20 m period
-    pebbles_per_m2: float = 220.0  # sub-cm..5 cm clasts in the detail texture
 
 
 @dataclass
@@ -64,35 +57,36 @@ class RockConfig:
     """Major ROIs (rocks, outcrops) and sub-threshold clutter.
 
     Major ROIs are a Thomas cluster process: cluster centres uniform, members Gaussian
-    around them, plus a uniform background fraction. Sizes follow a power law
-    (size-frequency of rocks) truncated to the issue's ranges.
+    around them, plus a uniform background share. Sizes follow a power law truncated to
+    the ROI ranges of :mod:`atacama_sim.rocks`.
+
+    Attributes:
+        major_per_km2: rocks and outcrops per km^2.
+        outcrop_fraction: share of the major ROIs that are outcrops.
+        clusters_per_km2: cluster centres per km^2.
+        cluster_sigma_m: Gaussian spread of a cluster's members around its centre, m.
+        clutter_per_m2: sub-threshold rocks per m^2, placed uniformly.
     """
 
-    major_per_km2: float = 85.0  # rocks + outcrops
+    major_per_km2: float = 85.0
     outcrop_fraction: float = 0.22
     clusters_per_km2: float = 7.0
     cluster_sigma_m: float = 22.0
-    background_fraction: float = 0.15  # unclustered share
-    rock_area_m2: tuple[float, float] = (0.6, 6.0)
-    rock_height_m: tuple[float, float] = (0.25, 2.0)
-    outcrop_area_m2: tuple[float, float] = (8.0, 100.0)
-    outcrop_height_m: tuple[float, float] = (0.08, 0.30)
-    size_power: float = 1.8  # dN/dA ~ A^-size_power
-    min_separation_m: float = 2.0  # between major ROI footprints
-    clutter_per_m2: float = 0.12  # sub-threshold rocks, uniform
-    clutter_apron_per_rock: int = 12  # extra debris around each major rock
-    clutter_diameter_m: tuple[float, float] = (0.08, 0.75)
-    n_templates: int = 16  # distinct irregular rock shapes
+    clutter_per_m2: float = 0.12
 
 
 @dataclass
 class SunConfig:
-    """Sun direction (azimuth clockwise from north) and light levels (linear units)."""
+    """Sun direction (light levels are :mod:`atacama_sim.renderer`'s constants).
+
+    Attributes:
+        elevation_deg: sun elevation above the horizon, degrees.
+        azimuth_deg: sun azimuth clockwise from north, degrees (NNE: a southern-hemisphere
+            morning).
+    """
 
     elevation_deg: float = 42.0
-    azimuth_deg: float = 35.0  # NNE: southern-hemisphere morning
-    irradiance: float = 1.0
-    sky_ambient: float = 0.16
+    azimuth_deg: float = 35.0
 
 
 @dataclass
@@ -107,73 +101,97 @@ class CameraConfig:
     newer navigation cameras are wider (ExoMars Rosalind Franklin NavCam 65 deg,
     Perseverance Navcam 96 x 73 deg), and at 70 deg it sees 18-24 of them. We keep the
     640x480 sensor (fx = 320 / tan 35 deg = 457 px): the same rendering and stereo cost,
-    depth error 1.7x MER's at equal range.
+    depth error 1.7x MER's at equal range. Image formation (exposure, noise, gamma, JPEG)
+    is :mod:`atacama_sim.sensor`'s constants.
+
+    Attributes:
+        width: image width, pixels.
+        height: image height, pixels.
+        hfov_deg: horizontal field of view, degrees.
+        baseline_m: stereo baseline, m.
+        mast_height_m: left camera centre above base_link (the ground plane), m.
+        mast_x_m: camera centre forward of the rover centre, m.
+        tilt_deg: optical axis below the horizon, degrees.
     """
 
     width: int = 640
     height: int = 480
     hfov_deg: float = 70.0
     baseline_m: float = 0.20
-    mast_height_m: float = 1.54  # left camera centre above base_link (ground plane)
-    mast_x_m: float = 0.40  # forward of the rover centre
-    tilt_deg: float = 20.0  # optical axis below the horizon
-    jpeg_quality: int = 93
-    full_well_e: float = 12000.0  # shot noise
-    read_noise_e: float = 12.0
-    exposure_target: float = 0.42  # mean image level after auto-exposure
-    exposure_smoothing: float = 0.3  # per-frame EMA weight of the new exposure
-    gamma: float = 1 / 2.2
-    near_m: float = 0.2
-    far_m: float = 2000.0
-    haze_m: float = 3000.0  # aerial-perspective e-folding distance
+    mast_height_m: float = 1.54
+    mast_x_m: float = 0.40
+    tilt_deg: float = 20.0
 
 
 @dataclass
 class ImuConfig:
-    """MEMS-class IMU (numbers of an ADIS16448-like unit), at base_link."""
+    """MEMS-class IMU (numbers of an ADIS16448-like unit), at base_link.
+
+    Attributes:
+        rate_hz: sample rate, Hz (also the time grid of the simulated motion).
+        gyro_noise_density: gyro white-noise density, rad/s/sqrt(Hz).
+        gyro_bias_rw: gyro bias random walk, rad/s^2/sqrt(Hz).
+        gyro_bias_init: 1-sigma gyro turn-on bias, rad/s.
+        accel_noise_density: accelerometer white-noise density, m/s^2/sqrt(Hz).
+        accel_bias_rw: accelerometer bias random walk, m/s^3/sqrt(Hz).
+        accel_bias_init: 1-sigma accelerometer turn-on bias, m/s^2.
+        gravity: gravity, m/s^2 (Earth; 3.721 for Mars).
+    """
 
     rate_hz: float = 50.0
-    gyro_noise_density: float = 1.7e-4  # rad/s/sqrt(Hz)
-    gyro_bias_rw: float = 2.0e-5  # rad/s^2/sqrt(Hz)
-    gyro_bias_init: float = 2.0e-3  # rad/s, 1-sigma turn-on bias
-    accel_noise_density: float = 2.0e-3  # m/s^2/sqrt(Hz)
-    accel_bias_rw: float = 3.0e-4  # m/s^3/sqrt(Hz)
-    accel_bias_init: float = 0.02  # m/s^2
-    gravity: float = 9.81  # Earth; 3.721 for Mars
+    gyro_noise_density: float = 1.7e-4
+    gyro_bias_rw: float = 2.0e-5
+    gyro_bias_init: float = 2.0e-3
+    accel_noise_density: float = 2.0e-3
+    accel_bias_rw: float = 3.0e-4
+    accel_bias_init: float = 0.02
+    gravity: float = 9.81
 
 
 @dataclass
 class RouteConfig:
-    """Traverse statistics (paper Sec. 7.2) and rover motion."""
+    """Traverse statistics (paper Sec. 7.2) and the rover's stops and frames (its body
+    geometry is :mod:`atacama_sim.route`'s constants).
 
-    length_m: float = 1000.0  # path length target
-    net_fraction: float = 0.6  # net displacement / path length target
-    rois_target: tuple[int, int] = (20, 30)  # major ROIs passed within roi_range_m
+    Attributes:
+        length_m: target path length, m.
+        net_fraction: target net displacement over path length.
+        rois_target: wanted range of major ROIs passed within ``roi_range_m``.
+        roi_range_m: distance from the route within which a major ROI counts as passed, m.
+        edge_margin_m: the route stays this far inside the world square, m.
+        speed_mps: cruise speed, m/s.
+        stop_every_m: range of the distance driven between stops, m.
+        stop_s: range of a stop's duration, s.
+        frame_spacing_m: a stereo pair every this much travel, m.
+        stop_frame_period_s: and every this long while stopped, s.
+        candidates: random route candidates scored by the planner.
+    """
+
+    length_m: float = 1000.0
+    net_fraction: float = 0.6
+    rois_target: tuple[int, int] = (20, 30)
     roi_range_m: float = 15.0
-    edge_margin_m: float = 120.0  # route stays this far inside the world square
+    edge_margin_m: float = 120.0
     speed_mps: float = 0.15
-    accel_mps2: float = 0.05
     stop_every_m: tuple[float, float] = (40.0, 90.0)
     stop_s: tuple[float, float] = (20.0, 90.0)
-    frame_spacing_m: float = 0.45  # a stereo pair every this much travel
-    stop_frame_period_s: float = 10.0  # and every this long while stopped
-    min_turn_radius_m: float = 6.0
-    wheelbase_m: float = 1.2  # for pitch/roll from the terrain under the wheels
-    track_m: float = 1.0
-    body_smoothing_s: float = 0.4  # suspension low-pass of pitch, roll and height
-    candidates: int = 800  # random route candidates scored by the planner
-    gt_rate_hz: float = 10.0
+    frame_spacing_m: float = 0.45
+    stop_frame_period_s: float = 10.0
+    candidates: int = 800
 
 
 @dataclass
 class OrbitalConfig:
-    """HiRISE-like orthoimage rendered from the same world."""
+    """HiRISE-like orthoimage rendered from the same world (its optics and noise are
+    :mod:`atacama_sim.orbital`'s constants).
+
+    Attributes:
+        gsd_m: ground sample distance, m.
+        tile_m: side of a rendered tile, m.
+        sun: sun direction at acquisition.
+    """
 
     gsd_m: float = 0.25
-    supersample: int = 2  # rendered at gsd/supersample, then area-averaged
-    mtf_sigma_px: float = 0.6  # Gaussian PSF after downsampling
-    noise_dn: float = 1.5  # 8-bit read noise
-    shot_noise: float = 0.006  # relative, at full scale
     tile_m: float = 256.0
     sun: SunConfig = field(default_factory=lambda: SunConfig(elevation_deg=42.0,
                                                              azimuth_deg=35.0))
@@ -181,30 +199,145 @@ class OrbitalConfig:
 
 @dataclass
 class WorldConfig:
-    """Everything that makes a bag: world, sensors, traverse, seed."""
+    """Everything that makes a bag: world, sensors, traverse, seed.
+
+    Attributes:
+        preset: name of the preset the fields start from (:data:`PRESETS`).
+        seed: seed of every random stream (:func:`rng_for`).
+        site: georeference and size of the world.
+        terrain: large relief.
+        rocks: major ROIs and clutter.
+        sun: sun direction over the traverse.
+        camera: stereo rig.
+        imu: IMU noise model.
+        route: traverse.
+        orbital: orthoimage.
+    """
 
     preset: str = "atacama_1km"
     seed: int = 1
     site: SiteConfig = field(default_factory=SiteConfig)
     terrain: TerrainConfig = field(default_factory=TerrainConfig)
-    albedo: AlbedoConfig = field(default_factory=AlbedoConfig)
     rocks: RockConfig = field(default_factory=RockConfig)
     sun: SunConfig = field(default_factory=SunConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     imu: ImuConfig = field(default_factory=ImuConfig)
     route: RouteConfig = field(default_factory=RouteConfig)
     orbital: OrbitalConfig = field(default_factory=OrbitalConfig)
-    start_time_ns: int = 1_700_000_000_000_000_000  # bag epoch (fixed: deterministic)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain nested dict (tuples as lists) for world.yaml."""
-        def plain(v: Any) -> Any:
-            if isinstance(v, dict):
-                return {k: plain(x) for k, x in v.items()}
-            if isinstance(v, list | tuple):
-                return [plain(x) for x in v]
-            return v
-        return plain(dataclasses.asdict(self))
+        return _plain(dataclasses.asdict(self))
+
+
+def _plain(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {k: _plain(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_plain(x) for x in v]
+    return v
+
+
+#: world.yaml keys that are code constants, per section class: key -> "module.NAME" in
+#: ``atacama_sim`` (a nested dict for a section that is all constants; a number for a key
+#: no code reads). A world.yaml that carries such a key loads when its value equals it.
+CONSTANT_FIELDS: dict[str, dict[str, Any]] = {
+    "WorldConfig": {
+        "start_time_ns": "bagwriter.BAG_EPOCH_NS",
+        "albedo": {
+            "res_m": "terrain.TERRAIN_RES_M",
+            "soil_rgb": "texture.SOIL_RGB",
+            "gravel_rgb": "texture.GRAVEL_RGB",
+            "pavement_rgb": "texture.PAVEMENT_RGB",
+            "gravel_cover": "texture.GRAVEL_COVER",
+            "pavement_cover": "texture.PAVEMENT_COVER",
+            "patch_wavelength_m": "texture.PATCH_WAVELENGTH_M",
+            "detail_res_m": "texture.DETAIL_RES_M",
+            "detail_tile_px": "texture.DETAIL_TILE_PX",
+            "pebbles_per_m2": "texture.PEBBLES_PER_M2",
+        },
+    },
+    "TerrainConfig": {
+        "res_m": "terrain.TERRAIN_RES_M",
+        "medium_rms_m": "terrain.MEDIUM_RMS_M",
+        "medium_wavelengths_m": "terrain.MEDIUM_WAVELENGTHS_M",
+        "rough_rms_m": "terrain.ROUGH_RMS_M",
+        "rough_res_m": "terrain.ROUGH_RES_M",
+        "rough_tile_px": "terrain.ROUGH_TILE_PX",
+    },
+    "RockConfig": {
+        "background_fraction": "rocks.BACKGROUND_FRACTION",
+        "rock_area_m2": "rocks.ROCK_AREA_M2",
+        "rock_height_m": "rocks.ROCK_HEIGHT_M",
+        "outcrop_area_m2": "rocks.OUTCROP_AREA_M2",
+        "outcrop_height_m": "rocks.OUTCROP_HEIGHT_M",
+        "size_power": "rocks.SIZE_POWER",
+        "min_separation_m": "rocks.MIN_SEPARATION_M",
+        "clutter_apron_per_rock": "rocks.CLUTTER_APRON_PER_ROCK",
+        "clutter_diameter_m": "rocks.CLUTTER_DIAMETER_M",
+        "n_templates": "rocks.N_TEMPLATES",
+    },
+    "SunConfig": {
+        "irradiance": "renderer.SUN_IRRADIANCE",
+        "sky_ambient": "renderer.SKY_AMBIENT",
+    },
+    "CameraConfig": {
+        "jpeg_quality": "sensor.JPEG_QUALITY",
+        "full_well_e": "sensor.FULL_WELL_E",
+        "read_noise_e": "sensor.READ_NOISE_E",
+        "exposure_target": "sensor.EXPOSURE_TARGET",
+        "exposure_smoothing": "sensor.EXPOSURE_SMOOTHING",
+        "gamma": "sensor.GAMMA",
+        "near_m": "renderer.CAMERA_NEAR_M",
+        "far_m": "renderer.CAMERA_FAR_M",
+        "haze_m": "renderer.HAZE_M",
+    },
+    "RouteConfig": {
+        "accel_mps2": "route.ACCEL_MPS2",
+        "wheelbase_m": "route.WHEELBASE_M",
+        "track_m": "route.TRACK_M",
+        "body_smoothing_s": "route.BODY_SMOOTHING_S",
+        "gt_rate_hz": "generate.GT_RATE_HZ",
+        "min_turn_radius_m": 6.0,  # read by no code: a value, not a constant
+    },
+    "OrbitalConfig": {
+        "supersample": "orbital.SUPERSAMPLE",
+        "mtf_sigma_px": "orbital.MTF_SIGMA_PX",
+        "noise_dn": "orbital.NOISE_DN",
+        "shot_noise": "orbital.SHOT_NOISE",
+    },
+}
+
+
+def constant_value(ref: Any) -> Any:
+    """The value of a :data:`CONSTANT_FIELDS` entry, as world.yaml writes it (tuples as
+    lists; a section as a dict)."""
+    if isinstance(ref, dict):
+        return {k: constant_value(r) for k, r in ref.items()}
+    if not isinstance(ref, str):
+        return ref
+    module, name = ref.rsplit(".", 1)
+    return _plain(getattr(importlib.import_module(f"atacama_sim.{module}"), name))
+
+
+def _check_constant(obj: Any, key: str, value: Any) -> None:
+    ref = CONSTANT_FIELDS.get(type(obj).__name__, {}).get(key)
+    if ref is None:
+        raise KeyError(f"unknown config field '{key}' in {type(obj).__name__}")
+    expected = constant_value(ref)
+    if isinstance(expected, dict):
+        if not isinstance(value, dict):
+            raise TypeError(f"{type(obj).__name__}.{key} is a section: give its fields")
+        for k, v in value.items():
+            if k not in expected:
+                raise KeyError(f"unknown config field '{k}' in {type(obj).__name__}.{key}")
+            if _plain(v) != expected[k]:
+                raise ValueError(f"{type(obj).__name__}.{key}.{k} is a constant of the "
+                                 f"simulator ({expected[k]!r}), not {v!r}")
+        return
+    if _plain(value) != expected:
+        raise ValueError(f"{type(obj).__name__}.{key} is a constant of the simulator "
+                         f"({expected!r}), not {value!r}")
 
 
 PRESETS: dict[str, dict[str, Any]] = {
@@ -234,8 +367,9 @@ PRESETS: dict[str, dict[str, Any]] = {
 
 def _override(obj: Any, values: dict[str, Any]) -> None:
     for key, value in values.items():
-        if not hasattr(obj, key):
-            raise KeyError(f"unknown config field '{key}' in {type(obj).__name__}")
+        if key not in {f.name for f in dataclasses.fields(obj)}:
+            _check_constant(obj, key, value)
+            continue
         current = getattr(obj, key)
         if dataclasses.is_dataclass(current):
             if not isinstance(value, dict):
@@ -253,6 +387,28 @@ def _override(obj: Any, values: dict[str, Any]) -> None:
         if isinstance(current, tuple | int | float) and not isinstance(current, bool):
             value = type(current)(value)
         setattr(obj, key, value)
+
+
+#: Map-frame origin (longitude, latitude, degrees) of a Mars CRS given without one:
+#: Oxia Planum.
+MARS_SITE_LONLAT = (-24.55, 18.2)
+#: Gravity on Mars, m/s^2.
+MARS_GRAVITY = 3.721
+
+
+def add_site(overrides: dict[str, Any], crs: str | None,
+             site_lonlat: tuple[float, float] | None) -> dict[str, Any]:
+    """Add a CRS and a site to nested ``overrides`` (in place, and returned). A Mars CRS
+    (``IAU_2015:499xx``) without a site is placed at :data:`MARS_SITE_LONLAT`, with Mars'
+    gravity unless the overrides set one."""
+    if crs:
+        overrides.setdefault("site", {})["crs"] = crs
+    if site_lonlat:
+        overrides.setdefault("site", {})["site_lonlat"] = tuple(site_lonlat)
+    if crs and crs.upper().startswith("IAU_2015:499") and not site_lonlat:
+        overrides["site"]["site_lonlat"] = MARS_SITE_LONLAT
+        overrides.setdefault("imu", {}).setdefault("gravity", MARS_GRAVITY)
+    return overrides
 
 
 def make_config(preset: str = "atacama_1km", seed: int = 1,

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from atacama_sim.bagwriter import BagWriter
+from atacama_sim.bagwriter import BAG_EPOCH_NS, BagWriter
 from atacama_sim.camera import StereoRig
 from atacama_sim.config import WorldConfig
 from atacama_sim.contact import contact_sheet
@@ -26,10 +26,12 @@ from atacama_sim.orbital import orbital_tiles, render_orbital
 from atacama_sim.renderer import SceneRenderer
 from atacama_sim.route import camera_indices, drive, plan_route
 from atacama_sim.sensor import develop, developer_pool
+from atacama_sim.texture import MATERIAL_RGB
 from atacama_sim.truth import write_rover_yaml, write_truth_rois, write_tum, write_world_yaml
 from atacama_sim.world import World
 
-CONTACT_FRAMES = 6
+CONTACT_FRAMES = 6  # frames shown on the contact sheet
+GT_RATE_HZ = 10.0  # rate of the ground-truth poses (plus one at every stereo pair), Hz
 
 
 def _contact_choice(rig: StereoRig, traj, cam_idx: np.ndarray,
@@ -78,9 +80,8 @@ def _traverse(cfg: WorldConfig, rig: StereoRig, renderer, traj, imu, cam_idx: np
         k = int(cam_idx[i])
         poses = [rig.camera_pose(rot[k].as_matrix(), traj.p[k], right=r) for r in (False, True)]
         tr = time.perf_counter()
-        views = renderer.render_views(rig, poses, cfg.sun, cfg.camera.near_m,
-                                      cfg.camera.far_m, cfg.camera.haze_m,
-                                      want_label=True, want_depth=keep_aux, half=True)
+        views = renderer.render_views(rig, poses, cfg.sun, want_label=True,
+                                      want_depth=keep_aux, half=True)
         render_s += time.perf_counter() - tr
         lab = views[0]["label"]
         np.maximum(seen_px, np.bincount(lab.ravel(), minlength=len(seen_px)), out=seen_px)
@@ -91,7 +92,7 @@ def _traverse(cfg: WorldConfig, rig: StereoRig, renderer, traj, imu, cam_idx: np
         n_rendered += 1
 
     with developer_pool(cfg.camera, rig.fx, cfg.seed) as pool, \
-            BagWriter(out / "rosbag", cfg.start_time_ns) as bag:
+            BagWriter(out / "rosbag", BAG_EPOCH_NS) as bag:
         for k in range(len(traj.t)):
             t = float(traj.t[k])
             bag.write_imu(t, imu.gyro[k], imu.accel[k], imu.gyro_sigma, imu.accel_sigma)
@@ -142,14 +143,13 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
     imu = synthesize_imu(traj, cfg.imu, cfg.seed)
     cam_idx = camera_indices(traj, cfg.route.frame_spacing_m, cfg.route.stop_frame_period_s,
                              rate)
-    gt_step = max(1, round(rate / cfg.route.gt_rate_hz))
+    gt_step = max(1, round(rate / GT_RATE_HZ))
     gt_idx = np.union1d(np.arange(0, len(traj.t), gt_step), cam_idx)
     rig = StereoRig.from_config(cfg.camera)
     timings["world_s"] = time.perf_counter() - t0
 
     renderer = SceneRenderer(world.terrain, world.textures, world.rocks,
-                             (cfg.albedo.soil_rgb, cfg.albedo.gravel_rgb,
-                              cfg.albedo.pavement_rgb), (cfg.camera.width, cfg.camera.height))
+                             MATERIAL_RGB, (cfg.camera.width, cfg.camera.height))
     n_traverse = 0 if orbital_only else len(cam_idx)
     bar = tqdm(total=orbital_tiles(world) + n_traverse, unit="step", disable=not progress,
                desc=f"atacama_sim {cfg.preset}")
@@ -171,7 +171,7 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
 
     write_truth_rois(cat, cfg, world.origin, out / "truth/rois.geojson")
     # TUM stamps are bag time in seconds (= header stamps), like the pipeline's outputs
-    t_abs = cfg.start_time_ns * 1e-9 + traj.t[gt_idx]
+    t_abs = BAG_EPOCH_NS * 1e-9 + traj.t[gt_idx]
     write_tum(out / "truth/trajectory.tum", t_abs, traj.p[gt_idx], traj.q[gt_idx])
     if not orbital_only:
         write_rover_yaml(out / "rover.yaml", rig, cfg)

@@ -17,8 +17,18 @@ from rasterio.transform import Affine
 from scipy.ndimage import gaussian_filter
 
 from atacama_sim.config import rng_for
-from atacama_sim.renderer import SceneRenderer, sun_vector
+from atacama_sim.renderer import SKY_AMBIENT, SUN_IRRADIANCE, SceneRenderer, sun_vector
+from atacama_sim.texture import SOIL_RGB
 from atacama_sim.world import World
+
+#: Tiles are rendered at gsd / SUPERSAMPLE, then area-averaged to the GSD.
+SUPERSAMPLE = 2
+#: Sigma of the Gaussian PSF applied after the area average, pixels.
+MTF_SIGMA_PX = 0.6
+#: Read noise of the 8-bit product, DN rms.
+NOISE_DN = 1.5
+#: Shot noise at full scale, relative rms.
+SHOT_NOISE = 0.006
 
 
 def orbital_transform(world: World) -> Affine:
@@ -36,15 +46,15 @@ def render_orbital(world: World, renderer: SceneRenderer, out_tif: Path,
     e = world.terrain.extent
     gsd = ocfg.gsd_m
     n = round(e / gsd)
-    ss = ocfg.supersample
+    ss = SUPERSAMPLE
     tile_px = round(ocfg.tile_m / gsd)
     margin = 8  # px of overlap so the PSF has no tile seams
     rgb = np.zeros((n, n, 3), np.uint8)
     labels = np.zeros((n, n), np.uint16)
     # Fixed exposure: lit soil at mid-grey, as a HiRISE product is stretched.
     sun = sun_vector(ocfg.sun)
-    soil = np.array(world.cfg.albedo.soil_rgb) ** 2.2  # linear
-    lit = soil.mean() * (ocfg.sun.irradiance * sun[2] + ocfg.sun.sky_ambient)
+    soil = np.array(SOIL_RGB) ** 2.2  # linear
+    lit = soil.mean() * (SUN_IRRADIANCE * sun[2] + SKY_AMBIENT)
     gain = 0.58 ** 2.2 / lit
     x_left, y_top = -e / 2, e / 2
     rng = rng_for(world.cfg.seed, "orbital")
@@ -57,10 +67,10 @@ def render_orbital(world: World, renderer: SceneRenderer, out_tif: Path,
             out = renderer.render_topdown(x0, y1, gsd / ss, (w * ss, h * ss), ocfg.sun)
             rad = out["rad"].reshape(h, ss, w, ss, 3).mean(axis=(1, 3))
             lab = out["label"].reshape(h, ss, w, ss).max(axis=(1, 3))
-            img = gaussian_filter(rad * gain, sigma=(ocfg.mtf_sigma_px, ocfg.mtf_sigma_px, 0))
+            img = gaussian_filter(rad * gain, sigma=(MTF_SIGMA_PX, MTF_SIGMA_PX, 0))
             img = np.clip(img, 0, 1) ** (1 / 2.2)  # stretched product, like a HiRISE browse
             img = img + rng.standard_normal(img.shape) * np.sqrt(
-                (ocfg.noise_dn / 255) ** 2 + ocfg.shot_noise ** 2 * img)
+                (NOISE_DN / 255) ** 2 + SHOT_NOISE ** 2 * img)
             tile = (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)
             rgb[r0:r1, c0:c1] = tile[margin:margin + r1 - r0, margin:margin + c1 - c0]
             labels[r0:r1, c0:c1] = lab[margin:margin + r1 - r0, margin:margin + c1 - c0]

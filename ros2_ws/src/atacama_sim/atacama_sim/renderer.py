@@ -33,6 +33,11 @@ PATCH_CACHE = 8000  # patches kept (about 55 MB)
 LEVEL_CELLS = tuple(0.05 * 2**k for k in range(9))  # cell size per level: 5 cm .. 12.8 m
 SPLIT_FACTOR = 3.0  # split a patch when the camera is closer than factor x its size
 # (cells then subtend at most fx / (SPLIT_FACTOR * PATCH) ~ 16 px)
+SUN_IRRADIANCE = 1.0  # direct sunlight on a surface facing the sun (linear radiance units)
+SKY_AMBIENT = 0.16  # diffuse sky light (same units)
+CAMERA_NEAR_M = 0.2  # near clipping plane of the rover cameras, m
+CAMERA_FAR_M = 2000.0  # far clipping plane of the rover cameras, m
+HAZE_M = 3000.0  # aerial-perspective e-folding distance of the rover views, m
 
 _COMMON = """
 #version 430
@@ -591,18 +596,16 @@ class SceneRenderer:
         self._bind_textures()
         self._draw("d", patches, inst, centre_xy, radius)
 
-    def _light_uniforms(self, sun: np.ndarray, sun_cfg: SunConfig, light_vp: np.ndarray,
-                        cam: np.ndarray, haze: float, sky_h: np.ndarray,
-                        light_depth: float) -> None:
+    def _light_uniforms(self, sun: np.ndarray, light_vp: np.ndarray, cam: np.ndarray,
+                        haze: float, sky_h: np.ndarray, light_depth: float) -> None:
         for p in (self.p_ter, self.p_rock):
             self._set(p, u_light_vp=tuple(light_vp.T.astype("f4").ravel()),
                       u_sbias=0.03 / light_depth,
-                      u_sun=tuple(sun), u_irr=sun_cfg.irradiance, u_amb=sun_cfg.sky_ambient,
+                      u_sun=tuple(sun), u_irr=SUN_IRRADIANCE, u_amb=SKY_AMBIENT,
                       u_cam=tuple(cam), u_haze=haze, u_sky_h=tuple(sky_h))
 
     def render_views(self, rig: StereoRig, poses: list[tuple[np.ndarray, np.ndarray]],
-                     sun_cfg: SunConfig, near: float, far: float, haze: float,
-                     want_label: bool = False, want_depth: bool = False,
+                     sun_cfg: SunConfig, want_label: bool = False, want_depth: bool = False,
                      half: bool = False) -> list[dict[str, np.ndarray]]:
         """Render camera views sharing one shadow map (e.g. a stereo pair).
 
@@ -641,9 +644,9 @@ class SceneRenderer:
                                          None, 0)
             self._shadow_pass(self._light_vp, sp, sinst, need, self.SHADOW_HALF * 1.5)
         light_vp = self._light_vp
-        sky_h = np.array([0.62, 0.70, 0.82]) * (sun_cfg.irradiance * 0.55)
-        sky_z = np.array([0.22, 0.36, 0.70]) * (sun_cfg.irradiance * 0.45)
-        proj = rig.gl_projection(near, far)
+        sky_h = np.array([0.62, 0.70, 0.82]) * (SUN_IRRADIANCE * 0.55)
+        sky_z = np.array([0.22, 0.36, 0.70]) * (SUN_IRRADIANCE * 0.45)
+        proj = rig.gl_projection(CAMERA_NEAR_M, CAMERA_FAR_M)
         out = []
         for r_wc, c_w in poses:
             view = np.eye(4)
@@ -657,7 +660,7 @@ class SceneRenderer:
             self._bind_textures()
             self.ctx.enable(moderngl.DEPTH_TEST)
             self.ctx.depth_func = "<"
-            self._light_uniforms(sun, sun_cfg, light_vp, c_w, haze, sky_h, self.SHADOW_DEPTH)
+            self._light_uniforms(sun, light_vp, c_w, HAZE_M, sky_h, self.SHADOW_DEPTH)
             for p in (self.p_ter, self.p_rock):
                 self._set(p, u_vp=tuple(vp.T.astype("f4").ravel()),
                           u_view=tuple(view.T.astype("f4").ravel()))
@@ -726,8 +729,7 @@ class SceneRenderer:
         self._bind_textures()
         self.ctx.enable(moderngl.DEPTH_TEST)
         # the viewer is overhead (facing test of the rock normals; no haze)
-        self._light_uniforms(sun, sun_cfg, light_vp, np.array([cx, cy, 1e5]), 0.0,
-                             np.zeros(3), 600.0)
+        self._light_uniforms(sun, light_vp, np.array([cx, cy, 1e5]), 0.0, np.zeros(3), 600.0)
         for p in (self.p_ter, self.p_rock):
             self._set(p, u_vp=tuple(proj.T.astype("f4").ravel()),
                       u_view=tuple(view.T.astype("f4").ravel()))

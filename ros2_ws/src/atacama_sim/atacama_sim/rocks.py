@@ -1,6 +1,6 @@
 """Rocks and outcrops: the major ROIs (truth catalogue) and sub-threshold clutter.
 
-- Rock shapes: ``n_templates`` irregular bodies made from an icosphere by low-frequency
+- Rock shapes: :data:`N_TEMPLATES` irregular bodies made from an icosphere by low-frequency
   radial noise and random planar cuts (angular, faceted blocks), normalised so that the
   ground plane is z = 0, the top is z = 1, 35 % of the body is buried, and the silhouette
   centroid is at the origin. Each rock is an instance: template, anisotropic scale, yaw.
@@ -24,6 +24,25 @@ from atacama_sim.config import RockConfig, rng_for
 from atacama_sim.terrain import Terrain
 
 BURIED = 0.35  # fraction of a template's height below its ground plane
+
+#: Distinct irregular rock shapes (templates).
+N_TEMPLATES = 16
+#: Share of the major ROIs placed uniformly rather than in clusters.
+BACKGROUND_FRACTION = 0.15
+#: Footprint area and height ranges of a rock, m^2 and m (the ROI definition).
+ROCK_AREA_M2 = (0.6, 6.0)
+ROCK_HEIGHT_M = (0.25, 2.0)
+#: Footprint area and height ranges of an outcrop, m^2 and m.
+OUTCROP_AREA_M2 = (8.0, 100.0)
+OUTCROP_HEIGHT_M = (0.08, 0.30)
+#: Exponent of the size-frequency law dN/dA ~ A^-SIZE_POWER (outcrops: SIZE_POWER - 0.3).
+SIZE_POWER = 1.8
+#: Least gap between major ROI footprints, m.
+MIN_SEPARATION_M = 2.0
+#: Debris rocks scattered around each major rock.
+CLUTTER_APRON_PER_ROCK = 12
+#: Diameter range of a clutter rock, m.
+CLUTTER_DIAMETER_M = (0.08, 0.75)
 
 # Instance columns (float32 rows uploaded to the GPU).
 INST_FIELDS = ("x", "y", "z", "sx", "sy", "sz", "yaw", "r", "g", "b", "label", "template")
@@ -225,7 +244,7 @@ def generate_rocks(cfg: RockConfig, terrain: Terrain, seed: int,
     that its short route meets rocks).
     """
     rng = rng_for(seed, "rocks")
-    templates = make_templates(cfg.n_templates, seed)
+    templates = make_templates(N_TEMPLATES, seed)
     half = terrain.extent / 2 - 3.0
     area_km2 = (2 * half / 1000) ** 2
     n_major = rng.poisson(cfg.major_per_km2 * area_km2)
@@ -238,7 +257,7 @@ def generate_rocks(cfg: RockConfig, terrain: Terrain, seed: int,
     attempts = 0
     while len(rows) < n_major and attempts < 50 * n_major + 100:
         attempts += 1
-        if rng.uniform() < cfg.background_fraction:
+        if rng.uniform() < BACKGROUND_FRACTION:
             xy = rng.uniform(-half, half, size=2)
         else:
             xy = centres[rng.integers(n_clusters)] + rng.normal(0, cfg.cluster_sigma_m, 2)
@@ -246,21 +265,21 @@ def generate_rocks(cfg: RockConfig, terrain: Terrain, seed: int,
             continue
         outcrop = rng.uniform() < cfg.outcrop_fraction
         if outcrop:
-            area = float(_power_law(rng, *cfg.outcrop_area_m2, cfg.size_power - 0.3, 1)[0])
-            height = float(rng.uniform(*cfg.outcrop_height_m))
+            area = float(_power_law(rng, *OUTCROP_AREA_M2, SIZE_POWER - 0.3, 1)[0])
+            height = float(rng.uniform(*OUTCROP_HEIGHT_M))
             elong = float(rng.uniform(0.4, 0.95))
         else:
-            area = float(_power_law(rng, *cfg.rock_area_m2, cfg.size_power, 1)[0])
+            area = float(_power_law(rng, *ROCK_AREA_M2, SIZE_POWER, 1)[0])
             height = float(np.clip(np.sqrt(area) * rng.uniform(0.35, 0.85),
-                                   *cfg.rock_height_m))
+                                   *ROCK_HEIGHT_M))
             elong = float(rng.uniform(0.55, 1.0))
         radius = np.sqrt(area / (np.pi * elong))
-        if any(np.hypot(xy[0] - px, xy[1] - py) < radius + pr + cfg.min_separation_m
+        if any(np.hypot(xy[0] - px, xy[1] - py) < radius + pr + MIN_SEPARATION_M
                for px, py, pr in placed):
             continue
         placed.append((float(xy[0]), float(xy[1]), float(radius)))
         rows.append((xy[0], xy[1], outcrop, area, height, elong,
-                     rng.uniform(-np.pi, np.pi), int(rng.integers(cfg.n_templates))))
+                     rng.uniform(-np.pi, np.pi), int(rng.integers(N_TEMPLATES))))
 
     cat_fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("id", "<u4"), ("label", "u1"),
                   ("area_m2", "<f4"), ("height_m", "<f4"), ("major_m", "<f4"),
@@ -296,7 +315,7 @@ def generate_rocks(cfg: RockConfig, terrain: Terrain, seed: int,
 
     clutter = _clutter(rng, cfg, terrain, templates, np.array(majors).reshape(-1, 12),
                        catalogue, outcrops, half)
-    templates_low = make_templates(cfg.n_templates, seed, subdiv=2)
+    templates_low = make_templates(N_TEMPLATES, seed, subdiv=2)
     return RockField(templates, templates_low, np.array(majors, np.float32).reshape(-1, 12),
                      clutter, outcrops, np.array(outcrop_ids, np.int64), catalogue)
 
@@ -316,7 +335,7 @@ def _clutter(rng: np.random.Generator, cfg: RockConfig, terrain: Terrain,
     aprons = []
     for m in majors:
         r = np.sqrt(m[INST["sx"]] * m[INST["sy"]])
-        k = cfg.clutter_apron_per_rock
+        k = CLUTTER_APRON_PER_ROCK
         ang = rng.uniform(0, 2 * np.pi, k)
         dist = r * (0.9 + rng.exponential(1.2, k))
         aprons.append(np.column_stack([m[0] + dist * np.cos(ang), m[1] + dist * np.sin(ang)]))
@@ -335,7 +354,7 @@ def _clutter(rng: np.random.Generator, cfg: RockConfig, terrain: Terrain,
                     break
         xy = xy[keep]
     n = len(xy)
-    d0, d1 = cfg.clutter_diameter_m
+    d0, d1 = CLUTTER_DIAMETER_M
     u = rng.uniform(size=n)
     diam = d0 * (d1 / d0) ** (u ** 2.5)
     tpl = rng.integers(len(templates), size=n)

@@ -24,6 +24,15 @@ from scipy.spatial.transform import Rotation
 from atacama_sim.config import RouteConfig, rng_for
 from atacama_sim.terrain import Terrain
 
+#: Acceleration and braking of the speed profile, m/s^2.
+ACCEL_MPS2 = 0.05
+#: Distance between the front and rear wheels, m (pitch from the terrain under them).
+WHEELBASE_M = 1.2
+#: Distance between the left and right wheels, m (roll from the terrain under them).
+TRACK_M = 1.0
+#: Suspension low-pass of pitch, roll and height (Gaussian sigma), s.
+BODY_SMOOTHING_S = 0.4
+
 
 def chaikin(pts: np.ndarray, iterations: int = 5) -> np.ndarray:
     """Corner-cutting smoothing of an open polyline (end points kept)."""
@@ -238,7 +247,7 @@ def drive(route: Route, cfg: RouteConfig, terrain: Terrain, rate: float,
     s0 = 0.0
     while s0 < route.length - 1e-6:
         seg = min(rng.uniform(*cfg.stop_every_m), route.length - s0)
-        prof = s0 + _segment(seg, cfg.speed_mps, cfg.accel_mps2, dt)
+        prof = s0 + _segment(seg, cfg.speed_mps, ACCEL_MPS2, dt)
         pieces.append(prof[1:])
         moving.append(np.ones(len(prof) - 1, bool))
         s0 += seg
@@ -258,7 +267,7 @@ def drive(route: Route, cfg: RouteConfig, terrain: Terrain, rate: float,
     yb = np.interp(s - 0.3, route.s, route.path[:, 1])
     yaw = np.unwrap(np.arctan2(ya - yb, xa - xb))
     # Plane through the six wheel contacts: height, forward slope, lateral slope.
-    wb, tr = cfg.wheelbase_m / 2, cfg.track_m / 2
+    wb, tr = WHEELBASE_M / 2, TRACK_M / 2
     offs = np.array([[dx, dy] for dx in (-wb, 0, wb) for dy in (-tr, tr)])
     c, sn = np.cos(yaw), np.sin(yaw)
     wx = x[:, None] + c[:, None] * offs[:, 0] - sn[:, None] * offs[:, 1]
@@ -267,7 +276,7 @@ def drive(route: Route, cfg: RouteConfig, terrain: Terrain, rate: float,
     z = wz.mean(axis=1)
     gx = (wz * offs[:, 0]).sum(axis=1) / (offs[:, 0] ** 2).sum()
     gy = (wz * offs[:, 1]).sum(axis=1) / (offs[:, 1] ** 2).sum()
-    sig = cfg.body_smoothing_s * rate
+    sig = BODY_SMOOTHING_S * rate
     z = gaussian_filter1d(z, sig, mode="nearest")
     pitch = gaussian_filter1d(-np.arctan(gx), sig, mode="nearest")
     roll = gaussian_filter1d(np.arctan(gy), sig, mode="nearest")

@@ -7,6 +7,19 @@ import numpy as np
 
 from atacama_sim.config import CameraConfig
 
+#: JPEG quality of the compressed images (OpenCV's 0-100 scale).
+JPEG_QUALITY = 93
+#: Full-well capacity, electrons (sets the shot noise).
+FULL_WELL_E = 12000.0
+#: Read noise, electrons rms.
+READ_NOISE_E = 12.0
+#: Mean image level (0-1, after gamma) that the auto-exposure aims at.
+EXPOSURE_TARGET = 0.42
+#: Per-frame weight of the new exposure in its moving average.
+EXPOSURE_SMOOTHING = 0.3
+#: Gamma of the 8-bit encoding (value = linear ** GAMMA).
+GAMMA = 1 / 2.2
+
 
 class CameraSensor:
     """Auto-exposure shared by the stereo pair (one exposure per pair, smoothed over frames,
@@ -23,25 +36,25 @@ class CameraSensor:
     def expose(self, rad_left: np.ndarray) -> float:
         """Update and return the exposure (radiance -> fraction of full well)."""
         level = float(np.mean(rad_left * self.vignette)) + 1e-6
-        target = self.cfg.exposure_target ** (1 / self.cfg.gamma)  # linear target
+        target = EXPOSURE_TARGET ** (1 / GAMMA)  # linear target
         new = target / level
-        a = self.cfg.exposure_smoothing
+        a = EXPOSURE_SMOOTHING
         self.exposure = new if self.exposure is None else (1 - a) * self.exposure + a * new
         return self.exposure
 
     def image(self, rad: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """8-bit RGB image (H, W, 3) of a linear radiance image."""
         assert self.exposure is not None
-        fw = self.cfg.full_well_e
+        fw = FULL_WELL_E
         e = np.clip(rad * self.vignette * (self.exposure * fw), 0, fw)
         e += rng.standard_normal(e.shape, dtype=np.float32) * np.sqrt(
-            e + self.cfg.read_noise_e ** 2)
-        v = np.clip(e / fw, 0, 1) ** self.cfg.gamma
+            e + READ_NOISE_E ** 2)
+        v = np.clip(e / fw, 0, 1) ** GAMMA
         return (v * 255 + 0.5).astype(np.uint8)
 
     def jpeg(self, rgb: np.ndarray) -> bytes:
         ok, buf = cv2.imencode(".jpg", rgb[:, :, ::-1],
-                               [cv2.IMWRITE_JPEG_QUALITY, self.cfg.jpeg_quality])
+                               [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
         if not ok:
             raise RuntimeError("JPEG encoding failed")
         return buf.tobytes()

@@ -14,6 +14,19 @@ import numpy as np
 
 from atacama_sim.config import TerrainConfig, rng_for
 
+#: Base height-grid spacing (also the material map's), m.
+TERRAIN_RES_M = 0.5
+#: Rms height of the undulation band, m.
+MEDIUM_RMS_M = 0.30
+#: Shortest and longest wavelength of the undulation band, m.
+MEDIUM_WAVELENGTHS_M = (4.0, 40.0)
+#: Rms height of the fine roughness (a periodic tile), m.
+ROUGH_RMS_M = 0.012
+#: Roughness tile spacing, m.
+ROUGH_RES_M = 0.025
+#: Roughness tile side, texels (period ROUGH_TILE_PX * ROUGH_RES_M = 25.6 m).
+ROUGH_TILE_PX = 1024
+
 
 def spectral_field(rng: np.random.Generator, shape: tuple[int, int], res_m: float,
                    wavelengths_m: tuple[float, float], slope: float = 3.0) -> np.ndarray:
@@ -60,18 +73,18 @@ class Terrain:
     @classmethod
     def generate(cls, cfg: TerrainConfig, extent_m: float, seed: int) -> Terrain:
         """Synthesise the terrain of a square of side ``extent_m`` centred on the origin."""
-        n = round(extent_m / cfg.res_m) + 1
+        n = round(extent_m / TERRAIN_RES_M) + 1
         rng = rng_for(seed, "terrain")
-        base = cfg.large_rms_m * spectral_field(rng, (n, n), cfg.res_m,
+        base = cfg.large_rms_m * spectral_field(rng, (n, n), TERRAIN_RES_M,
                                                 cfg.large_wavelengths_m)
-        base += cfg.medium_rms_m * spectral_field(rng, (n, n), cfg.res_m,
-                                                  cfg.medium_wavelengths_m, slope=2.5)
-        m = cfg.rough_tile_px
-        rough = cfg.rough_rms_m * spectral_field(rng, (m, m), cfg.rough_res_m,
-                                                 (3 * cfg.rough_res_m, 1.5), slope=2.0)
+        base += MEDIUM_RMS_M * spectral_field(rng, (n, n), TERRAIN_RES_M,
+                                              MEDIUM_WAVELENGTHS_M, slope=2.5)
+        m = ROUGH_TILE_PX
+        rough = ROUGH_RMS_M * spectral_field(rng, (m, m), ROUGH_RES_M,
+                                             (3 * ROUGH_RES_M, 1.5), slope=2.0)
         base -= base[n // 2, n // 2]  # map origin at height 0
-        return cls(base.astype(np.float32), -extent_m / 2.0, cfg.res_m,
-                   rough.astype(np.float32), cfg.rough_res_m)
+        return cls(base.astype(np.float32), -extent_m / 2.0, TERRAIN_RES_M,
+                   rough.astype(np.float32), ROUGH_RES_M)
 
     @property
     def extent(self) -> float:

@@ -2,7 +2,7 @@
 
 1. Material map (0.5 m): soil, gravel patches and dark desert pavement, mixed by smooth
    random fields with soft boundaries, plus a low-frequency brightness variation.
-2. Detail tiles (1 cm texels, periodic 10 m): per material, an albedo factor and a bump
+2. Detail tiles (1 cm texels, periodic 20.48 m): per material, an albedo factor and a bump
    height: rounded pebbles for gravel, packed varnished clasts for pavement, fine grain and
    wind ripples for soil, and a fractured-rock texture for rocks and outcrops.
 3. The renderer samples each detail tile twice, at two rotations and scales, which hides
@@ -16,8 +16,26 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from atacama_sim.config import AlbedoConfig, rng_for
-from atacama_sim.terrain import spectral_field
+from atacama_sim.config import rng_for
+from atacama_sim.terrain import TERRAIN_RES_M, spectral_field
+
+#: Albedo (linear RGB) of the soil, the gravel patches and the desert pavement.
+SOIL_RGB = (0.56, 0.45, 0.35)
+GRAVEL_RGB = (0.46, 0.41, 0.36)
+PAVEMENT_RGB = (0.30, 0.23, 0.18)
+#: Share of the area covered by gravel, by pavement.
+GRAVEL_COVER = 0.30
+PAVEMENT_COVER = 0.25
+#: Typical size of the material patches, m.
+PATCH_WAVELENGTH_M = 25.0
+#: Detail texture texel (pebbles), m.
+DETAIL_RES_M = 0.01
+#: Detail tile side, texels (a 20 m period).
+DETAIL_TILE_PX = 2048
+#: Sub-cm to 5 cm clasts per m^2 in the gravel detail texture (1.6 times that on pavement).
+PEBBLES_PER_M2 = 220.0
+#: The three materials' albedos, in the renderer's order.
+MATERIAL_RGB = (SOIL_RGB, GRAVEL_RGB, PAVEMENT_RGB)
 
 
 @dataclass
@@ -95,25 +113,25 @@ def _u8(a: np.ndarray, scale: float) -> np.ndarray:
     return np.clip(np.round(a * scale), 0, 255).astype(np.uint8)
 
 
-def generate_textures(cfg: AlbedoConfig, grid_n: int, seed: int) -> GroundTextures:
+def generate_textures(grid_n: int, seed: int) -> GroundTextures:
     """Material map on a ``grid_n`` x ``grid_n`` grid (terrain grid) and detail tiles."""
     rng = rng_for(seed, "albedo")
     shape = (grid_n, grid_n)
-    lam = cfg.patch_wavelength_m
-    g_field = spectral_field(rng, shape, cfg.res_m, (lam / 6, lam * 6), slope=3.0)
-    p_field = spectral_field(rng, shape, cfg.res_m, (lam / 4, lam * 8), slope=3.2)
-    w_gravel = _cover_weight(g_field, cfg.gravel_cover)
-    w_pav = _cover_weight(p_field, cfg.pavement_cover)
-    bright = 1.0 + 0.08 * spectral_field(rng, shape, cfg.res_m, (2.0, 200.0), slope=2.5)
+    lam = PATCH_WAVELENGTH_M
+    g_field = spectral_field(rng, shape, TERRAIN_RES_M, (lam / 6, lam * 6), slope=3.0)
+    p_field = spectral_field(rng, shape, TERRAIN_RES_M, (lam / 4, lam * 8), slope=3.2)
+    w_gravel = _cover_weight(g_field, GRAVEL_COVER)
+    w_pav = _cover_weight(p_field, PAVEMENT_COVER)
+    bright = 1.0 + 0.08 * spectral_field(rng, shape, TERRAIN_RES_M, (2.0, 200.0), slope=2.5)
     material = np.stack([_u8(w_gravel, 255), _u8(w_pav, 255), _u8(bright, 128),
                          np.zeros(shape, np.uint8)], axis=-1)
 
-    m, res = cfg.detail_tile_px, cfg.detail_res_m
+    m, res = DETAIL_TILE_PX, DETAIL_RES_M
     grain = spectral_field(rng, (m, m), res, (2 * res, 0.3), slope=1.5)
-    gravel_alb, gravel_h = _clasts(rng, m, res, cfg.pebbles_per_m2, (0.006, 0.06),
+    gravel_alb, gravel_h = _clasts(rng, m, res, PEBBLES_PER_M2, (0.006, 0.06),
                                    (0.55, 1.45), 1.0)
     gravel_alb = gravel_alb * (1 + 0.10 * grain)
-    pav_alb, pav_h = _clasts(rng, m, res, cfg.pebbles_per_m2 * 1.6, (0.01, 0.08),
+    pav_alb, pav_h = _clasts(rng, m, res, PEBBLES_PER_M2 * 1.6, (0.01, 0.08),
                              (0.55, 1.1), 1.25)
     pav_alb = pav_alb * (1 + 0.08 * grain)
     # Soil: fine grain + faint wind ripples (period ~8 cm) across the tile.

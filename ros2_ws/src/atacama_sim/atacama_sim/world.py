@@ -35,6 +35,6 @@ class World:
     @classmethod
     def build(cls, cfg: WorldConfig, focus_xy: np.ndarray | None = None) -> World:
         terrain = Terrain.generate(cfg.terrain, cfg.site.extent_m, cfg.seed)
-        textures = generate_textures(cfg.albedo, terrain.base.shape[0], cfg.seed)
+        textures = generate_textures(terrain.base.shape[0], cfg.seed)
         rocks = generate_rocks(cfg.rocks, terrain, cfg.seed, focus_xy=focus_xy)
         return cls(cfg, terrain, textures, rocks, map_origin(cfg.site.crs, cfg.site.site_lonlat))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import cv2
@@ -12,12 +13,14 @@ import rasterio
 import yaml
 from scipy.spatial.transform import Rotation
 
+from atacama_sim.bagwriter import BAG_EPOCH_NS
 from atacama_sim.camera import StereoRig
-from atacama_sim.config import make_config
+from atacama_sim.config import CONSTANT_FIELDS, constant_value, make_config
 from atacama_sim.generate import generate
 from atacama_sim.renderer import SceneRenderer
 from atacama_sim.rocks import INST
 from atacama_sim.route import drive, plan_route
+from atacama_sim.texture import MATERIAL_RGB
 from atacama_sim.truth import write_truth_rois
 from atacama_sim.world import World
 
@@ -70,7 +73,7 @@ def _tum(bag_dir: Path) -> np.ndarray:
 
 def _pose_at(tum: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
     """Truth pose at ``t`` seconds after the bag start (TUM stamps are bag time)."""
-    t = make_config("tiny", SEED, LENS).start_time_ns * 1e-9 + t
+    t = BAG_EPOCH_NS * 1e-9 + t
     i = int(np.argmin(np.abs(tum[:, 0] - t)))
     assert abs(tum[i, 0] - t) < 1e-4, "camera stamps are ground-truth stamps"
     return Rotation.from_quat(tum[i, 4:8]).as_matrix(), tum[i, 1:4]
@@ -385,7 +388,7 @@ def test_same_seed_same_truth_and_trajectory(bag: dict, messages: dict,
     tum = _tum(bag["dir"])
     first = bag["stats"]["_traj"]
     assert np.array_equal(traj.p, first.p) and np.array_equal(traj.q, first.q)
-    t_rel = tum[:, 0] - cfg.start_time_ns * 1e-9
+    t_rel = tum[:, 0] - BAG_EPOCH_NS * 1e-9
     i = np.searchsorted(traj.t, t_rel - 1e-4)
     assert np.allclose(traj.t[i], t_rel, atol=1e-4)
     assert np.allclose(traj.p[i], tum[:, 1:4], atol=1e-6)
@@ -402,13 +405,12 @@ def test_renderer_is_deterministic(bag: dict) -> None:
     rig = StereoRig.from_config(cfg.camera)
     traj = bag["stats"]["_traj"]
     k = int(bag["stats"]["_cam_idx"][3])
-    r = SceneRenderer(world.terrain, world.textures, world.rocks,
-                      (cfg.albedo.soil_rgb, cfg.albedo.gravel_rgb, cfg.albedo.pavement_rgb),
+    r = SceneRenderer(world.terrain, world.textures, world.rocks, MATERIAL_RGB,
                       (cfg.camera.width, cfg.camera.height))
     try:
         poses = [rig.camera_pose(traj.rotations()[k].as_matrix(), traj.p[k])]
-        a, b = (r.render_views(rig, poses, cfg.sun, 0.2, 2000, 3000, want_label=True,
-                               want_depth=True)[0] for _ in range(2))
+        a, b = (r.render_views(rig, poses, cfg.sun, want_label=True, want_depth=True)[0]
+                for _ in range(2))
     finally:
         r.release()
     assert np.array_equal(a["rad"], b["rad"])
@@ -443,8 +445,6 @@ def test_orbital_only_writes_the_same_orbital_products_and_no_traverse(
     """``--orbital-only`` (training data for the orbital classifiers) writes the orbital
     image, its labels, the truth and world.yaml of the full run byte for byte, and no
     rosbag or rover.yaml (a stale one from a full run is removed)."""
-    from atacama_sim.cli import main
-
     out = tmp_path / "tiny_orbital"
     (out / "rosbag").mkdir(parents=True)
     (out / "rover.yaml").write_text("stale")
@@ -458,18 +458,13 @@ def test_orbital_only_writes_the_same_orbital_products_and_no_traverse(
     derived = yaml.safe_load((out / "world.yaml").read_text())["derived"]
     assert derived["orbital_only"] is True
     assert derived["rois"]["seen_by_left_camera_200px"] is None
-    # The CLI flag reaches it.
-    assert main(["generate", "--preset", "tiny", "--seed", str(SEED), "--orbital-only",
-                 "--no-progress", "--out", str(tmp_path / "cli")]) == 0
-    assert (tmp_path / "cli" / "orbital.tif").is_file()
-    assert not (tmp_path / "cli" / "rosbag").exists()
 
 
 def test_set_overrides_a_preset_field_and_refuses_bad_ones(tmp_path: Path, capsys) -> None:
     """``--set SECTION.FIELD=VALUE`` changes that field of the preset (world.yaml records
-    it, the rig in rover.yaml follows); a malformed item, an unknown field or a value of
-    the wrong type stops the command with a message naming it, before anything is
-    written."""
+    it) and ``--orbital-only`` reaches the generator; a malformed item, an unknown field,
+    a value of the wrong type or a constant set to another value stops the command with a
+    message naming it, before anything is written."""
     from atacama_sim.cli import main, parse_overrides
 
     assert parse_overrides(["camera.width=1024", "route.rois_target=[3, 8]"]) == \
@@ -480,9 +475,12 @@ def test_set_overrides_a_preset_field_and_refuses_bad_ones(tmp_path: Path, capsy
                  "--set", "orbital.gsd_m=0.5"]) == 0
     config = yaml.safe_load((out / "world.yaml").read_text())["config"]
     assert config["camera"]["baseline_m"] == 0.3 and config["orbital"]["gsd_m"] == 0.5
+    assert (out / "orbital.tif").is_file() and not (out / "rosbag").exists()
     for item, message in (("camerawidth=5", "expected SECTION.FIELD=VALUE"),
                           ("camera.nope=1", "unknown config field 'nope' in CameraConfig"),
                           ("camera.width=abc", "CameraConfig.width: expected int"),
+                          ("camera.jpeg_quality=80",
+                           "CameraConfig.jpeg_quality is a constant of the simulator"),
                           ("camera=5", "expected SECTION.FIELD=VALUE")):
         bad = tmp_path / "bad"
         with pytest.raises(SystemExit):
@@ -490,3 +488,29 @@ def test_set_overrides_a_preset_field_and_refuses_bad_ones(tmp_path: Path, capsy
                   "--out", str(bad), "--set", item])
         assert message in capsys.readouterr().err
         assert not bad.exists()
+
+
+def test_world_yaml_with_constant_keys_loads() -> None:
+    """A world.yaml that records the parameters that are now code constants loads when they
+    hold the constants' values (the same configuration), and names the key otherwise."""
+    cfg = make_config("tiny", SEED, LENS)
+    recorded = cfg.to_dict()
+    sections = {"TerrainConfig": [recorded["terrain"]], "RockConfig": [recorded["rocks"]],
+                "SunConfig": [recorded["sun"], recorded["orbital"]["sun"]],
+                "CameraConfig": [recorded["camera"]], "RouteConfig": [recorded["route"]],
+                "OrbitalConfig": [recorded["orbital"]], "WorldConfig": [recorded]}
+    assert set(CONSTANT_FIELDS) == set(sections)
+    for name, keys in CONSTANT_FIELDS.items():
+        for section in sections[name]:
+            section.update({k: constant_value(ref) for k, ref in keys.items()})
+    assert recorded["camera"]["jpeg_quality"] == 93
+    assert recorded["albedo"]["soil_rgb"] == [0.56, 0.45, 0.35]
+    overrides = {k: v for k, v in recorded.items() if k not in ("preset", "seed")}
+    assert make_config("tiny", SEED, overrides) == cfg
+    for section, key, value, named in (
+            ("camera", "gamma", 0.5, "CameraConfig.gamma"),
+            ("albedo", "soil_rgb", [0.5, 0.4, 0.3], "WorldConfig.albedo.soil_rgb")):
+        with pytest.raises(ValueError, match=re.escape(named)):
+            make_config("tiny", SEED, {section: {key: value}})
+    with pytest.raises(KeyError, match=re.escape("'nope' in WorldConfig.albedo")):
+        make_config("tiny", SEED, {"albedo": {"nope": 1}})
