@@ -188,7 +188,7 @@ def git_state() -> dict[str, Any]:
 
 
 def provenance(tier: str, argv: list[str], started: str) -> dict[str, Any]:
-    return {**git_state(), "command": "python bench/run_all.py " + " ".join(argv),
+    return {**git_state(), "command": " ".join(["python bench/run_all.py", *argv]),
             "tier": tier, "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                                       "platform": platform.platform()},
             "date": started}
