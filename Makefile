@@ -90,13 +90,13 @@ orbital-training-worlds: setup
 
 # Re-train the committed orbital classifiers (Rock Orbital, Outcrop Orbital): the default
 # (sun_aware recipe) and the one prepare falls back to when a raster's sun direction is
-# unknown (improved recipe).
+# unknown (no_sun recipe).
 ORBITAL_MODEL := $(WS)/src/orbital_gn/orbital_gn/models/orbital_default.npz
-ORBITAL_MODEL_NO_SUN := $(WS)/src/orbital_gn/orbital_gn/models/orbital_improved.npz
+ORBITAL_MODEL_NO_SUN := $(WS)/src/orbital_gn/orbital_gn/models/orbital_no_sun.npz
 orbital-model: training-bags orbital-training-worlds
 	$(RUN_ENV) orbital_gn train $(TRAIN_BAGS) $(ORBITAL_TRAIN_WORLDS) --recipe sun_aware \
 	  --out $(ORBITAL_MODEL)
-	$(RUN_ENV) orbital_gn train $(TRAIN_BAGS) $(ORBITAL_TRAIN_WORLDS) --recipe improved \
+	$(RUN_ENV) orbital_gn train $(TRAIN_BAGS) $(ORBITAL_TRAIN_WORLDS) --recipe no_sun \
 	  --out $(ORBITAL_MODEL_NO_SUN)
 
 # Re-train the committed rover model: the elevation_map method's two Rock Rovers, the

@@ -1,6 +1,6 @@
 """``orbital_gn``: offline GN preparation (train, prepare, eval).
 
-    orbital_gn train  BAG_DIR... --out models/orbital.npz [--recipe improved]
+    orbital_gn train  BAG_DIR... --out models/orbital.npz [--recipe no_sun]
     orbital_gn prepare ORTHO.tif --out GN.geojson [--model M] [--preview GN.png]
                                  [--scheduler ADDR] [--workers N] [--tile-px N]
                                  [--sun-azimuth DEG --sun-elevation DEG]
@@ -125,7 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
     pr.add_argument("--out", required=True, help="output GN GeoJSON")
     pr.add_argument("--model", default=None,
                     help="model file (default: the committed one); 'none': candidates only")
-    pr.add_argument("--recipe", choices=sorted(RECIPES), default="improved",
+    pr.add_argument("--recipe", choices=sorted(RECIPES), default="no_sun",
                     help="recipe with --model none (a model file carries its own)")
     pr.add_argument("--preview", help="PNG of the GN drawn over the image")
     pr.add_argument("--scheduler", help="dask.distributed scheduler address (default: "
@@ -145,7 +145,8 @@ def build_parser() -> argparse.ArgumentParser:
     tr = sub.add_parser("train", help="train the classifiers from training bags")
     tr.add_argument("bags", nargs="+", help="bag directories (orbital.tif + truth/)")
     tr.add_argument("--out", required=True, help="model file (.npz)")
-    tr.add_argument("--recipe", choices=sorted(RECIPES), default="improved")
+    tr.add_argument("--recipe", choices=sorted(RECIPES), default="no_sun",
+                    help="recipe to train (default no_sun: needs no sun direction)")
     tr.add_argument("--scheduler")
     tr.add_argument("--workers", type=int, default=2)
     tr.set_defaults(func=cmd_train)

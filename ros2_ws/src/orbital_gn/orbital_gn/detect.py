@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from orbital_gn.raster import OrthoInfo, OrthoWindow, Sun
-from orbital_gn.recipe import Recipe
+from orbital_gn.recipe import ENTROPY_WINDOW_M, MIN_PROBABILITY, Recipe
 from roi_detector.candidates import (
     MetricMoments,
     MetricStats,
@@ -44,16 +44,17 @@ from roi_network import LABEL_NAMES, ROCK, ROI_DTYPE
 _CONTRAST_TRUNCATE = 4.0
 
 
-def entropy_size_px(recipe: Recipe, gsd_m: float) -> int:
-    """The odd entropy neighbourhood side in pixels (3..15)."""
-    n = round(recipe.entropy_window_m / gsd_m)
+def entropy_size_px(gsd_m: float) -> int:
+    """The odd side in pixels (3..15) of the :data:`~orbital_gn.recipe.ENTROPY_WINDOW_M`
+    neighbourhood."""
+    n = round(ENTROPY_WINDOW_M / gsd_m)
     n = n if n % 2 == 1 else n + 1
     return int(min(max(n, 3), 15))
 
 
 def metrics_halo_px(recipe: Recipe, gsd_m: float) -> int:
     """Context the metric maps need for exact values at a pixel."""
-    halo = entropy_halo_px(entropy_size_px(recipe, gsd_m))
+    halo = entropy_halo_px(entropy_size_px(gsd_m))
     for sigmas in recipe.hessian_sigmas_m.values():
         halo = max(halo, *(hessian_halo_px(s / gsd_m) for s in sigmas))
     for s in recipe.contrast_sigma_m.values():
@@ -94,7 +95,7 @@ def class_metrics(gray: np.ndarray, recipe: Recipe, label: int, gsd_m: float,
             lmin = b if lmin is None else np.maximum(lmin, b)
         out["hessian_max"], out["hessian_min"] = lmax, lmin
     if "entropy" in used:
-        out["entropy"] = weighted_entropy(gray, entropy_size_px(recipe, gsd_m))
+        out["entropy"] = weighted_entropy(gray, entropy_size_px(gsd_m))
     if "contrast" in used:
         channel = recipe.contrast_channel.get(label, "gray")
         image = paleness(rgb01) if channel == "paleness" else gray
@@ -195,7 +196,7 @@ def window_candidates(win: OrthoWindow, core: tuple[int, int, int, int], info: O
         regions = [r for r in regions if _owned(r, core_abs, win.row0, win.col0)]
         all_regions.append((rule.label, regions))
     entropy = _sparse_entropy(win.gray, [r for _, rs in all_regions for r in rs],
-                              entropy_size_px(recipe, gsd))
+                              entropy_size_px(gsd))
     for label, regions in all_regions:
         feats = candidate_features(regions, win.rgb01, win.gray, entropy, recipe.feature_groups,
                                    sun_dir)
@@ -239,7 +240,7 @@ def classify(cands: Candidates, classifiers: dict[str, BinaryClassifier],
         rec["score"] = 1.0
         return rec
     proba = classifiers[name].predict_proba(cands.features)
-    keep = proba >= recipe.min_probability
+    keep = proba >= MIN_PROBABILITY
     rec = cands.records[keep].copy()
     rec["score"] = proba[keep]
     return rec

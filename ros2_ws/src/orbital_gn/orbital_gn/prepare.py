@@ -37,14 +37,15 @@ log = logging.getLogger("orbital_gn")
 
 
 def default_model_path() -> Path:
-    """The committed default model (``orbital_gn/models/orbital_default.npz``)."""
+    """The committed default model (``orbital_gn/models/orbital_default.npz``, the
+    ``sun_aware`` recipe)."""
     return Path(str(resources.files("orbital_gn") / "models" / "orbital_default.npz"))
 
 
 def no_sun_model_path() -> Path:
     """The committed model used instead of the default one when a raster's sun direction
-    is unknown (``orbital_gn/models/orbital_improved.npz``, the ``improved`` recipe)."""
-    return Path(str(resources.files("orbital_gn") / "models" / "orbital_improved.npz"))
+    is unknown (``orbital_gn/models/orbital_no_sun.npz``, the ``no_sun`` recipe)."""
+    return Path(str(resources.files("orbital_gn") / "models" / "orbital_no_sun.npz"))
 
 
 @dataclass
@@ -110,7 +111,7 @@ def resolve_sun(info: OrthoInfo, recipe: Recipe, sun: Sun | None = None
         f"{info.path}: recipe {recipe.name!r} needs the sun direction and the raster's "
         f"metadata has no {'/'.join(SUN_TAGS)}; pass --sun-azimuth DEG (clockwise from "
         "north) --sun-elevation DEG (90 - incidence angle) from the image product's label, "
-        "or use a model of the 'improved' recipe")
+        "or use a model of the 'no_sun' recipe")
 
 
 def suppress_rocks_on_outcrops(records: np.ndarray) -> np.ndarray:

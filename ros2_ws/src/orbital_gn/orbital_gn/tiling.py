@@ -4,7 +4,7 @@ Two passes over overlapping windows, each task reading its own window from the f
 memory is bounded by a window per worker, whatever the raster size):
 
 1. statistics: the metric distributions' moments over a fixed grid of 512 x 512 blocks
-   (at most ``recipe.stats_blocks`` of them, spread evenly), combined exactly, so the
+   (at most :data:`STATS_BLOCKS` of them, spread evenly), combined exactly, so the
    sigma thresholds do not depend on the processing tile size;
 2. detection: candidates of every window whose centroid lies in its core, with features.
 
@@ -41,6 +41,8 @@ from roi_network import empty_records
 
 #: Side of a statistics block, pixels (fixed: the thresholds must not depend on tiling).
 STATS_BLOCK_PX = 512
+#: At most this many statistics blocks, spread evenly over the raster (all when fewer).
+STATS_BLOCKS = 16
 #: Windows a local worker process handles before it is replaced.
 WINDOWS_PER_WORKER = 2
 
@@ -164,7 +166,7 @@ def raster_stats(info: OrthoInfo, recipe: Recipe, scheduler: str | None = None,
     """Per class, mean and sigma of each metric over the raster's valid pixels (pass 1),
     and the number of valid pixels sampled."""
     tasks = [dask.delayed(_moments_task, pure=True)(info, t, recipe)
-             for t in stats_tiles(info, recipe.stats_blocks)]
+             for t in stats_tiles(info, STATS_BLOCKS)]
     parts = _run(tasks, scheduler, workers, progress, "statistics")
     out: dict[int, dict[str, MetricStats]] = {}
     n_valid = 0

@@ -25,7 +25,7 @@ def test_default_model_is_committed_and_loads():
     assert model.without_sun == str(no_sun_model_path())
     assert no_sun_model_path().stat().st_size <= 1_000_000
     no_sun = load_model(no_sun_model_path())
-    assert no_sun.recipe.name == "improved" and no_sun.without_sun is None
+    assert no_sun.recipe.name == "no_sun" and no_sun.without_sun is None
     assert not set(no_sun.meta["provenance"]["training"]["seeds"]) & {1, 2, 3}
 
 
@@ -33,8 +33,8 @@ def test_default_model_without_a_sun_direction_falls_back(tmp_path):
     rgb, _ = scene(11, size=200, n_rocks=15, n_outcrops=2)
     ortho = write_tif(tmp_path / "nosun.tif", rgb)  # no SUN_* metadata
     gn, warnings = prepare_gn(ortho, load_model(None), scheduler="sync")
-    assert any("no sun direction" in w and "orbital_improved.npz" in w for w in warnings)
-    assert gn.metadata["recipe"]["name"] == "improved"
+    assert any("no sun direction" in w and "orbital_no_sun.npz" in w for w in warnings)
+    assert gn.metadata["recipe"]["name"] == "no_sun"
     assert gn.metadata["sun"]["source"] == "not used by the recipe"
 
 

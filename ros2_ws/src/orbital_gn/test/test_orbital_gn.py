@@ -15,7 +15,7 @@ from orbital_gn.cli import main
 from orbital_gn.evaluate import evaluate, match
 from orbital_gn.prepare import Model, load_model, prepare_gn
 from orbital_gn.raster import OrthoImageError, Sun, open_ortho
-from orbital_gn.recipe import IMPROVED, PAPER, SUN_AWARE
+from orbital_gn.recipe import NO_SUN, PAPER, SUN_AWARE
 from orbital_gn.train import TrainingError, train_model
 from roi_network import OUTCROP, ROCK
 from roi_network.geojson import read_geojson
@@ -30,7 +30,7 @@ def bags(tmp_path_factory):
 @pytest.fixture(scope="module")
 def model_file(bags, tmp_path_factory):
     out = tmp_path_factory.mktemp("model") / "m.npz"
-    train_model(bags, IMPROVED, out, scheduler="sync")
+    train_model(bags, NO_SUN, out, scheduler="sync")
     return out
 
 
@@ -40,8 +40,8 @@ def _key(gn):
                             r["minor_m"], r["score"]])
 
 
-@pytest.mark.parametrize("recipe", [PAPER, IMPROVED, SUN_AWARE],
-                         ids=["paper", "improved", "sun_aware"])
+# no_sun's candidates are sun_aware's without the shift: sun_aware covers both.
+@pytest.mark.parametrize("recipe", [PAPER, SUN_AWARE], ids=["paper", "sun_aware"])
 def test_tiled_equals_untiled(bags, recipe):
     ortho = bags[0] / "orbital.tif"
     whole, _ = prepare_gn(ortho, Model(recipe), tile_px=10_000, scheduler="sync")
@@ -63,7 +63,7 @@ def test_trained_model_detects_rocks_and_outcrops(tmp_path, model_file):
     model = load_model(model_file)
     prov = model.meta["provenance"]
     assert prov["training"]["seeds"] == [101, 102]
-    assert prov["recipe"]["name"] == "improved"
+    assert prov["recipe"]["name"] == "no_sun"
     assert "scikit-learn" in model.meta["library_versions"]
     assert model_file.stat().st_size < 1_000_000
     gn, warnings = prepare_gn(bag / "orbital.tif", model, scheduler="sync")
@@ -79,7 +79,7 @@ def test_trained_model_detects_rocks_and_outcrops(tmp_path, model_file):
 def test_training_refuses_an_evaluation_seed(tmp_path):
     bag = make_bag(tmp_path, 2)
     with pytest.raises(TrainingError, match="evaluation seed"):
-        train_model([bag], IMPROVED, tmp_path / "m.npz", scheduler="sync")
+        train_model([bag], NO_SUN, tmp_path / "m.npz", scheduler="sync")
     assert not (tmp_path / "m.npz").exists()
 
 
@@ -128,7 +128,7 @@ def test_one_band_uint16_with_nodata(tmp_path):
     path = write_tif(tmp_path / "pan.tif", gray, nodata=65535)
     info = open_ortho(path)
     assert info.bands == (1, 1, 1) and info.stretch is not None
-    gn, warnings = prepare_gn(path, Model(IMPROVED), scheduler="sync")
+    gn, warnings = prepare_gn(path, Model(NO_SUN), scheduler="sync")
     assert warnings == [] and len(gn) > 5
     result = evaluate(gn, truth)
     assert result["rock"]["recall"] > 0.5
@@ -238,7 +238,7 @@ def test_distributed_scheduler_gives_the_same_gn(bags):
     from distributed import LocalCluster
 
     ortho = bags[0] / "orbital.tif"
-    local, _ = prepare_gn(ortho, Model(IMPROVED), tile_px=128, scheduler="sync")
+    local, _ = prepare_gn(ortho, Model(NO_SUN), tile_px=128, scheduler="sync")
     with LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
                       dashboard_address=None) as cluster:
         seen = []
@@ -253,7 +253,7 @@ def test_distributed_scheduler_gives_the_same_gn(bags):
             def close(self):
                 pass
 
-        remote, _ = prepare_gn(ortho, Model(IMPROVED), tile_px=128,
+        remote, _ = prepare_gn(ortho, Model(NO_SUN), tile_px=128,
                                scheduler=cluster.scheduler_address, progress=Bar)
     np.testing.assert_allclose(_key(remote), _key(local), rtol=0, atol=1e-6)
     assert ("detection", 9) in seen and seen.count(1) >= 9
@@ -281,7 +281,7 @@ def test_sun_aware_centres_rocks_from_the_raster_metadata(bags):
     # The scene's shadows fall south-east (its orbital.tif says: sun at azimuth 315 deg).
     ortho = bags[0] / "orbital.tif"
     truth = read_geojson(bags[0] / "truth" / "rois.geojson")
-    plain, _ = prepare_gn(ortho, Model(IMPROVED), scheduler="sync")
+    plain, _ = prepare_gn(ortho, Model(NO_SUN), scheduler="sync")
     aware, _ = prepare_gn(ortho, Model(SUN_AWARE), scheduler="sync")
     assert aware.metadata["sun"] == {"azimuth_deg": 315.0, "elevation_deg": 45.0,
                                      "source": "raster metadata "
