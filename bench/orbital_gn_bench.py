@@ -1,6 +1,6 @@
 """Benchmark of orbital_gn: detection quality, speed, memory, and the matcher on the GN.
 
-    python bench/orbital_gn_bench.py quality [--bags B...] [--recipes paper,improved]
+    python bench/orbital_gn_bench.py quality [--bags B...] [--recipes paper,no_sun]
     python bench/orbital_gn_bench.py centres [--bags B...] [--recipes ...]
     python bench/orbital_gn_bench.py scale --ortho bags/X/orbital.tif --tiles 2 4 ...
     python bench/orbital_gn_bench.py matcher --bag BAG --gn GN.geojson... [--length M --step M]
@@ -10,8 +10,8 @@ Writes RESULTS/orbital_gn_<part>.json and a markdown table beside it. Every
 and the peak resident memory of its process tree (main process + dask workers, sampled
 every 0.2 s with psutil).
 
-Models per recipe: ``sun_aware`` the committed default, ``improved`` the committed
-no-sun model (``orbital_improved.npz``; both from ``make orbital-model``), ``paper``
+Models per recipe: ``sun_aware`` the committed default, ``no_sun`` the committed
+no-sun fallback (``orbital_no_sun.npz``; both from ``make orbital-model``), ``paper``
 trained by this script (``orbital_gn train --recipe paper``) on the same training bags
 when it is missing.
 """
@@ -100,7 +100,7 @@ def cmd_quality(args) -> None:
     from orbital_gn.prepare import no_sun_model_path
 
     recipes = args.recipes.split(",")
-    models = {"sun_aware": args.model or "default", "improved": str(no_sun_model_path())}
+    models = {"sun_aware": args.model or "default", "no_sun": str(no_sun_model_path())}
     if "paper" in recipes:
         models["paper"] = str(ensure_paper_model(args.train_bags))
     out_json = RESULTS / "orbital_gn_quality.json"
@@ -451,13 +451,13 @@ def main() -> None:
     q = sub.add_parser("quality")
     q.add_argument("--bags", nargs="+", default=DEFAULT_BAGS)
     q.add_argument("--train-bags", nargs="+", default=TRAIN_BAGS)
-    q.add_argument("--recipes", default="sun_aware,improved,paper")
+    q.add_argument("--recipes", default="sun_aware,no_sun,paper")
     q.add_argument("--model", help="model of the sun_aware recipe (default: committed one)")
     q.add_argument("--append", action="store_true", help="keep earlier runs of other bags")
     q.set_defaults(func=cmd_quality)
     c = sub.add_parser("centres")
     c.add_argument("--bags", nargs="+", default=DEFAULT_BAGS)
-    c.add_argument("--recipes", default="sun_aware,improved,paper")
+    c.add_argument("--recipes", default="sun_aware,no_sun,paper")
     c.set_defaults(func=cmd_centres)
     s = sub.add_parser("scale")
     s.add_argument("--ortho", required=True)
