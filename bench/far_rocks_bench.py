@@ -36,9 +36,13 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 def run_bag(bag: str, model: str | None = None, log=print) -> dict:
     """Far rocks, map rocks and their union on one bag (see the module)."""
-    from roi_detector.cli import load_classifier
     from roi_detector.evaluation import match_nodes, true_nodes
-    from roi_detector.rover_pipeline import DriveMapper, RoverConfig, far_rock_records
+    from roi_detector.rover_pipeline import (
+        DriveMapper,
+        RoverConfig,
+        far_rock_records,
+        load_classifier,
+    )
     from roi_detector.training import drive_with_truth_odometry
     from roi_network.records import ROCK
 

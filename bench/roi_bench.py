@@ -4,7 +4,7 @@ For each bag: the LN built by ``roi_detector ln`` (same library code) with the t
 trajectory re-expressed in odom as odometry (detection geometry alone) and, when a
 ``vo.tum`` is given per bag, with rover_vo odometry (its nodes' covariance from the
 ``vo_covariance.txt`` beside it when there is one, as ``roi_detector ln`` takes it; the
-truth odometry carries none: 1 % of the distance); judged by ``roi_detector eval``
+truth odometry carries none: 1 % of the distance); judged by ``roi_detector eval``'s counts
 (DESIGN.md's matching rule): recall of the truth ROIs above the rover thresholds within
 15 m of the route, precision, classification accuracy, LN node error, and
 ``Matcher(gn).match(ln)`` against the truth GN. Speed: detection time per stereo pair
@@ -45,9 +45,10 @@ def _one_thread() -> None:
 def run_bag(bag: str, model: str | None, every: int, cfg, tag: str, work: Path,
             vo: str | None = None, gn: str | None = None) -> dict:
     """LN + evaluation of one bag with one configuration."""
-    from roi_detector.cli import build_ln, odometry_covariance_file
     from roi_detector.evaluation import evaluate_ln
+    from roi_detector.local_network_build import build_ln, odometry_covariance_file
     from roi_detector.truth import Truth
+    from roi_network.geojson import read_geojson
 
     name = Path(bag).name
     work.mkdir(parents=True, exist_ok=True)
@@ -68,11 +69,56 @@ def run_bag(bag: str, model: str | None, every: int, cfg, tag: str, work: Path,
         wall = time.perf_counter() - t0
         ln_path = work / f"{name}_{tag}_{kind}_ln.geojson"
         ln.save(ln_path, stats)
-        rep = evaluate_ln(str(ln_path), bag, gn=gn, plot=str(work / f"{name}_{tag}_{kind}.png"))
+        rep = evaluate_ln(str(ln_path), bag, plot=str(work / f"{name}_{tag}_{kind}.png"))
+        truth, nodes = Truth.load(bag), read_geojson(ln_path).records
+        rep["matcher"] = {"truth_gn": match_ln(nodes, read_geojson(
+            Path(bag) / "truth" / "rois.geojson"), truth)}
+        if gn:
+            rep["matcher"]["gn"] = match_ln(nodes, read_geojson(gn), truth)
         rep["stats"] = stats
         rep["wall_s"] = round(wall, 1)
         out[kind] = rep
         print(f"{name} {tag} {kind}: {_line(rep)}", flush=True)
+    return out
+
+
+def _true_map_t_odom(truth):
+    """The truth's map_T_odom (the first truth pose, 2D)."""
+    from scipy.spatial.transform import Rotation
+
+    from roi_network.transform import Rigid2D
+
+    tr = truth.trajectory
+    yaw = Rotation.from_quat(tr.q[0]).as_euler("ZYX")[0]
+    return Rigid2D(float(yaw), float(tr.p[0, 0]), float(tr.p[0, 1]))
+
+
+def match_ln(ln, gn, truth) -> dict:
+    """``Matcher(gn).match(ln)`` on LN records (odom): fix or not, and its error at the
+    LN nodes (m) against the truth's map_T_odom."""
+    import numpy as np
+
+    from roi_network.records import xy
+
+    try:
+        from darces_matcher.matcher import Matcher
+    except ImportError:
+        return {"status": "darces_matcher not installed"}
+    if len(ln) < 3:
+        return {"status": "no_fix", "reason": "too_few_nodes"}
+    res = Matcher(gn).match(ln)
+    out = {"status": res.status, "reason": res.reason, "support": int(res.support)}
+    if res.status == "fix":
+        true_t = _true_map_t_odom(truth)
+        # The 2D map_T_odom ignores the first pose's roll and pitch: compare where both
+        # place the LN nodes.
+        p = xy(ln)
+        err = np.linalg.norm(res.map_T_odom.apply(p) - true_t.apply(p), axis=1)
+        out["error_m_mean"] = float(err.mean())
+        out["error_m_max"] = float(err.max())
+        out["yaw_error_deg"] = float(np.degrees(np.angle(np.exp(1j * (res.map_T_odom.yaw -
+                                                                        true_t.yaw)))))
+        out["false_fix"] = bool(err.mean() > 10.0)
     return out
 
 

@@ -19,172 +19,18 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
-
-import numpy as np
 
 from roi_detector.elevation_map import DEFAULT_OUTCROP_RULE, OUTCROP_RULES, outcrop_rule
 from roi_detector.far_rocks import FAR_KINDS, FAR_POPULATIONS, FarRockConfig
-from roi_detector.inputs import (
-    POSE_COVARIANCE_FILE,
-    BadInput,
-    PairSpacing,
-    load_rover_params,
-    read_pose_covariance,
-    read_stereo_frames,
-    read_tum,
+from roi_detector.inputs import POSE_COVARIANCE_FILE, PairSpacing
+from roi_detector.local_network_build import (
+    DEFAULT_DRIFT_FRAC,
+    build_ln,
+    odometry_covariance_file,
 )
-from roi_detector.rover_pipeline import (
-    METHODS,
-    DriveMapper,
-    RoverConfig,
-    RoverDetector,
-)
+from roi_detector.rover_pipeline import METHODS, RoverConfig, installed_model
 from roi_network import images
-
-DEFAULT_MODEL = Path(__file__).resolve().parent / "models" / "rover.npz"
-
-
-def _installed_model() -> Path | None:
-    """The committed rover model (package data), if present."""
-    if DEFAULT_MODEL.is_file():
-        return DEFAULT_MODEL
-    try:
-        from ament_index_python.packages import get_package_share_directory
-
-        p = Path(get_package_share_directory("roi_detector")) / "models" / "rover.npz"
-        return p if p.is_file() else None
-    except Exception:
-        return None
-
-
-def load_classifier(path: str | None, cfg: RoverConfig | None = None):
-    """The rover model of ``path`` (default: the committed model) when ``cfg`` runs a
-    classifier (per_pair, or far or map rocks with ``classify_far_rocks`` /
-    ``classify_map_rocks``); else, or for 'none', None.
-
-    per_pair uses the committed model if it holds the per-pair classifiers (else none:
-    every candidate kept); ``classify_far_rocks`` and ``classify_map_rocks`` ask for a
-    classifier, so a missing one is an error; a model named by ``path`` must hold those
-    of ``cfg``'s method.
-
-    Raises:
-        ValueError: an unreadable model, or none with the classifiers ``cfg`` needs.
-    """
-    from roi_detector.rover_classifier import RoverClassifier
-    from roi_detector.rover_pipeline import check_model
-
-    cfg = cfg or RoverConfig()
-    if path == "none" or not cfg.runs_classifier:
-        return None
-    model = Path(path) if path else _installed_model()
-    if model is None:
-        for need, on in (("classify_far_rocks", cfg.classifies_far_rocks),
-                         ("classify_map_rocks", cfg.classifies_map_rocks),
-                         ("classify_map_outcrops", cfg.classifies_map_outcrops)):
-            if on:
-                raise ValueError(f"{need}: no rover model (none at {DEFAULT_MODEL}; "
-                                 "train one: make rover-model)")
-        return None
-    clf = RoverClassifier.load(model)
-    if not path and cfg.method == "per_pair" and not clf.per_pair:
-        return None
-    check_model(clf, cfg)
-    return clf
-
-
-def odometry_xy_covariance(track, drift_frac: float) -> np.ndarray:
-    """(N, 2, 2) x-y covariance of a TUM odometry (which carries none): isotropic, with
-    1-sigma ``drift_frac`` of the distance travelled (m^2)."""
-    steps = np.r_[0.0, np.linalg.norm(np.diff(track.p[:, :2], axis=0), axis=1)]
-    sigma = drift_frac * np.cumsum(steps) + 0.01
-    return sigma[:, None, None] ** 2 * np.eye(2)[None]
-
-
-def odometry_covariance_file(odometry: str | Path, covariance: str | None) -> Path | None:
-    """The pose covariance file of an odometry file: ``covariance`` if given ('none':
-    none), else :data:`~roi_detector.inputs.POSE_COVARIANCE_FILE` beside the odometry
-    file when there is one."""
-    if covariance == "none":
-        return None
-    if covariance:
-        return Path(covariance)
-    beside = Path(odometry).parent / POSE_COVARIANCE_FILE
-    return beside if beside.is_file() else None
-
-
-def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | None = None,
-             every: int = 1, drift_frac: float = 0.01, log=print, trace=None,
-             mapper: DriveMapper | None = None, describe: bool = False,
-             odometry_cov: str | Path | None = None, rectify: bool = True,
-             sync_tolerance_s: float = images.SYNC_TOLERANCE_S,
-             spacing: PairSpacing | None = None) -> tuple:
-    """Run detection, tracking and the LN over a bag with an odometry file.
-
-    ``odometry_cov``: the odometry's pose covariance file (a row per odometry stamp,
-    :func:`~roi_detector.inputs.read_pose_covariance`), whose x-y block places each LN
-    node's covariance as the nodes take it from /vo/odometry; None: 1-sigma
-    ``drift_frac`` of the distance travelled (:func:`odometry_xy_covariance`).
-
-    ``trace``: set as the elevation map's :attr:`ElevationMap.trace` (diagnostics).
-    ``mapper``: the DriveMapper to fill (built with ``cfg`` and its rover model, which the
-    detector then uses: ``model`` is not read; default a fresh one with ``model``), for
-    callers that read its map or far-rock tracks afterwards (benchmarks, training).
-    ``describe``: the far blobs carry their appearance even without a classifier
-    (training).
-    ``rectify``: rectify images whose CameraInfo has a distortion
-    (:class:`~roi_detector.inputs.FrameMaker`); False reads them all as rectified.
-    ``sync_tolerance_s``: most difference between a stereo pair's two stamps, seconds.
-    ``spacing``: which pairs are read, by the odometry at their stamps (default
-    :class:`~roi_detector.inputs.PairSpacing`'s, as the node's).
-
-    Returns (LocalNetwork, stats dict).
-    """
-    cfg = cfg or RoverConfig()
-    params = load_rover_params(Path(bag_dir) / "rover.yaml")
-    track = read_tum(odometry)
-    track.cov = (read_pose_covariance(odometry_cov, track.t) if odometry_cov is not None
-                 else odometry_xy_covariance(track, drift_frac))
-    bad = BadInput(lambda m: log(f"roi_detector: {m}"))
-    mapper = mapper if mapper is not None else DriveMapper(
-        cfg, classifier=load_classifier(model, cfg))
-    detector = RoverDetector(params["base_to_left_camera"], mapper.classifier, cfg, bad)
-    detector.describe_blobs |= describe
-    mapper.map.trace = trace
-    n_pairs = n_dets = 0
-    t_detect = 0.0
-    last = None
-    spacing = spacing if spacing is not None else PairSpacing()
-
-    def keep(stamp_ns: int) -> bool:
-        pose = track.at(stamp_ns * 1e-9)
-        return pose is None or spacing.keep(stamp_ns * 1e-9, pose)  # a gap: counted below
-
-    for frame in read_stereo_frames(bag_dir, bad, every=every, rectify=rectify,
-                                    log=lambda m: log(f"roi_detector: {m}"),
-                                    sync_tolerance_s=sync_tolerance_s, keep=keep):
-        n_pairs += 1
-        t0 = time.perf_counter()
-        obs = detector.observe(frame)
-        pose = track.at(frame.stamp_ns * 1e-9)
-        if pose is None:
-            t_detect += time.perf_counter() - t0
-            bad("odometry gap", f"no odometry pose at {frame.stamp_ns * 1e-9:.3f} s")
-            continue
-        mapper.add_pair(obs, frame.stamp_ns * 1e-9, pose, detector.camera)
-        mapper.update_ln()
-        t_detect += time.perf_counter() - t0
-        n_dets += 0 if obs.records is None else len(obs.records)
-        last = (frame.stamp_ns * 1e-9, pose[2])
-    if n_pairs and last is not None:
-        mapper.finish(*last)
-        mapper.update_ln()
-    stats = {"pairs": n_pairs, "pairs_spaced_out": spacing.skipped, "detections": n_dets,
-             "tracks": mapper.n_tracks,
-             "ln_nodes": len(mapper.ln), "bad_input": dict(bad.counts),
-             "detect_s_per_pair": t_detect / max(n_pairs, 1)}
-    return mapper.ln, stats
 
 
 def _cmd_ln(args) -> int:
@@ -211,7 +57,7 @@ def _cmd_ln(args) -> int:
     meta = {"source_bag": str(Path(args.bag).resolve()), "odometry": str(args.odometry),
             "odometry_covariance": str(cov_file) if cov_file is not None
             else f"{args.drift:g} of the distance travelled, 1 sigma (--drift)",
-            "model": args.model or str(_installed_model()), **stats}
+            "model": args.model or str(installed_model()), **stats}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     ln.save(args.out, meta)
     spaced = (f" ({stats['pairs_spaced_out']} more not read: under --min-pair-travel "
@@ -227,7 +73,7 @@ def _cmd_ln(args) -> int:
 def _cmd_eval(args) -> int:
     from roi_detector.evaluation import evaluate_ln
 
-    report = evaluate_ln(args.ln, args.bag, gn=args.gn, plot=args.plot)
+    report = evaluate_ln(args.ln, args.bag, plot=args.plot)
     text = json.dumps(report, indent=2)
     if args.json:
         Path(args.json).write_text(text + "\n")
@@ -270,8 +116,8 @@ def main(argv: list[str] | None = None) -> int:
         from roi_detector.detector_node import main as node_main
 
         return node_main(["roi_detector", *argv])
-    # Here, past the node's branch: the roi_detector node (which also imports this
-    # module, for load_classifier) has no use for the training code, which reads truth.
+    # Past the node's branch: the node has no use for the training code, which reads
+    # truth.
     from roi_detector.training import IGNORE_NEAR_M, OUTCROP_KIND
 
     ap = argparse.ArgumentParser(prog="roi_detector", description=__doc__.split("\n")[0])
@@ -343,13 +189,12 @@ def main(argv: list[str] | None = None) -> int:
                    help="the odometry's pose covariance (t and 36 numbers per odometry stamp, "
                    f"as rover_vo writes it; default: {POSE_COVARIANCE_FILE} beside the "
                    "odometry file, if there is one; 'none': use --drift)")
-    p.add_argument("--drift", type=float, default=0.01,
+    p.add_argument("--drift", type=float, default=DEFAULT_DRIFT_FRAC,
                    help="with no covariance file: odometry 1-sigma error per metre travelled")
     p.set_defaults(func=_cmd_ln)
-    p = sub.add_parser("eval", help="an LN judged against the bag's truth")
+    p = sub.add_parser("eval", help="an LN's detections judged against the bag's truth")
     p.add_argument("ln")
     p.add_argument("bag")
-    p.add_argument("--gn", default=None, help="also match against this GN (map GeoJSON)")
     p.add_argument("--json", default=None)
     p.add_argument("--plot", default=None)
     p.set_defaults(func=_cmd_eval)

@@ -34,6 +34,7 @@ from roi_detector.rover_pipeline import (
     DriveMapper,
     RoverConfig,
     RoverDetector,
+    load_classifier,
     records_in_view,
     session_id_base,
 )
@@ -155,8 +156,6 @@ class RoiDetectorNode(Node):
             raise ValueError("parameter 'base_to_left_camera' is not set (pass the bag's "
                              "rover.yaml as a params file)")
         self.transports = TransportLock(str(transport), self.get_logger().warning)
-        from roi_detector.cli import load_classifier
-
         if method not in METHODS:
             raise ValueError(f"parameter 'method': unknown '{method}' (one of {METHODS})")
         if far_classified not in FAR_POPULATIONS:

@@ -1,8 +1,10 @@
-"""An LN judged against a bag's truth (evaluation only: reads truth files).
+"""An LN's detections judged against a bag's truth (evaluation only: reads truth files).
 
 DESIGN.md's rule: an LN node matches a truth ROI of the same class when its centre is
 within max(1 m, half the truth major axis). The LN is in odom; odom is the first truth
 position and heading, gravity-aligned (how both the truth odometry and rover_vo start).
+Detection metrics only: what the matcher makes of an LN is judged where the matcher is
+run (``bench/roi_bench.py``).
 """
 
 from __future__ import annotations
@@ -15,22 +17,20 @@ from roi_detector.inputs import load_rover_params
 from roi_detector.truth import Truth, match_to_truth
 from roi_network.geojson import read_geojson
 from roi_network.records import LABEL_NAMES, OUTCROP, ROCK, xy
-from roi_network.transform import Rigid2D
 
 
 def _rate(num: int, den: int) -> float | None:
     return None if den == 0 else num / den
 
 
-def evaluate_ln(ln_path: str, bag_dir: str, gn: str | None = None,
-                plot: str | None = None, radius_m: float = 15.0,
-                view_depth_m: float = 20.0, min_views: int = 3) -> dict:
-    """Recall, precision, classification accuracy, node error and the matcher's fix.
+def evaluate_ln(ln_path: str, bag_dir: str, plot: str | None = None,
+                radius_m: float = 15.0, view_depth_m: float = 20.0,
+                min_views: int = 3) -> dict:
+    """Recall, precision, classification accuracy and node error of an LN file.
 
     Args:
         ln_path: LN GeoJSON (odom) written by ``roi_detector ln`` or ln_builder.
         bag_dir: the bag directory with ``truth/``.
-        gn: optional GN GeoJSON (map) to match against, besides the truth GN.
         plot: optional PNG path: truth ROIs, route and LN nodes in map.
         radius_m, view_depth_m, min_views: which truth ROIs the recalls count
             (:func:`counted_rois`).
@@ -42,10 +42,6 @@ def evaluate_ln(ln_path: str, bag_dir: str, gn: str | None = None,
                     "in_view_rule": f">= {min_views} stereo pairs with the centre in the "
                     f"left image at most {view_depth_m:g} m deep",
                     **count_ln(ln, truth, wanted, in_view)}
-    report["matcher"] = {"truth_gn": _match(ln, read_geojson(Path(bag_dir) / "truth" /
-                                                             "rois.geojson"), truth)}
-    if gn:
-        report["matcher"]["gn"] = _match(ln, read_geojson(gn), truth)
     if plot:
         _plot(plot, truth, match_nodes(ln, truth)[0], ln, wanted)
     return report
@@ -76,7 +72,7 @@ def count_ln(ln: np.ndarray, truth: Truth, wanted: np.ndarray, in_view: np.ndarr
     """An LN's nodes (records, ``odom``) counted against the truth by DESIGN.md's rule:
     per class, its nodes, the true ones and the counted truth ROIs found (``wanted``,
     ``in_view``: :func:`counted_rois`); the classification accuracy and the true nodes'
-    position error. No matcher: :func:`evaluate_ln` adds it."""
+    position error."""
     t = truth.rois
     pts, j_any = match_nodes(ln, truth)
     report: dict = {"ln_nodes": len(ln), "truth_wanted": int(wanted.sum()),
@@ -127,38 +123,6 @@ def true_nodes(ln: np.ndarray, truth_rois: np.ndarray, j_any: np.ndarray,
     """Mask of the LN nodes of class ``label`` that match a truth ROI of that class."""
     truth_of = np.where(j_any >= 0, truth_rois["label"][np.clip(j_any, 0, None)], 0)
     return (ln["label"] == label) & (j_any >= 0) & (truth_of == label)
-
-
-def _true_map_t_odom(truth: Truth) -> Rigid2D:
-    tr = truth.trajectory
-    from scipy.spatial.transform import Rotation
-
-    yaw = Rotation.from_quat(tr.q[0]).as_euler("ZYX")[0]
-    return Rigid2D(float(yaw), float(tr.p[0, 0]), float(tr.p[0, 1]))
-
-
-def _match(ln: np.ndarray, gn, truth: Truth) -> dict:
-    """``Matcher(gn).match(ln)``: fix or not, and its error at the LN nodes (m)."""
-    try:
-        from darces_matcher.matcher import Matcher
-    except ImportError:
-        return {"status": "darces_matcher not installed"}
-    if len(ln) < 3:
-        return {"status": "no_fix", "reason": "too_few_nodes"}
-    res = Matcher(gn).match(ln)
-    out = {"status": res.status, "reason": res.reason, "support": int(res.support)}
-    if res.status == "fix":
-        true_t = _true_map_t_odom(truth)
-        # The 2D map_T_odom ignores the first pose's roll and pitch: compare where both
-        # place the LN nodes.
-        p = xy(ln)
-        err = np.linalg.norm(res.map_T_odom.apply(p) - true_t.apply(p), axis=1)
-        out["error_m_mean"] = float(err.mean())
-        out["error_m_max"] = float(err.max())
-        out["yaw_error_deg"] = float(np.degrees(np.angle(np.exp(1j * (res.map_T_odom.yaw -
-                                                                        true_t.yaw)))))
-        out["false_fix"] = bool(err.mean() > 10.0)
-    return out
 
 
 def _plot(path: str, truth: Truth, pts: np.ndarray, ln: np.ndarray, wanted: np.ndarray) -> None:

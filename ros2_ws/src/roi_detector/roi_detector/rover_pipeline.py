@@ -11,15 +11,17 @@ Two methods (``RoverConfig.method``):
 - ``"per_pair"`` (the paper's): ``observe`` detects and classifies ROIs in the pair
   (base_link); ``add_pair`` places them in odom and tracks them across pairs.
 
-Either way ``DriveMapper`` keeps the Local Network up to date. The offline CLI and the two
-nodes call exactly these (the nodes split them: roi_detector runs observe + add_pair,
-ln_builder the LN).
+Either way ``DriveMapper`` keeps the Local Network up to date. The offline build
+(:mod:`roi_detector.local_network_build`) and the two nodes call exactly these (the nodes
+split them: roi_detector runs observe + add_pair, ln_builder the LN). The rover model
+they run is loaded and checked against the configuration here (:func:`load_classifier`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -318,6 +320,56 @@ def detections_to_records(dets: list[Candidate]) -> np.ndarray:
         r["cov_xx"], r["cov_xy"], r["cov_yy"] = cov[0, 0], cov[0, 1], cov[1, 1]
         r["n_obs"] = 1
     return rec
+
+
+#: The committed rover model (package data).
+DEFAULT_MODEL = Path(__file__).resolve().parent / "models" / "rover.npz"
+
+
+def installed_model() -> Path | None:
+    """The committed rover model: beside this module, or in the package's share
+    directory; None when neither holds one."""
+    if DEFAULT_MODEL.is_file():
+        return DEFAULT_MODEL
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        p = Path(get_package_share_directory("roi_detector")) / "models" / "rover.npz"
+        return p if p.is_file() else None
+    except Exception:
+        return None
+
+
+def load_classifier(path: str | None, cfg: RoverConfig | None = None):
+    """The rover model of ``path`` (default: the committed model) when ``cfg`` runs a
+    classifier (per_pair, or far or map rocks with ``classify_far_rocks`` /
+    ``classify_map_rocks``); else, or for 'none', None.
+
+    per_pair uses the committed model if it holds the per-pair classifiers (else none:
+    every candidate kept); ``classify_far_rocks`` and ``classify_map_rocks`` ask for a
+    classifier, so a missing one is an error; a model named by ``path`` must hold those
+    of ``cfg``'s method.
+
+    Raises:
+        ValueError: an unreadable model, or none with the classifiers ``cfg`` needs.
+    """
+    cfg = cfg or RoverConfig()
+    if path == "none" or not cfg.runs_classifier:
+        return None
+    model = Path(path) if path else installed_model()
+    if model is None:
+        for need, on in (("classify_far_rocks", cfg.classifies_far_rocks),
+                         ("classify_map_rocks", cfg.classifies_map_rocks),
+                         ("classify_map_outcrops", cfg.classifies_map_outcrops)):
+            if on:
+                raise ValueError(f"{need}: no rover model (none at {DEFAULT_MODEL}; "
+                                 "train one: make rover-model)")
+        return None
+    clf = RoverClassifier.load(model)
+    if not path and cfg.method == "per_pair" and not clf.per_pair:
+        return None
+    check_model(clf, cfg)
+    return clf
 
 
 def check_model(classifier: RoverClassifier | None, cfg: RoverConfig) -> None:

@@ -33,8 +33,10 @@ from roi_detector.elevation_map import (
     outcrop_rule,
     outcrop_rule_of,
 )
+from roi_detector.evaluation import match_nodes, true_nodes
 from roi_detector.far_rocks import FAR_KINDS, FAR_POPULATIONS, far_feature_names
 from roi_detector.inputs import BadInput, load_rover_params, read_stereo_frames
+from roi_detector.local_network_build import build_ln
 from roi_detector.rover_classifier import (
     FAR_ROCK_CLASSIFIER,
     MAP_OUTCROP_CLASSIFIER,
@@ -132,9 +134,8 @@ def drive_with_truth_odometry(bag_dir: str, mapper: DriveMapper, log=print,
                               describe: bool = False) -> tuple[Truth, dict]:
     """Run the pipeline over a bag with its truth trajectory (re-expressed in odom) as the
     odometry, filling ``mapper`` (built with its config and model): detection geometry
-    alone. Returns the bag's truth and :func:`~roi_detector.cli.build_ln`'s stats."""
-    from roi_detector.cli import build_ln
-
+    alone. Returns the bag's truth and
+    :func:`~roi_detector.local_network_build.build_ln`'s stats."""
     truth = Truth.load(bag_dir)
     with tempfile.TemporaryDirectory() as tmp:
         odom = Path(tmp) / "truth_odom.tum"
@@ -163,8 +164,6 @@ def far_rock_samples(bag_dir: str, log=print, population: str = "measured",
     """
     if population not in FAR_POPULATIONS:
         raise ValueError(f"population: unknown '{population}' (one of {FAR_POPULATIONS})")
-    from roi_detector.evaluation import match_nodes, true_nodes
-
     # No classifier: every track is measured and described, and every map rock reported,
     # whatever a model would say.
     # The outcrop rule does not change the rocks: the far rocks are dropped only beside
@@ -217,8 +216,6 @@ def _map_region_samples(emap, truth: Truth, label: int,
     """The map's regions of class ``label`` with features, found in at least
     ``min_rounds`` rounds: features (N, ``n_features``), whether each matches a truth ROI
     of that class (N,) 0/1, whether the map's persistence test passes it (N,) bool."""
-    from roi_detector.evaluation import match_nodes, true_nodes
-
     found = [r for r in emap.rois if r.label == label and r.features is not None
              and r.rounds >= emap.cfg.min_rounds]
     if not found:

@@ -550,10 +550,10 @@ def test_classifying_far_rocks_without_a_model_is_an_error(monkeypatch):
     """classify_far_rocks, classify_map_rocks and classify_map_outcrops ask for their
     classifiers: no model is a clear error naming the setting, not ROIs silently left to
     the rules."""
-    import roi_detector.cli as cli
+    import roi_detector.rover_pipeline as cli
     from roi_detector.rover_pipeline import RoverConfig
 
-    monkeypatch.setattr(cli, "_installed_model", lambda: None)
+    monkeypatch.setattr(cli, "installed_model", lambda: None)
     with pytest.raises(ValueError, match="classify_far_rocks: no rover model"):
         cli.load_classifier(None, RoverConfig())  # the default classifies far rocks
     with pytest.raises(ValueError, match="classify_map_rocks: no rover model"):
