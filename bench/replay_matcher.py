@@ -167,7 +167,7 @@ def replay(lns: list, odometry: list, gn, truth_xy: np.ndarray, dist: np.ndarray
                              f"p_false {result.false_match_probability:.2g}")
                 print(line, file=events_out)
         nodes.add_odometry(t, cov)
-        filt.predict(here, cov)
+        filt.predict(here)
         if filt.localized:
             pos, _, c = global_pose(filt.alignment, np.array([x, y, 0.0]), yaw_quaternion(yaw),
                                     cov.reshape(6, 6))

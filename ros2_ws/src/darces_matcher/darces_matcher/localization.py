@@ -20,12 +20,17 @@ estimate of that alignment and its covariance:
   whatever the correlation: ``P^-1 = w P0^-1 + (1 - w) R^-1`` with ``w`` minimising
   ``det P``. A bigger LN gives a tighter fix, which the fusion then follows, so the
   estimate refines as the LN grows.
+- **Local refit.** A fix is refitted on its inlier pairs whose LN node lies within
+  ``LOCAL_RADIUS_M`` of the last ``LOCAL_ROUTE_M`` metres of the route, when there are
+  at least ``LOCAL_MIN_PAIRS`` of them: the pairs the rover saw recently say where it is
+  now, where a fit of the whole LN spreads the VO's drift over the whole route.
 - **Gate and switch.** A fix whose Mahalanobis distance to the estimate (``P + R``) exceeds
   ``gate_chi2`` contradicts it: it is *held* (event ``held``), not fused. When
   ``confirm_matches`` consecutive contradicting fixes agree with each other (each within the
   gate of the previous one, drift between them included), the LN has confirmed them: the
   estimate is replaced by the latest (``switched``). A consistent fix in between discards
-  the held ones.
+  the held ones. The first fix needs no confirmation (the matcher's own ambiguity tests
+  are trusted).
 
 :func:`global_pose` maps an odometry pose into ``map`` with the estimate. Its horizontal
 and heading covariance is the alignment's (propagated through the lever arm): the
@@ -42,7 +47,7 @@ from typing import Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from darces_matcher.ln_drift import PLANAR, planar_covariance
+from darces_matcher.ln_drift import PLANAR
 from darces_matcher.result import MatchResult
 from darces_matcher.vote import alignment_jacobian
 from roi_network.transform import Rigid2D, wrap_angle
@@ -51,6 +56,23 @@ Event = Literal["first_fix", "refined", "held", "switched", "kept", "none"]
 
 #: Events after which the published alignment changed.
 ALIGNMENT_EVENTS = ("first_fix", "refined", "switched")
+#: Consecutive, mutually consistent fixes needed for the first fix.
+CONFIRM_FIRST = 1
+#: Floor of a fix's one-sigma position error, metres.
+MIN_MATCH_SIGMA_M = 0.1
+#: Floor of a fix's one-sigma heading error, radians.
+MIN_MATCH_SIGMA_YAW_RAD = 1e-3
+#: Spacing of the stored odometry path samples (for the LN's lag), metres.
+PATH_STEP_M = 1.0
+#: The local refit takes the inlier pairs whose LN node lies within ``LOCAL_RADIUS_M``
+#: of the last this many metres of the route.
+LOCAL_ROUTE_M = 150.0
+#: See ``LOCAL_ROUTE_M``, metres.
+LOCAL_RADIUS_M = 20.0
+#: Fewest pairs for the local refit (else the whole-LN fit).
+LOCAL_MIN_PAIRS = 6
+#: Floor of the per-node one-sigma residual the local refit's covariance assumes, metres.
+LOCAL_SIGMA_FLOOR_M = 0.3
 
 
 @dataclass(frozen=True)
@@ -83,54 +105,22 @@ class FilterConfig:
             contradicts the estimate (16.27: 99.9 %).
         confirm_matches: consecutive, mutually consistent contradicting fixes needed to
             switch (1: switch at once).
-        confirm_first: consecutive, mutually consistent fixes needed for the first fix
-            (1: the matcher's own ambiguity tests are trusted).
-        match_cov_scale: factor on the matcher's covariance (>= 1 if it is optimistic).
-        min_match_sigma_m: floor of a fix's one-sigma position error, metres.
-        min_match_sigma_yaw_rad: floor of a fix's one-sigma heading error, radians.
-        path_step_m: spacing of the stored odometry path samples (for the LN's lag), m.
-        local_route_m: a fix is refitted on its inlier pairs whose LN node lies within
-            ``local_radius_m`` of the last ``local_route_m`` metres of the route (0: use
-            the whole-LN fit as is), metres.
-        local_radius_m: see ``local_route_m``, metres.
-        local_min_pairs: fewest pairs for that local refit (else the whole-LN fit).
-        local_sigma_floor_m: floor of the per-node one-sigma residual the local refit's
-            covariance assumes, metres.
-        drift_from_odometry: take the drift from the growth of the odometry's own
-            covariance instead of ``drift_*_per_m`` (for a VO whose covariance is the
-            honest, cumulative error since the start; off by default).
     """
 
     drift_xy_m2_per_m: float = 0.01
     drift_yaw_rad2_per_m: float = 3e-6
     gate_chi2: float = 16.27
     confirm_matches: int = 3
-    confirm_first: int = 1
-    match_cov_scale: float = 1.0
-    min_match_sigma_m: float = 0.1
-    min_match_sigma_yaw_rad: float = 1e-3
-    path_step_m: float = 1.0
-    local_route_m: float = 150.0
-    local_radius_m: float = 20.0
-    local_min_pairs: int = 6
-    local_sigma_floor_m: float = 0.3
-    drift_from_odometry: bool = False
 
     def __post_init__(self) -> None:
-        for name in ("drift_xy_m2_per_m", "drift_yaw_rad2_per_m", "min_match_sigma_m",
-                     "min_match_sigma_yaw_rad", "local_route_m", "local_radius_m",
-                     "local_sigma_floor_m"):
+        for name in ("drift_xy_m2_per_m", "drift_yaw_rad2_per_m"):
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f"FilterConfig.{name} must be >= 0, got {getattr(self, name)}")
-        if self.local_min_pairs < 3:
+        if not self.gate_chi2 > 0.0:
+            raise ValueError(f"FilterConfig.gate_chi2 must be > 0, got {self.gate_chi2}")
+        if self.confirm_matches < 1:
             raise ValueError(
-                f"FilterConfig.local_min_pairs must be >= 3, got {self.local_min_pairs}")
-        for name in ("gate_chi2", "match_cov_scale", "path_step_m"):
-            if not getattr(self, name) > 0.0:
-                raise ValueError(f"FilterConfig.{name} must be > 0, got {getattr(self, name)}")
-        for name in ("confirm_matches", "confirm_first"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"FilterConfig.{name} must be >= 1, got {getattr(self, name)}")
+                f"FilterConfig.confirm_matches must be >= 1, got {self.confirm_matches}")
 
 
 def _vector(t: Rigid2D) -> np.ndarray:
@@ -234,7 +224,6 @@ class MapOdomFilter:
     _support: int = 0
     _ln_size: int = 0
     _last_xy: np.ndarray | None = None
-    _last_cov: np.ndarray | None = None
     _path_d: list[float] = field(default_factory=list)
     _path_xy: list[np.ndarray] = field(default_factory=list)
 
@@ -250,54 +239,35 @@ class MapOdomFilter:
             return None
         return Alignment(_rigid(self.x), self.p.copy(), self._support, self._ln_size)
 
-    def drift_noise(
-        self, x: np.ndarray, rover_xy: np.ndarray, d_m: float, q: np.ndarray | None = None
-    ) -> np.ndarray:
+    def drift_noise(self, x: np.ndarray, rover_xy: np.ndarray, d_m: float) -> np.ndarray:
         """Process noise of the alignment ``x`` over ``d_m`` metres driven at ``rover_xy``.
 
         Args:
             x: (3,) alignment (tx, ty, yaw).
             rover_xy: (2,) the rover's position in ``odom``, metres.
             d_m: distance driven, metres.
-            q: (3, 3) the VO's pose error over that drive (x, y in ``odom``, yaw), m^2 and
-                rad^2; default: the configured random walk per metre times ``d_m``.
 
         Returns:
-            (3, 3) covariance increment: the VO's position and heading error, the heading
-            error rotating the alignment about the rover's position in ``map``.
+            (3, 3) covariance increment: the VO's position and heading error (the
+            configured random walk per metre times ``d_m``), the heading error rotating
+            the alignment about the rover's position in ``map``.
         """
         c = self.config
-        if q is None:
-            q = np.diag([c.drift_xy_m2_per_m, c.drift_xy_m2_per_m,
-                         c.drift_yaw_rad2_per_m]) * d_m
-        else:  # odom -> map: the position block turns with the alignment's yaw
-            r = np.eye(3)
-            r[:2, :2] = _rigid(x).rotation
-            q = r @ q @ r.T
+        q = np.diag([c.drift_xy_m2_per_m, c.drift_xy_m2_per_m, c.drift_yaw_rad2_per_m]) * d_m
         rover_map = _rigid(x).apply(np.asarray(rover_xy, dtype=float))
         lever = x[:2] - rover_map
         g = np.array([[1.0, 0.0, -lever[1]], [0.0, 1.0, lever[0]], [0.0, 0.0, 1.0]])
         return g @ q @ g.T
 
-    def predict(self, odom_xy: np.ndarray, odom_covariance: np.ndarray | None = None) -> None:
-        """Account for the drive from the previous odometry pose to ``odom_xy`` (odom, m).
+    def predict(self, odom_xy: np.ndarray) -> None:
+        """Account for the drive from the previous odometry pose to ``odom_xy`` (odom, m):
+        the configured random walk per metre driven (a VO's own covariance since the
+        start of the drive need not be its honest error).
 
         Args:
             odom_xy: (2,) the rover's position in ``odom``, metres.
-            odom_covariance: (6, 6) the odometry's pose covariance (x, y, z, roll, pitch,
-                yaw; the VO's error since the start of the drive). Used as the drift, by
-                its growth since the previous pose, when ``drift_from_odometry``.
         """
         xy = np.asarray(odom_xy, dtype=float)[:2]
-        q = None
-        if self.config.drift_from_odometry and odom_covariance is not None:
-            cov = planar_covariance(odom_covariance)
-            if self._last_cov is not None:
-                # The growth since the previous pose, without its negative part (a VO whose
-                # covariance shrinks did not undo drift).
-                w, v = np.linalg.eigh(_symmetric(cov - self._last_cov))
-                q = (v * np.clip(w, 0.0, None)) @ v.T
-            self._last_cov = cov
         if self._last_xy is None:
             self._last_xy = xy
             self._path_d.append(0.0)
@@ -309,8 +279,8 @@ class MapOdomFilter:
             return
         self.distance_m += step
         if self.x is not None:
-            self.p = _symmetric(self.p + self.drift_noise(self.x, xy, step, q))
-        if self.distance_m - self._path_d[-1] >= self.config.path_step_m:
+            self.p = _symmetric(self.p + self.drift_noise(self.x, xy, step))
+        if self.distance_m - self._path_d[-1] >= PATH_STEP_M:
             self._path_d.append(self.distance_m)
             self._path_xy.append(xy)
 
@@ -330,24 +300,23 @@ class MapOdomFilter:
 
         A fit of the whole LN spreads the VO's drift over the whole route; the pairs the
         rover saw recently say where it is now. Returns (transform, covariance, the LN
-        nodes used) or None when fewer than ``local_min_pairs`` qualify or they are
+        nodes used) or None when fewer than ``LOCAL_MIN_PAIRS`` qualify or they are
         degenerate.
         """
-        c = self.config
-        if c.local_route_m <= 0.0 or len(result.inliers) < c.local_min_pairs or not self._path_xy:
+        if len(result.inliers) < LOCAL_MIN_PAIRS or not self._path_xy:
             return None
         path_d = np.asarray(self._path_d)
-        recent = np.asarray(self._path_xy)[path_d >= self.distance_m - c.local_route_m]
+        recent = np.asarray(self._path_xy)[path_d >= self.distance_m - LOCAL_ROUTE_M]
         if self._last_xy is not None:
             recent = np.vstack([recent, self._last_xy])
         pairs = np.asarray(result.inliers, dtype=np.int64).reshape(-1, 2)
         src, dst = ln_xy[pairs[:, 0]], gn_xy[pairs[:, 1]]
         near = np.min(np.linalg.norm(src[:, None] - recent[None], axis=2), axis=1)
-        keep = near <= c.local_radius_m
-        if keep.sum() < c.local_min_pairs:
+        keep = near <= LOCAL_RADIUS_M
+        if keep.sum() < LOCAL_MIN_PAIRS:
             return None
         try:
-            t, cov = fit_with_covariance(src[keep], dst[keep], c.local_sigma_floor_m)
+            t, cov = fit_with_covariance(src[keep], dst[keep], LOCAL_SIGMA_FLOOR_M)
         except (ValueError, np.linalg.LinAlgError):
             return None
         if not np.all(np.isfinite(cov)):
@@ -362,7 +331,6 @@ class MapOdomFilter:
         With the GN's positions ``gn_xy`` (map, m), the fix is refitted on its recent
         pairs (:meth:`local_fit`) when there are enough of them.
         """
-        c = self.config
         local = self.local_fit(result, ln_xy, gn_xy) if gn_xy is not None else None
         if local is not None:
             t, cov, used = local
@@ -371,9 +339,8 @@ class MapOdomFilter:
             if cov is None or np.shape(cov) != (3, 3) or not np.all(np.isfinite(cov)):
                 raise ValueError("MatchResult.covariance must be a finite (3, 3) matrix on a fix")
         z = _vector(t)
-        r = c.match_cov_scale * _symmetric(np.asarray(cov, dtype=float))
-        r += np.diag([c.min_match_sigma_m**2, c.min_match_sigma_m**2,
-                      c.min_match_sigma_yaw_rad**2])
+        r = _symmetric(np.asarray(cov, dtype=float))
+        r += np.diag([MIN_MATCH_SIGMA_M**2, MIN_MATCH_SIGMA_M**2, MIN_MATCH_SIGMA_YAW_RAD**2])
         rover = self._last_xy if self._last_xy is not None else np.zeros(2)
         r += self.drift_noise(z, rover, self.lag_m(used))
         return z, _symmetric(r)
@@ -413,7 +380,7 @@ class MapOdomFilter:
                 self.held.clear()  # contradicts the held ones too: start over
         self.held.append(_Held(z, r, self.distance_m, result, n))
         first = self.x is None
-        needed = self.config.confirm_first if first else self.config.confirm_matches
+        needed = CONFIRM_FIRST if first else self.config.confirm_matches
         if len(self.held) < needed:
             return "held"
         self.x, self.p = z, r

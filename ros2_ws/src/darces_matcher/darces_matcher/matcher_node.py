@@ -188,7 +188,7 @@ class MatcherNode(Node):
             self.get_logger().error(
                 "/vo/odometry: non-finite position or invalid orientation: message ignored")
             return
-        self.filter.predict(position[:2], np.array(msg.pose.covariance))
+        self.filter.predict(position[:2])
         self.node_odometry.add_odometry(
             msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec, msg.pose.covariance)
         alignment = self.filter.alignment
