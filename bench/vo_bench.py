@@ -1,8 +1,8 @@
-"""rover_vo benchmark: accuracy (evo), speed and memory of the three modes and of a
+"""rover_vo benchmark: accuracy (evo), speed and memory of the two modes and of a
 third-party odometry (KISS-ICP on the stereo point clouds) on the same bags, in one run.
 
 For each bag: ``rover_vo odometry BAG --mode M --threads 1`` in its own process (with
-OMP_NUM_THREADS=1) for M in paper, vo, keyframes; then KISS-ICP 1.3.0 on the point clouds
+OMP_NUM_THREADS=1) for M in paper, vo; then KISS-ICP 1.3.0 on the point clouds
 of OpenCV SGBM disparities of the same stereo pairs (base_link); then every trajectory
 through ``rover_vo.evaluation.evaluate`` (evo: KITTI-style drift over 100..800 m,
 heading drift per 100 m, aligned APE, final error), and for rover_vo the covariance
@@ -41,7 +41,7 @@ RESULTS = Path(os.environ.get("BENCH_RESULTS")
 #: Scratch space of the runs (caches, LNs, plots): $BENCH_WORK, else out/bench/work/.
 WORK = Path(os.environ.get("BENCH_WORK")
             or Path(__file__).resolve().parents[1] / "out" / "bench" / "work")
-MODES = ("paper", "vo", "keyframes")
+MODES = ("paper", "vo")
 ONE_CORE = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
@@ -226,7 +226,7 @@ def markdown(summaries: list[dict], meta: dict) -> str:
                 f"{h.get('share_in_95pct_ellipse', '')} |")
     lines += spread(summaries)
     lines += ["", "Methods: `paper` = frame to frame + IMU (the paper's mode, the default); `vo` ="
-              " frame to frame, vision alone; `keyframes` = keyframes + IMU; `kiss_icp` = KISS-ICP"
+              " frame to frame, vision alone; `kiss_icp` = KISS-ICP"
               " 1.3.0"
               " on SGBM stereo point clouds of the same pairs; `opencv_rgbd` = OpenCV 4.14 contrib"
               " `rgbd.RgbdOdometry` (dense photometric, Steinbruecker et al. 2011) on the left"

@@ -2,20 +2,21 @@
 
 Every field is a ROS parameter of the ``rover_vo`` node named ``<section>.<field>``
 (``features.max_corners``) and a key of the same name in the params YAML the offline CLI
-reads (``rover_vo: {ros__parameters: {...}}``), so one file configures both.
+reads (``rover_vo: {ros__parameters: {...}}``), so one file configures both. Values a
+user does not tune are named constants next to the code that uses them.
 
-Three modes are compared in ``bench/vo_bench.py``:
+Both modes measure each frame against the last reference frame (the paper's rovers had
+no bundle adjustment):
 
-* ``paper`` (default): frame to frame only (the paper's rovers had no bundle adjustment),
-  with VO + IMU fusion (gyro rotation prior, gyro bias, gravity for roll and pitch);
-* ``vo``: frame to frame, vision alone (no IMU at all);
-* ``keyframes``: each frame measured against a keyframe, tracked from the keyframe's image
-  (beyond the paper), with the IMU.
+* ``paper`` (default): VO + IMU fusion (gyro rotation prior, gyro bias, gravity for roll
+  and pitch);
+* ``vo``: vision alone (no IMU at all), the baseline that shows what the gyro brings.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -24,98 +25,131 @@ import yaml
 
 from roi_network.params import node_parameters
 
-MODES = ("paper", "vo", "keyframes")
+MODES = ("paper", "vo")
+
+#: The node's name: its entry in a params file.
+NODE_NAME = "rover_vo"
+
+#: rover.yaml parameters the estimator reads, with the values used when the bag's
+#: rover.yaml lacks them (pose [x y z qx qy qz qw] in base_link; Hz; rad/s/sqrt(Hz);
+#: rad/s^2/sqrt(Hz); m/s^2).
+ROVER_PARAMETERS: dict[str, Any] = {
+    "base_to_left_camera": [0.0] * 7,
+    "base_to_imu": [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+    "imu_rate_hz": 50.0,
+    "gyro_noise_density": 1.7e-4,
+    "gyro_bias_random_walk": 2.0e-5,
+    "gravity": 9.81,
+}
+
+#: Parameters of the node that are not estimator options (vo_node.py declares them).
+NODE_ONLY_PARAMETERS = ("odom_frame", "base_frame", "image_transport", "state_path",
+                        "use_sim_time")
 
 
 @dataclass
 class FeatureOptions:
-    """Corner detection and tracking (``features.py``)."""
+    """Corner detection, stereo matching and tracking (``features.py``).
 
-    max_corners: int = 600  #: corners kept per left image
-    quality_level: float = 0.005  #: Shi-Tomasi quality relative to the best corner
-    min_distance_px: float = 12.0  #: minimum spacing between corners (px)
-    grid_cols: int = 8  #: the image is cut into grid_cols x grid_rows cells ...
-    grid_rows: int = 6  #: ... and each cell gets at most max_corners / cells corners
-    lk_window_px: int = 15  #: Lucas-Kanade window side (px)
-    lk_levels: int = 3  #: Lucas-Kanade pyramid levels above the full image
-    lk_iterations: int = 10  #: Lucas-Kanade iterations per level at most
-    lk_epsilon_px: float = 0.03  #: ... or until the update is smaller than this (px)
-    fb_max_px: float = 0.5  #: forward-backward consistency bound of a track (px)
-    #: remap images whose CameraInfo has distortion (D) or a rectifying rotation (R) to
-    #: its P, as image_proc does; false: read every image as rectified (DESIGN.md's are)
+    Attributes:
+        max_corners: Corners detected per reference image, spread over an 8 x 6 grid.
+        rectify: Remap an image whose CameraInfo has a distortion (D) or a rectifying
+            rotation (R) to its P, as image_proc does; false reads every image as
+            rectified.
+        stereo_sync_tolerance_s: Left and right images whose header stamps differ by at
+            most this many seconds are one pair, stamped with the left's (s); 0 pairs
+            exact stamps only.
+        max_depth_m: Triangulated points farther than this are not used (m).
+    """
+
+    max_corners: int = 600
     rectify: bool = True
-    #: left and right images whose header stamps differ by at most this many seconds are
-    #: one pair, stamped with the left's (roi_network.images.StereoHalves); 0: exact stamps
     stereo_sync_tolerance_s: float = 0.005
-    stereo_max_dy_px: float = 1.0  #: rectified pair: |row difference| allowed (px)
-    min_disparity_px: float = 1.0  #: farther points (smaller disparity) are not triangulated
-    max_depth_m: float = 60.0  #: farther points are not used
+    max_depth_m: float = 60.0
 
 
 @dataclass
 class MotionOptions:
-    """Motion estimation between a reference frame and the current one (``motion.py``)."""
+    """Motion estimation between the reference frame and the current one (``motion.py``).
 
-    ransac_reprojection_px: float = 1.5  #: PnP RANSAC inlier bound (px)
-    ransac_iterations: int = 200
-    min_inliers: int = 25  #: fewer inliers: the frame is not used (IMU propagation)
-    pixel_sigma_px: float = 0.5  #: image measurement noise (px, 1 sigma) of a tracked corner
-    huber_px: float = 1.0  #: robust loss scale of the refinement (px)
+    Attributes:
+        ransac_reprojection_px: PnP RANSAC inlier bound (px).
+        min_inliers: Fewer inliers and the frame is not used: the pose is IMU-propagated.
+        pixel_sigma_px: Measurement noise of a tracked corner (px, 1 sigma).
+    """
+
+    ransac_reprojection_px: float = 1.5
+    min_inliers: int = 25
+    pixel_sigma_px: float = 0.5
 
 
 @dataclass
 class WindowOptions:
-    """Keyframes (``keyframes.py``)."""
+    """When the last frame replaces the reference frame (``estimator.py``).
 
-    frame_to_frame: bool = False  #: the paper's mode: the reference is the last frame ...
-    #: ... once the rover moved this far from the reference or turned
-    #: ``frame_to_frame_min_turn_deg`` (Curiosity runs VO about each metre; a camera
-    #: streaming at 10 Hz would otherwise make every 1.5 cm step a measurement of its
-    #: own); 0: always the last frame
+    Attributes:
+        frame_to_frame_min_travel_m: The last frame becomes the reference once the rover
+            moved this far from it (m), as Curiosity runs VO about each metre; 0: every
+            frame.
+        frame_to_frame_min_turn_deg: ... or once it turned this far from it (deg).
+    """
+
     frame_to_frame_min_travel_m: float = 0.3
-    frame_to_frame_min_turn_deg: float = 5.0  #: ... or turned this far from it
-    keyframe_min_tracked: float = 0.3  #: new keyframe when fewer of its points are tracked
-    keyframe_max_frames: int = 4  #: new keyframe at the latest after this many frames
-    track_from_keyframe: bool = True  #: track from the keyframe image (else frame to frame)
+    frame_to_frame_min_turn_deg: float = 5.0
 
 
 @dataclass
 class ImuOptions:
-    """IMU propagation and fusion (``propagator.py``, ``zero_velocity.py``)."""
+    """IMU fusion and zero-velocity detection (``estimator.py``, ``zero_velocity.py``).
 
-    use_imu: bool = True  #: False: vision alone (gyro unused, no gravity alignment)
-    gyro_noise_density: float = 1.7e-4  #: rad/s/sqrt(Hz); rover.yaml overrides
-    gyro_bias_random_walk: float = 2.0e-5  #: rad/s^2/sqrt(Hz); rover.yaml overrides
-    gyro_bias_sigma0: float = 5.0e-3  #: prior 1-sigma of the turn-on gyro bias (rad/s)
-    accel_tilt_sigma_deg: float = 0.5  #: roll/pitch measurement noise of mean gravity (deg)
-    tilt_window_s: float = 0.5  #: accelerometer samples averaged for gravity (s before a frame)
-    max_gap_s: float = 0.2  #: IMU samples further apart than this are an IMU gap
-    input_wait_s: float = 5.0  #: a pair waits for its partner, infos and IMU until images
-    #: this much newer (stamp time) arrive; then it is processed with what it has
-    gravity: float = 9.81  #: m/s^2; rover.yaml overrides
-    zero_velocity_flow_px: float = 0.3  #: median corner motion below this: standing still
-    zero_velocity_gyro_rad_s: float = 0.01  #: and gyro rate below this (if IMU is used)
+    Attributes:
+        accel_tilt_sigma_deg: Roll and pitch noise of the mean gravity measurement (deg).
+        max_gap_s: IMU samples further apart than this are an IMU gap (s).
+        zero_velocity_flow_px: The rover stands still when the median corner moves less
+            than this (px) ...
+        zero_velocity_gyro_rad_s: ... and the gyro rate stays below this (rad/s).
+    """
+
+    accel_tilt_sigma_deg: float = 0.5
+    max_gap_s: float = 0.2
+    zero_velocity_flow_px: float = 0.3
+    zero_velocity_gyro_rad_s: float = 0.01
 
 
 @dataclass
 class CovarianceOptions:
-    """Process noise of the odometry covariance (``state.py``): grows with distance."""
+    """The odometry covariance model (``state.py``): it grows with the distance driven.
 
-    translation_sigma_per_m: float = 0.01  #: 1-sigma translation error per metre driven
-    rotation_sigma_deg_per_sqrt_m: float = 0.02  #: 1-sigma heading random walk (deg/sqrt m)
-    scale_sigma: float = 0.003  #: prior 1-sigma of the systematic scale error (0.3 %)
-    heading_rate_sigma_deg_per_100m: float = 0.05  #: prior 1-sigma of the heading-rate bias
-    propagation_translation_sigma: float = 0.5  #: per metre, when vision is unavailable
-    propagation_floor_m: float = 0.05  #: per frame without vision, even with no step
-    unseen_rotation_sigma_deg: float = 10.0  #: per frame with neither vision nor gyro
-    #: After a restart (:meth:`VoEstimator.resume`), 1-sigma motion over the gap nobody
-    #: watched, as a fraction of the fastest speed and turn rate seen before it, times the gap.
-    resume_motion_fraction: float = 0.5
+    Attributes:
+        translation_sigma_per_m: Translation noise per metre driven (1 sigma, m/m).
+        rotation_sigma_deg_per_sqrt_m: Rotation random walk (deg/sqrt(m)).
+        scale_sigma: Prior of the systematic scale error (1 sigma, fraction: 0.003 is
+            0.3 %).
+        heading_rate_sigma_deg_per_100m: Prior of the heading-rate bias (1 sigma,
+            deg/100 m).
+        propagation_translation_sigma: Translation noise per metre of a frame without
+            vision (1 sigma, m/m).
+    """
+
+    translation_sigma_per_m: float = 0.01
+    rotation_sigma_deg_per_sqrt_m: float = 0.02
+    scale_sigma: float = 0.003
+    heading_rate_sigma_deg_per_100m: float = 0.05
+    propagation_translation_sigma: float = 0.5
 
 
 @dataclass
 class VoConfig:
-    """All options of the estimator. ``mode`` selects a preset applied on top (see module)."""
+    """All options of the estimator.
+
+    Attributes:
+        mode: ``paper`` (VO + IMU fusion) or ``vo`` (vision alone).
+        features: Corner detection, stereo matching and tracking.
+        motion: Motion estimation.
+        window: Reference frame replacement.
+        imu: IMU fusion and zero-velocity detection.
+        covariance: Covariance model.
+    """
 
     mode: str = "paper"
     features: FeatureOptions = field(default_factory=FeatureOptions)
@@ -128,17 +162,10 @@ class VoConfig:
         if self.mode not in MODES:
             raise ValueError(f"mode '{self.mode}': expected one of {', '.join(MODES)}")
 
-    def resolved(self) -> VoConfig:
-        """A copy with the mode's preset applied (what the estimator runs)."""
-        cfg = dataclasses.replace(
-            self, features=dataclasses.replace(self.features),
-            motion=dataclasses.replace(self.motion), window=dataclasses.replace(self.window),
-            imu=dataclasses.replace(self.imu), covariance=dataclasses.replace(self.covariance))
-        if cfg.mode in ("paper", "vo"):
-            cfg.window.frame_to_frame = True
-        if cfg.mode == "vo":
-            cfg.imu.use_imu = False
-        return cfg
+    @property
+    def use_imu(self) -> bool:
+        """The IMU is fused (``paper``); ``vo`` uses vision alone."""
+        return self.mode == "paper"
 
 
 SECTIONS = ("features", "motion", "window", "imu", "covariance")
@@ -153,11 +180,21 @@ def flat_parameters(cfg: VoConfig) -> dict[str, Any]:
     return out
 
 
+def unknown_options(names: Iterable[str]) -> list[str]:
+    """The names among ``names`` under an option section (``features.``...) that are no
+    option: a typo, or an option that does not exist."""
+    known = set(flat_parameters(VoConfig()))
+    return [n for n in names if n.partition(".")[0] in SECTIONS and n not in known]
+
+
 def config_from_flat(values: dict[str, Any], base: VoConfig | None = None) -> VoConfig:
     """Apply ``section.field`` values (as the node's parameters or a params YAML hold them).
 
+    Keys outside the option sections (rover.yaml's, ``use_sim_time``...) are not options
+    and are left alone.
+
     Raises:
-        ValueError: an unknown key or a value of the wrong type.
+        ValueError: an unknown option or a value of the wrong type.
     """
     cfg = dataclasses.replace(base or VoConfig())
     sections = {s: dataclasses.replace(getattr(cfg, s)) for s in SECTIONS}
@@ -168,7 +205,7 @@ def config_from_flat(values: dict[str, Any], base: VoConfig | None = None) -> Vo
             continue
         section, _, name = key.partition(".")
         if section not in sections:
-            continue  # rover.yaml keys (extrinsics), use_sim_time...: not ours
+            continue
         fields = {f.name: f for f in dataclasses.fields(sections[section])}
         if name not in fields:
             raise ValueError(f"unknown parameter '{key}'")
@@ -187,7 +224,17 @@ def config_from_flat(values: dict[str, Any], base: VoConfig | None = None) -> Vo
     return VoConfig(mode=mode, **sections)
 
 
-def read_ros_params(path: str | Path, node_name: str = "rover_vo") -> dict[str, Any]:
+def _load_params_file(path: Path) -> dict[str, Any]:
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ValueError(f"{path}: cannot read ROS params YAML: {exc}") from exc
+    if not isinstance(doc, dict):
+        raise ValueError(f"{path}: not a ROS params file (expected a mapping at the top)")
+    return doc
+
+
+def read_ros_params(path: str | Path, node_name: str = NODE_NAME) -> dict[str, Any]:
     """The ``ros__parameters`` a ROS params file gives ``node_name`` (``/**`` first).
 
     Nested mappings are flattened to dotted names, as ROS does.
@@ -196,10 +243,28 @@ def read_ros_params(path: str | Path, node_name: str = "rover_vo") -> dict[str, 
         ValueError: the file is not a ROS params file.
     """
     path = Path(path)
+    return node_parameters(_load_params_file(path), node_name)
+
+
+def config_from_params_file(path: str | Path) -> VoConfig:
+    """The options a ROS params file gives the ``rover_vo`` node (nested or dotted keys,
+    under ``/**``, ``rover_vo`` or ``/rover_vo``).
+
+    Raises:
+        ValueError: the file is not a ROS params file, or sets a parameter the node does
+            not have under its own name (an option under ``/**`` too), or a bad value;
+            the message names the file and the key.
+    """
+    path = Path(path)
+    doc = _load_params_file(path)
+    own = node_parameters({k: v for k, v in doc.items() if k != "/**"}, NODE_NAME)
+    known = set(flat_parameters(VoConfig())) | set(ROVER_PARAMETERS) | set(
+        NODE_ONLY_PARAMETERS)
+    values = node_parameters(doc, NODE_NAME)
+    unknown = [k for k in own if k not in known] + unknown_options(values)
+    if unknown:
+        raise ValueError(f"{path}: unknown parameter '{unknown[0]}' for {NODE_NAME}")
     try:
-        doc = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise ValueError(f"{path}: cannot read ROS params YAML: {exc}") from exc
-    if not isinstance(doc, dict):
-        raise ValueError(f"{path}: not a ROS params file (expected a mapping at the top)")
-    return node_parameters(doc, node_name)
+        return config_from_flat(values)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None

@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from roi_network.images import StereoHalves, StereoRectifiers, describe
 from rover_vo import messages as m
-from rover_vo.config import VoConfig
+from rover_vo.config import ROVER_PARAMETERS, VoConfig
 from rover_vo.features import stereo_match, track
 from rover_vo.keyframes import Keyframe, make_keyframe
 from rover_vo.motion import estimate_motion, refine_motion
@@ -32,6 +32,24 @@ from rover_vo.zero_velocity import image_motion_px, is_stationary
 
 #: Layout of :meth:`VoEstimator.snapshot` (a restarted node refuses other layouts).
 SNAPSHOT_VERSION = 1
+
+#: Prior 1-sigma of the gyro's turn-on bias (rad/s).
+GYRO_BIAS_SIGMA0 = 5.0e-3
+#: Accelerometer samples this long before a frame are averaged for gravity (s).
+TILT_WINDOW_S = 0.5
+#: A pair waits for its other half, the camera infos and the IMU until images this much
+#: newer (stamp time) arrive; then it is processed with what it has (s).
+INPUT_WAIT_S = 5.0
+#: The reference frame is replaced when fewer than this fraction of its points are still
+#: tracked.
+REFERENCE_MIN_TRACKED = 0.3
+#: Position noise added per frame without vision, even when the last step stood still (m).
+PROPAGATION_FLOOR_M = 0.05
+#: Heading noise added per frame with neither vision nor gyro (deg).
+UNSEEN_ROTATION_SIGMA_DEG = 10.0
+#: After a restart, 1-sigma motion over the gap nobody watched, as a fraction of the
+#: fastest speed and turn rate seen before it, times the gap.
+RESUME_MOTION_FRACTION = 0.5
 
 #: Kinds of bad input counted in /vo/status (``bad_input.<kind>``).
 BAD_INPUT_KINDS = (
@@ -96,22 +114,23 @@ class VoEstimator:
     """Stereo + IMU visual odometry over a stream of messages.
 
     Args:
-        config: options (its mode preset is applied here).
+        config: options.
         params: flat rover.yaml parameters (extrinsics, IMU noise, gravity).
         log: ``log(level, text)``; default: the ``rover_vo`` Python logger.
     """
 
     def __init__(self, config: VoConfig, params: dict[str, Any],
                  log: Callable[[int, str], None] | None = None) -> None:
-        self.cfg = config.resolved()
+        self.cfg = config
         self.params = dict(params)
-        imu = self.cfg.imu
-        for key, attr in (("gyro_noise_density", "gyro_noise_density"),
-                          ("gyro_bias_random_walk", "gyro_bias_random_walk"),
-                          ("gravity", "gravity")):
-            if key in self.params:
-                setattr(imu, attr, float(self.params[key]))
-        self.imu_rate = float(self.params.get("imu_rate_hz", 50.0))
+        self.use_imu = config.use_imu
+        # The IMU's constants: rover.yaml's, else the defaults.
+        rover = {k: float(self.params.get(k, ROVER_PARAMETERS[k])) for k in (
+            "gyro_noise_density", "gyro_bias_random_walk", "gravity", "imu_rate_hz")}
+        self.gyro_noise_density = rover["gyro_noise_density"]
+        self.gyro_bias_random_walk = rover["gyro_bias_random_walk"]
+        self.gravity = rover["gravity"]
+        self.imu_rate = rover["imu_rate_hz"]
         self._log = log or (lambda level, text: logging.getLogger("rover_vo").log(level, text))
         self.rig: StereoRig | None = None
         self.info: dict[str, Any] = {"left": None, "right": None}
@@ -166,8 +185,8 @@ class VoEstimator:
         """Continue the odom frame of a :meth:`snapshot` (the node was restarted): the
         first pair starts from the saved pose, moved straight on at the saved velocity
         over the gap, its covariance grown by the motion nobody saw
-        (``covariance.resume_motion_fraction`` of the fastest speed and turn rate seen,
-        times the gap), instead of a new odom frame at the identity (which would tear the
+        (``RESUME_MOTION_FRACTION`` of the fastest speed and turn rate seen, times the
+        gap), instead of a new odom frame at the identity (which would tear the
         LN and the map -> odom estimate built on the old one apart).
 
         Raises:
@@ -226,7 +245,7 @@ class VoEstimator:
                 self.bad("stereo_duplicate", f"{topic}: two images with stamp "
                          f"{t_ns * 1e-9:.3f} s: the second dropped")
                 return []
-            self._file_pairs(t_ns - int(self.cfg.imu.input_wait_s * 1e9))
+            self._file_pairs(t_ns - int(INPUT_WAIT_S * 1e9))
             return self._drain(force=False)
         return []
 
@@ -237,7 +256,7 @@ class VoEstimator:
 
     def _file_pairs(self, give_up_ns: int | None) -> None:
         """Move pairs, oldest first, from :attr:`halves` to :attr:`pairs`: the complete
-        ones, and a half whose partner has not come once images ``input_wait_s`` newer
+        ones, and a half whose partner has not come once images ``INPUT_WAIT_S`` newer
         have (``give_up_ns``; None: all, the end of the bag). A waiting half holds the
         pairs after it back, so that pairs are processed in time order; a lone half is
         processed as it is (counted missing, the IMU carries the odometry)."""
@@ -270,19 +289,19 @@ class VoEstimator:
 
     def _drain(self, force: bool) -> list[VoOutput]:
         """Process pairs in time order once each is ready: both images, the camera infos and
-        the IMU up to its stamp. A pair that images ``input_wait_s`` newer have overtaken is
+        the IMU up to its stamp. A pair that images ``INPUT_WAIT_S`` newer have overtaken is
         processed as it is (its partner, infos or IMU are lost), so a dead sensor delays the
         odometry by that much and no more; over DDS, topics arrive in any interleaving.
         """
         out: list[VoOutput] = []
-        wait_ns = int(self.cfg.imu.input_wait_s * 1e9)
+        wait_ns = int(INPUT_WAIT_S * 1e9)
         while self.pairs:
             t_ns = min(self.pairs)
             pair = self.pairs[t_ns]
             latest = self.propagator.latest if self.propagator else None
             ready = (pair.left is not None and pair.right is not None
                      and self.info["left"] is not None and self.info["right"] is not None
-                     and (not self.cfg.imu.use_imu
+                     and (not self.use_imu
                           or (latest is not None and latest >= t_ns * 1e-9)))
             stale = max(self.pairs) - t_ns > wait_ns
             if not (ready or stale or force):
@@ -306,9 +325,8 @@ class VoEstimator:
             self.bad("bad_camera_info", str(exc))
             self.info = {"left": None, "right": None}
             return False
-        imu = self.cfg.imu
-        self.propagator = Propagator(self.rig.base_R_imu, imu.gyro_noise_density,
-                                     imu.gyro_bias_random_walk, imu.gyro_bias_sigma0)
+        self.propagator = Propagator(self.rig.base_R_imu, self.gyro_noise_density,
+                                     self.gyro_bias_random_walk, GYRO_BIAS_SIGMA0)
         for t, g, a in self._imu_prebuffer:
             self.propagator.add(t, g, a)
             self.counts.imu += 1
@@ -319,6 +337,7 @@ class VoEstimator:
         return True
 
     def _decode(self, pair: _Pair) -> tuple[np.ndarray, np.ndarray] | None:
+        """The pair's ``(left, right)`` images, rectified; None (counted) when unusable."""
         t = pair.t_ns * 1e-9
         left_topic = self.image_topics["left"]
         if pair.left is None or pair.right is None:
@@ -358,7 +377,7 @@ class VoEstimator:
         if float(small.std()) < 2.0:
             self.bad("textureless", f"{left_topic}: image at {t:.3f} s has no texture")
             return None
-        return images[0], images[0], images[1]
+        return images[0], images[1]
 
     def _process_pair(self, pair: _Pair) -> VoOutput | None:
         t = pair.t_ns * 1e-9
@@ -373,16 +392,15 @@ class VoEstimator:
         iv = self._imu_interval(self.state.t, t)
         if images is None:
             return self._propagate(t, iv)
-        left = images[1]
+        left = images[0]
         # Zero-velocity detection: standing still, nothing moves (no drift at stops).
-        flow = image_motion_px(self.last_image, left, self.kf.tracked[self.kf.alive],
-                               self.cfg.features)
+        flow = image_motion_px(self.last_image, left, self.kf.tracked[self.kf.alive])
         if is_stationary(flow, iv, self.cfg.imu):
             return self._zero_velocity(t, iv, left)
         return self._vision(t, iv, images)
 
     def _imu_interval(self, t0: float, t1: float) -> ImuInterval | None:
-        if not self.cfg.imu.use_imu or self.propagator is None:
+        if not self.use_imu or self.propagator is None:
             return None
         iv = self.propagator.interval(t0, t1)
         if iv is None or iv.gap > self.cfg.imu.max_gap_s:
@@ -401,25 +419,24 @@ class VoEstimator:
         yaw = np.arctan2(R[1, 0], R[0, 0])
         return Rotation.from_euler("z", -yaw).as_matrix() @ R
 
-    def _initialize(self, t: float, image: np.ndarray, left: np.ndarray,
-                    right: np.ndarray) -> VoOutput:
+    def _initialize(self, t: float, left: np.ndarray, right: np.ndarray) -> VoOutput:
         if self._resume is not None:
             resumed = self._resumed_state(t)
             if resumed is not None:
                 self.state = resumed
-                self._new_keyframe(image, left, right)
+                self._new_keyframe(left, right)
                 self.last_image = left
                 self.source = "resumed"
                 return VoOutput(self.state.copy(), np.zeros(3), np.zeros(3), "resumed")
         R0 = np.eye(3)
-        if self.cfg.imu.use_imu and self.propagator is not None:
+        if self.use_imu and self.propagator is not None:
             iv = self.propagator.interval(t - 1.0, t)
             if iv is not None:
                 R0 = self._gravity_tilt(iv.mean_accel)  # gravity gives roll and pitch
         c = self.cfg.covariance
         self.state = OdomState(t, R0, P=systematic_prior(
             c.scale_sigma, c.heading_rate_sigma_deg_per_100m))
-        self._new_keyframe(image, left, right)
+        self._new_keyframe(left, right)
         self.last_image = left
         self.source = "initial"
         return VoOutput(self.state.copy(), np.zeros(3), np.zeros(3), "initial")
@@ -439,9 +456,8 @@ class VoEstimator:
         # turning at full rate the whole gap is 2 sigma off).
         v = snap["linear"]
         dp = np.array([v[0], v[1], 0.0]) * gap
-        cov = self.cfg.covariance
-        sigma_p = cov.resume_motion_fraction * snap["max_speed"] * gap
-        sigma_yaw = cov.resume_motion_fraction * snap["max_turn_rate"] * gap
+        sigma_p = RESUME_MOTION_FRACTION * snap["max_speed"] * gap
+        sigma_yaw = RESUME_MOTION_FRACTION * snap["max_turn_rate"] * gap
         Q = np.zeros((6, 6))
         Q[:2, :2] = np.eye(2) * sigma_p**2
         Q[2, 2] = (0.1 * sigma_p) ** 2
@@ -457,10 +473,10 @@ class VoEstimator:
                   f"{sigma_p:.2f} m and {np.degrees(sigma_yaw):.1f} deg added")
         return new
 
-    def _new_keyframe(self, image: np.ndarray, left: np.ndarray, right: np.ndarray) -> None:
-        del image  # the same array as left (kept for when pyramids are passed)
+    def _new_keyframe(self, left: np.ndarray, right: np.ndarray) -> None:
+        f = self.cfg.features
         self.kf, n_corners, n_stereo = make_keyframe(self.state, left, right, self.rig,
-                                                     self.cfg.features)
+                                                     f.max_corners, f.max_depth_m)
         self.counts.keyframes += 1
         self.stats.keyframe = True
         self.stats.features, self.stats.stereo_matches = n_corners, n_stereo
@@ -494,7 +510,7 @@ class VoEstimator:
     def _tilt_update(self, R: np.ndarray, iv: ImuInterval, stationary: bool) -> np.ndarray:
         """Roll and pitch pulled toward the accelerometer's gravity (yaw untouched)."""
         f = iv.mean_accel
-        g = self.cfg.imu.gravity
+        g = self.gravity
         if abs(np.linalg.norm(f) - g) > 0.05 * g:
             return R  # accelerating: the mean specific force is not gravity
         up_b = R.T @ np.array([0.0, 0.0, 1.0])
@@ -524,10 +540,10 @@ class VoEstimator:
         Q = step_noise(step, cov.propagation_translation_sigma,
                        cov.rotation_sigma_deg_per_sqrt_m * 10.0)
         # Unseen, the rover may also have moved when the last step says it stood still.
-        Q[:3, :3] += np.eye(3) * cov.propagation_floor_m**2
+        Q[:3, :3] += np.eye(3) * PROPAGATION_FLOOR_M**2
         if iv is None:
             # No gyro: the rotation is the last step's guess; a turn may have started.
-            Q[3:, 3:] += np.eye(3) * np.radians(cov.unseen_rotation_sigma_deg) ** 2
+            Q[3:, 3:] += np.eye(3) * np.radians(UNSEEN_ROTATION_SIGMA_DEG) ** 2
         else:
             Q[3:, 3:] += iv.cov  # the gyro's own integration noise and bias uncertainty
         new = self.state.compose(t, dR, dp, Q)
@@ -562,36 +578,32 @@ class VoEstimator:
 
     def _vision(self, t: float, iv: ImuInterval | None, images: tuple) -> VoOutput:
         cfg, rig, kf = self.cfg, self.rig, self.kf
-        image, left, right = images
+        left, right = images
         R_bc, p_bc = self._cam()
         dR, dp = self._predict(iv)
         idx = np.flatnonzero(kf.alive)
         X = kf.points[idx]
-        if cfg.window.track_from_keyframe:
-            # From the keyframe's own image: no tracking drift accumulates over the span.
-            src_img, src_uv = kf.image, kf.corners[idx]
-        else:
-            src_img, src_uv = self.last_image, kf.tracked[idx]
         need = cfg.motion.min_inliers
-        # Tracking: LK starting where the predicted motion puts each keyframe point.
+        # Tracking: LK from the keyframe's own image (no tracking drift accumulates over
+        # its span), starting where the predicted motion puts each keyframe point.
         R_guess, t_guess, Xp, predicted = self._predict_pixels(X, idx, dR, dp)
-        uv, ok = track(src_img, left, src_uv, cfg.features, predicted)
+        uv, ok = track(kf.image, left, kf.corners[idx], predicted)
         # Fallbacks: from the last image (a shorter hop); without a gyro, a few turn rates
         # around the last one (a turn starting is what the last step cannot predict); then
         # with no prediction at all.
-        if ok.sum() < need and cfg.window.track_from_keyframe:
-            uv, ok = track(self.last_image, left, kf.tracked[idx], cfg.features, predicted)
+        if ok.sum() < need:
+            uv, ok = track(self.last_image, left, kf.tracked[idx], predicted)
         if ok.sum() < need and iv is None:
             for yaw in np.radians([-5.0, 5.0, -10.0, 10.0, -15.0, 15.0]):
                 turn = Rotation.from_euler("z", yaw).as_matrix() @ dR
                 guess = self._predict_pixels(X, idx, turn, dp)
-                uv2, ok2 = track(self.last_image, left, kf.tracked[idx], cfg.features, guess[3])
+                uv2, ok2 = track(self.last_image, left, kf.tracked[idx], guess[3])
                 if ok2.sum() >= need:
                     uv, ok = uv2, ok2
                     R_guess, t_guess, Xp, predicted = guess
                     break
         if ok.sum() < need:
-            uv, ok = track(self.last_image, left, kf.tracked[idx], cfg.features)
+            uv, ok = track(self.last_image, left, kf.tracked[idx])
         in_front = Xp[:, 2] > 0.1
         self.stats.tracked = int(ok.sum())
         est = None
@@ -599,8 +611,8 @@ class VoEstimator:
             # Right image: each tracked corner is searched where its predicted depth puts it.
             disp_guess = np.where(in_front, rig.fx * rig.baseline_m / np.maximum(Xp[:, 2], 0.5),
                                   3.0)[ok]
-            disparity, sok = stereo_match(left, right, uv[ok], cfg.features, rig.fx,
-                                          rig.baseline_m, disp_guess)
+            disparity, sok = stereo_match(left, right, uv[ok], rig.fx, rig.baseline_m,
+                                          disp_guess)
             uv_r = np.full((int(ok.sum()), 2), np.nan)
             uv_r[sok] = uv[ok][sok] - np.column_stack([disparity[sok], np.zeros(sok.sum())])
             prior = prior_cov = None
@@ -621,7 +633,7 @@ class VoEstimator:
                      f"at {t:.3f} s (motion from the IMU and the last step)")
             out = self._propagate(t, iv)
             # The keyframe is lost: start a new one where the propagated pose puts us.
-            self._new_keyframe(image, left, right)
+            self._new_keyframe(left, right)
             self.last_image = left
             return out
         self.counts.vision += 1
@@ -650,17 +662,11 @@ class VoEstimator:
         self.last_image = left
         tracked_frac = kf.n_alive / max(len(kf.points), 1)
         w = cfg.window
-        if w.frame_to_frame:
-            # The paper's mode: the last frame becomes the reference once it is far enough
-            # from the one before (each pair of a 0.45 m-spaced bag; every few pairs of a
-            # camera that streams), or tracking thins.
-            turn = np.degrees(Rotation.from_matrix(kf_R_b).magnitude())
-            replace = (span >= w.frame_to_frame_min_travel_m
-                       or turn >= w.frame_to_frame_min_turn_deg
-                       or tracked_frac < w.keyframe_min_tracked)
-        else:
-            replace = tracked_frac < w.keyframe_min_tracked or kf.frames >= w.keyframe_max_frames
-        if replace:
+        # The last frame becomes the reference once it is far enough from it (each pair of
+        # a 0.45 m-spaced bag; every few pairs of a camera that streams), or tracking thins.
+        turn = np.degrees(Rotation.from_matrix(kf_R_b).magnitude())
+        if (span >= w.frame_to_frame_min_travel_m or turn >= w.frame_to_frame_min_turn_deg
+                or tracked_frac < REFERENCE_MIN_TRACKED):
             if iv is not None:
                 # Gyro bias from the vision rotation over the keyframe span (one update per
                 # keyframe: the frames inside a span share their measurements).
@@ -669,10 +675,10 @@ class VoEstimator:
                 self.propagator.update_bias_from_rotation(kf.state.t, t, R_vo_b, rot3)
                 # Gravity from the accelerometer just before the frame (the body tilts as
                 # it drives over relief: a mean over the whole span would lag).
-                recent = self.propagator.interval(t - self.cfg.imu.tilt_window_s, t)
+                recent = self.propagator.interval(t - TILT_WINDOW_S, t)
                 if recent is not None:
                     self.state.R = self._tilt_update(self.state.R, recent, stationary=False)
-            self._new_keyframe(image, left, right)
+            self._new_keyframe(left, right)
             self.stats.inliers = int(inl.sum())
         return out
 

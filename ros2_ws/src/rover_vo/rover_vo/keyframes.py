@@ -1,8 +1,8 @@
-"""Keyframes: the reference a frame's motion is measured from (beyond the paper's mode).
+"""The reference frame ("keyframe") a frame's motion is measured from.
 
-Measuring each frame against a keyframe instead of the previous frame keeps the error of
-the intermediate frames out of the chain: the pose error grows per keyframe, not per frame.
-In the paper's mode every frame becomes the next keyframe.
+The last frame becomes the next reference once the rover moved or turned far enough from
+the current one (``window`` options): a camera that streams measures its frames against
+one a few frames back, so the pose error grows per reference, not per frame.
 """
 
 from __future__ import annotations
@@ -11,7 +11,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rover_vo.config import FeatureOptions
 from rover_vo.features import detect_corners, stereo_match
 from rover_vo.reconstruction import ground_disparity, triangulate_disparity
 from rover_vo.rig import StereoRig
@@ -52,27 +51,30 @@ def tilt_of(rig: StereoRig) -> tuple[float, float]:
 
 
 def make_keyframe(state: OdomState, left: np.ndarray, right: np.ndarray,
-                  rig: StereoRig, opts: FeatureOptions) -> tuple[Keyframe, int, int]:
+                  rig: StereoRig, max_corners: int, max_depth_m: float
+                  ) -> tuple[Keyframe, int, int]:
     """Detect, stereo-match and triangulate the corners of a new keyframe.
 
     Args:
         state: the keyframe's odometry state.
         left, right: the pair's images.
-        rig, opts: the stereo rig and feature options.
+        rig: the stereo rig.
+        max_corners: corners detected at most.
+        max_depth_m: points farther than this (m) are not kept.
 
     Returns:
         ``(keyframe, corners detected, stereo matches kept)``.
     """
-    corners = detect_corners(left, opts)
+    corners = detect_corners(left, max_corners)
     h_cam, tilt = tilt_of(rig)
     # Start each stereo search at flat ground's disparity for its row: most corners are
     # on the ground, and LK converges from a few pixels away.
     guess = ground_disparity(corners[:, 1], rig.fy, rig.cy, h_cam, tilt, rig.fx,
                              rig.baseline_m) if len(corners) else np.zeros(0)
-    disparity, ok = stereo_match(left, right, corners, opts, rig.fx, rig.baseline_m, guess)
+    disparity, ok = stereo_match(left, right, corners, rig.fx, rig.baseline_m, guess)
     pts = triangulate_disparity(corners[ok], disparity[ok], rig.fx, rig.fy, rig.cx, rig.cy,
                                 rig.baseline_m)
-    near = pts[:, 2] < opts.max_depth_m
+    near = pts[:, 2] < max_depth_m
     kept = corners[ok][near]
     kf = Keyframe(state.copy(), left, pts[near], kept, kept.copy(), np.ones(len(kept), bool))
     return kf, len(corners), int(near.sum())

@@ -16,6 +16,11 @@ from scipy.spatial.transform import Rotation
 
 from rover_vo.config import MotionOptions
 
+#: PnP RANSAC hypotheses tried.
+RANSAC_ITERATIONS = 200
+#: Robust (Huber) loss scale of the refinement (px).
+HUBER_PX = 1.0
+
 
 @dataclass
 class MotionEstimate:
@@ -48,7 +53,7 @@ def pnp_ransac(points_ref: np.ndarray, uv_cur: np.ndarray, K: np.ndarray,
         tvec = t0.reshape(3, 1).astype(float)
     ok, rvec, tvec, idx = cv2.solvePnPRansac(
         points_ref.astype(np.float64), uv_cur.astype(np.float64), K, None, rvec, tvec,
-        useExtrinsicGuess=use_guess, iterationsCount=opts.ransac_iterations,
+        useExtrinsicGuess=use_guess, iterationsCount=RANSAC_ITERATIONS,
         reprojectionError=opts.ransac_reprojection_px, confidence=0.999,
         flags=cv2.SOLVEPNP_AP3P)
     if not ok or idx is None or len(idx) < 6:
@@ -103,7 +108,7 @@ def refine_motion(points_ref: np.ndarray, uv_left: np.ndarray, uv_right: np.ndar
             None.
         K, baseline_m: rectified intrinsics; the right camera sits at +baseline on x.
         R0, t0: starting ``cur_T_ref``.
-        opts: motion options (pixel sigma, Huber scale).
+        opts: motion options (pixel sigma, inlier bound).
         R_prior, prior_cov: a prior on R (the gyro's) and its 3x3 covariance (rad^2).
         iterations: Gauss-Newton steps.
     """
@@ -132,7 +137,7 @@ def refine_motion(points_ref: np.ndarray, uv_left: np.ndarray, uv_right: np.ndar
         Jm = np.concatenate(J)  # (M, 2, 6)
         # Huber weights per corner (on its 2D error), then the normal equations.
         e = np.linalg.norm(res, axis=1)
-        w = np.where(e <= opts.huber_px, 1.0, opts.huber_px / np.maximum(e, 1e-12))
+        w = np.where(e <= HUBER_PX, 1.0, HUBER_PX / np.maximum(e, 1e-12))
         w = w / sigma**2
         H = np.einsum("n,nij,nik->jk", w, Jm, Jm)
         g = np.einsum("n,nij,ni->j", w, Jm, res)

@@ -25,21 +25,18 @@ from sensor_msgs.msg import CameraInfo, Imu
 from roi_network.images import TRANSPORT_PARAMETER_HELP, TransportLock
 from roi_network.spin import run_node
 from rover_vo import messages as m
-from rover_vo.config import VoConfig, config_from_flat, flat_parameters
+from rover_vo.config import (
+    NODE_NAME,
+    ROVER_PARAMETERS,
+    VoConfig,
+    config_from_flat,
+    flat_parameters,
+    unknown_options,
+)
 from rover_vo.estimator import VoEstimator, VoOutput
 from rover_vo.restart import resume_from_file, save_state
 
 RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-
-#: rover.yaml keys the estimator reads (declared so the params file reaches it).
-ROVER_PARAMS: dict[str, Any] = {
-    "base_to_left_camera": [0.0] * 7,
-    "base_to_imu": [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
-    "imu_rate_hz": 50.0,
-    "gyro_noise_density": 1.7e-4,
-    "gyro_bias_random_walk": 2.0e-5,
-    "gravity": 9.81,
-}
 
 
 def sensor_qos(depth: int) -> QoSProfile:
@@ -72,7 +69,13 @@ class VoNode(Node):
 
     def __init__(self, **node_kwargs: Any) -> None:
         """``node_kwargs`` go to ``rclpy.node.Node`` (e.g. ``context``)."""
-        super().__init__("rover_vo", **node_kwargs)
+        super().__init__(NODE_NAME, **node_kwargs)
+        # An option a params file sets that the node does not have (a typo, an option that
+        # does not exist) is an error, not ignored; rclpy keeps the params files' values
+        # for this node in _parameter_overrides.
+        overrides = getattr(self, "_parameter_overrides", {})
+        if unknown := unknown_options(overrides):
+            raise ValueError(f"unknown parameter '{unknown[0]}'")
         defaults = flat_parameters(VoConfig())
         values = {}
         for name, default in defaults.items():
@@ -80,7 +83,8 @@ class VoNode(Node):
                 name, default, ParameterDescriptor(description=f"{name} (docs/rover_vo.md)")
             ).value
         rover = {}
-        for name, default in ROVER_PARAMS.items():
+        # rover.yaml keys the estimator reads (declared so the params file reaches it).
+        for name, default in ROVER_PARAMETERS.items():
             rover[name] = self.declare_parameter(
                 name, default, ParameterDescriptor(description=f"rover.yaml: {name}")).value
         self.odom_frame = self.declare_parameter(
@@ -142,11 +146,10 @@ class VoNode(Node):
 
         rclpy's executor takes one message per subscription per wait, and a wait costs
         about a millisecond of Python: at 250 IMU messages/s (a 50 Hz IMU replayed at 5x)
-        on a loaded machine the node fell behind its IMU, the queue overflowed, and stereo
-        pairs were processed with seconds of gyro missing (``imu_gap``). Through a sharp
-        turn that lost the turn: the held-out bag train_1km_s113 ended 59 m off in 2 of 4
-        end-to-end runs (docs/rover_vo.md). Taking the queue in one callback keeps up, and
-        a pair fed after its IMU is not released before the gyro arrives.
+        on a loaded machine a node taking one at a time falls behind its IMU, the queue
+        overflows, and stereo pairs are processed with seconds of gyro missing
+        (``imu_gap``), which loses sharp turns. Taking the queue in one callback keeps up,
+        and a pair fed after its IMU is not released before the gyro arrives.
         """
         n = 0
         sub = self.imu_sub

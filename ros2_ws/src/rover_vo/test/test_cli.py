@@ -1,4 +1,4 @@
-"""The offline CLI's own measurements."""
+"""The offline odometry's own measurements."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import numpy as np
 def test_peak_rss_is_the_process_own_not_its_parents():
     """A process started by a big parent reports its own peak (ru_maxrss would not)."""
     big = np.ones(40_000_000)  # 320 MB held while the child starts
-    code = ("import resource; from rover_vo.cli import peak_rss_mb; "
+    code = ("import resource; from rover_vo.offline import peak_rss_mb; "
             "print(peak_rss_mb(), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.split()

@@ -113,6 +113,8 @@ def test_node_on_tiny_bag_agrees_with_offline(bag_and_run, ros_env, tmp_path):
     assert log.count("images are rectified to its P") == (2 if topics != m.INPUT_TOPICS
                                                            else 0), log
 
+    if topics != m.INPUT_TOPICS:
+        return  # the CLI's files are checked once, on the contract's bag
     # The offline CLI on the same bag writes the same poses.
     out_dir = tmp_path / "vo"
     cli = subprocess.run([_exe("rover_vo"), "odometry", str(tiny_bag), "--out", str(out_dir)],
@@ -138,6 +140,24 @@ def test_cli_errors_name_the_file(tmp_path):
     res = subprocess.run([_exe("rover_vo"), "eval", str(bad), str(bad)], capture_output=True,
                          text=True, check=False)
     assert res.returncode == 1 and "bad.tum" in res.stderr and "Traceback" not in res.stderr
+
+
+def test_node_refuses_an_option_it_does_not_have(tiny_bag, ros_env, tmp_path, monkeypatch):
+    from rover_vo.vo_node import VoNode
+
+    params = tmp_path / "p.yaml"
+    params.write_text("rover_vo:\n  ros__parameters:\n    window:\n"
+                      "      keyframe_max_frames: 4\n")
+    for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
+        monkeypatch.setenv(key, ros_env[key])
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, args=["--ros-args", "--params-file", str(tiny_bag / "rover.yaml"),
+                                  "--params-file", str(params)])
+    try:
+        with pytest.raises(ValueError, match=r"unknown parameter 'window\.keyframe_max_frames'"):
+            VoNode(context=ctx)
+    finally:
+        rclpy.try_shutdown(context=ctx)
 
 
 def test_one_imu_callback_takes_every_queued_imu_message(tiny_bag, tiny_messages, ros_env,
