@@ -37,7 +37,15 @@ from darces_matcher.baselines import METHODS, LnMatcher, make_method
 from darces_matcher.gn_generator import FAMILY, GnSpec, family_gn, generate_gn
 from darces_matcher.hypotheses import fit_rigid_batch
 from darces_matcher.matcher import MatchConfig
-from darces_matcher.simulate import SimOptions, SimulatedLn, degrade_gn, iter_lns, transform_error
+from darces_matcher.simulate import (
+    MAX_PAIR_M,
+    MIN_PAIR_M,
+    SimOptions,
+    SimulatedLn,
+    degrade_gn,
+    iter_lns,
+    transform_error,
+)
 from roi_network.network import RoiNetwork
 from roi_network.records import xy
 from roi_network.transform import Rigid2D
@@ -322,7 +330,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if report["lns"] == 0:
         print(f"darces_eval: the paper protocol found no LN on {report_gn_name(args)}: no "
               f"route of {options.min_nodes}-{options.max_nodes} nodes joins two ROIs "
-              f"{options.min_pair_m:.0f}-{options.max_pair_m:.0f} m apart (a GN smaller "
+              f"{MIN_PAIR_M:.0f}-{MAX_PAIR_M:.0f} m apart (a GN smaller "
               f"than a route, or too sparse); nothing written", file=sys.stderr)
         return 1
     report["options"] = {

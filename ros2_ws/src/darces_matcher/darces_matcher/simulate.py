@@ -3,37 +3,38 @@
 Protocol, as implemented (docs/matcher.md states it with the LN counts it yields):
 
 1. Start/end pairs: every ordered pair (S, E) of GN nodes with
-   ``min_pair_m <= |SE| <= max_pair_m`` (600 m..1 km). Ordered, because the drift grows
+   ``MIN_PAIR_M <= |SE| <= MAX_PAIR_M`` (600 m..1 km). Ordered, because the drift grows
    from S: (S, E) and (E, S) are different routes.
 2. Trajectories: the paper's "all possible trajectories from S to E with 19..29 nodes and
    a length under 1 km" is combinatorially huge, so each pair gets ``walks_per_pair``
    seeded random walks through GN nodes. Walk k of (S, E) draws a target node count n
    uniformly in ``min_nodes..max_nodes``; from the current node it may step to any
-   unvisited GN node within ``step_radius_m`` from which E can still be reached within
-   the length budget (length so far + step + straight line to E < ``max_length_m``),
-   and it picks uniformly among the ``k_nearest`` admissible nodes of smallest cost
+   unvisited GN node within ``STEP_RADIUS_M`` from which E can still be reached within
+   the length budget (length so far + step + straight line to E < ``MAX_LENGTH_M``),
+   and it picks uniformly among the ``K_NEAREST`` admissible nodes of smallest cost
    |progress - distance left / steps left| + detour (even progress towards E, little
    detour); E is the n-th node and only the n-th. A walk that gets stuck is dropped;
    duplicates (same node sequence) are counted once. The random generator of walk k of
    (S, E) is seeded by (seed, S, E, k), so the set is the same whatever subset is asked.
-3. Detectability: ``round(drop_fraction * n)`` nodes of each trajectory, chosen at random,
+3. Detectability: ``round(DROP_FRACTION * n)`` nodes of each trajectory, chosen at random,
    are removed (paper: 20 %).
 4. Localisation error: each remaining node moves by a random offset uniform in the disc
    of radius f s (the VO's maximum error), with s its distance travelled from S along the
    trajectory and f = ``noise_fraction`` (paper: 1 %).
 5. Unknown odom frame: ``map_T_odom`` has a uniform random yaw and a translation uniform in
-   a +/-1 km box around S; the LN is expressed in ``odom`` and its records shuffled.
+   a +/-``ODOM_OFFSET_M`` (1 km) box around S; the LN is expressed in ``odom`` and its
+   records shuffled.
 
 The LN records carry the error model the rover's VO would report (per-axis variance of the
 drift, cov_xx = cov_yy = (f s)^2 / 4), never the truth. The truth (GN index of each LN
 node, true transform) stays in :class:`SimulatedLn` for evaluation only.
 
-Stress options: ``outliers`` adds round(F n) false detections (each uniform in a 40 m
-disc around a random true LN node, with that node's drift model, as if seen from the route
-there; class drawn with the GN's class frequencies); ``label_flips``
-swaps the class of round(F n) true nodes; ``gn_misses`` (:func:`degrade_gn`) removes a
-fraction of the GN given to the matcher (orbital ROIs never detected), the LN still seeing
-them.
+Stress options: ``outliers`` adds round(F n) false detections (each uniform in a
+``OUTLIER_RADIUS_M`` (40 m) disc around a random true LN node, with that node's drift
+model, as if seen from the route there; class drawn with the GN's class frequencies);
+``label_flips`` swaps the class of round(F n) true nodes; ``gn_misses``
+(:func:`degrade_gn`) removes a fraction of the GN given to the matcher (orbital ROIs never
+detected), the LN still seeing them.
 """
 
 from __future__ import annotations
@@ -48,42 +49,43 @@ from roi_network.network import RoiNetwork
 from roi_network.records import OUTCROP, ROCK, empty_records, xy
 from roi_network.transform import Rigid2D
 
+#: Shortest S-E distance of a route, metres (paper).
+MIN_PAIR_M = 600.0
+#: Longest S-E distance of a route, metres (paper).
+MAX_PAIR_M = 1000.0
+#: Trajectory length limit, metres (paper).
+MAX_LENGTH_M = 1000.0
+#: Longest step of a walk, metres.
+STEP_RADIUS_M = 150.0
+#: A walk picks among this many lowest-cost admissible nodes.
+K_NEAREST = 3
+#: Share of trajectory nodes the rover misses (paper: 20 %).
+DROP_FRACTION = 0.2
+#: A false detection lies within this of a random true node, metres.
+OUTLIER_RADIUS_M = 40.0
+#: Half-size of the box of the odom origin around S, metres.
+ODOM_OFFSET_M = 1000.0
+
 
 @dataclass(frozen=True)
 class SimOptions:
-    """Parameters of the LN simulation (defaults: the paper's protocol).
+    """Options of the LN simulation (defaults: the paper's protocol).
 
     Attributes:
-        min_pair_m: shortest S-E distance, metres.
-        max_pair_m: longest S-E distance, metres.
         min_nodes: fewest nodes of a trajectory (24 - 20 %).
         max_nodes: most nodes of a trajectory (24 + 20 %).
-        max_length_m: trajectory length limit, metres.
         walks_per_pair: random walks tried per (S, E) pair.
-        step_radius_m: longest step of a walk, metres.
-        k_nearest: a walk picks among this many lowest-cost admissible nodes.
-        drop_fraction: share of trajectory nodes the rover misses.
         noise_fraction: VO error bound as a share of distance travelled.
         outliers: false detections added, as a share of the true LN nodes.
         label_flips: true LN nodes whose class is swapped, as a share.
-        outlier_radius_m: a false detection lies within this of a random true node.
-        odom_offset_m: half-size of the box of the odom origin around S, metres.
     """
 
-    min_pair_m: float = 600.0
-    max_pair_m: float = 1000.0
     min_nodes: int = 19
     max_nodes: int = 29
-    max_length_m: float = 1000.0
     walks_per_pair: int = 16
-    step_radius_m: float = 150.0
-    k_nearest: int = 3
-    drop_fraction: float = 0.2
     noise_fraction: float = 0.01
     outliers: float = 0.0
     label_flips: float = 0.0
-    outlier_radius_m: float = 40.0
-    odom_offset_m: float = 1000.0
 
 
 @dataclass
@@ -105,12 +107,12 @@ class SimulatedLn:
     trajectory: np.ndarray
 
 
-def start_end_pairs(pts: np.ndarray, options: SimOptions) -> np.ndarray:
-    """Ordered (S, E) pairs with min_pair_m <= |SE| <= max_pair_m, sorted, (P, 2)."""
+def start_end_pairs(pts: np.ndarray) -> np.ndarray:
+    """Ordered (S, E) pairs with MIN_PAIR_M <= |SE| <= MAX_PAIR_M, sorted, (P, 2)."""
     tree = cKDTree(pts)
-    far = tree.query_pairs(options.max_pair_m, output_type="ndarray")
+    far = tree.query_pairs(MAX_PAIR_M, output_type="ndarray")
     d = np.linalg.norm(pts[far[:, 0]] - pts[far[:, 1]], axis=1)
-    far = far[d >= options.min_pair_m]
+    far = far[d >= MIN_PAIR_M]
     pairs = np.vstack([far, far[:, ::-1]])
     return pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
 
@@ -129,7 +131,7 @@ class TrajectoryEnumerator:
         tree = cKDTree(pts)
         self.neighbours: list[np.ndarray] = []
         self.step_len: list[np.ndarray] = []
-        for i, nb in enumerate(tree.query_ball_point(pts, options.step_radius_m)):
+        for i, nb in enumerate(tree.query_ball_point(pts, STEP_RADIUS_M)):
             nb = np.array([j for j in nb if j != i], dtype=np.int64)
             d = np.linalg.norm(pts[nb] - pts[i], axis=1)
             order = np.argsort(d, kind="stable")
@@ -163,7 +165,7 @@ class TrajectoryEnumerator:
                 cur = path[-1]
                 nb, step = self.neighbours[cur], self.step_len[cur]
                 remaining = n_target - len(path)
-                ok = ~self.visited[nb] & (length + step + to_end[nb] < opt.max_length_m)
+                ok = ~self.visited[nb] & (length + step + to_end[nb] < MAX_LENGTH_M)
                 # E closes the route, and only as its last node.
                 ok &= (nb == end) if remaining == 1 else (nb != end)
                 cand = np.flatnonzero(ok)
@@ -172,7 +174,7 @@ class TrajectoryEnumerator:
                 # Aim at even progress towards E over the remaining steps, with little detour.
                 progress = to_end[cur] - to_end[nb[cand]]
                 cost = np.abs(progress - to_end[cur] / remaining) + (step[cand] - progress)
-                best = cand[np.argsort(cost, kind="stable")[: opt.k_nearest]]
+                best = cand[np.argsort(cost, kind="stable")[:K_NEAREST]]
                 pick = int(best[rng.integers(len(best))])
                 path.append(int(nb[pick]))
                 self.visited[nb[pick]] = True
@@ -201,11 +203,11 @@ def simulate_ln(
     route = gn_pts[trajectory]
     travelled = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(route, axis=0), axis=1))])
     n = len(trajectory)
-    keep = np.sort(rng.choice(n, n - round(options.drop_fraction * n), replace=False))
+    keep = np.sort(rng.choice(n, n - round(DROP_FRACTION * n), replace=False))
     nodes, s = trajectory[keep], travelled[keep]
     half = options.noise_fraction * s
     yaw = rng.uniform(-np.pi, np.pi)
-    offset = rng.uniform(-options.odom_offset_m, options.odom_offset_m, 2)
+    offset = rng.uniform(-ODOM_OFFSET_M, ODOM_OFFSET_M, 2)
     map_T_odom = Rigid2D(yaw, *(route[0] + offset))
     # Uniform in the disc of radius f s: sqrt of a uniform radius fraction, uniform angle.
     radius = half * np.sqrt(rng.random(len(nodes)))
@@ -223,7 +225,7 @@ def simulate_ln(
     if n_out:
         # A false detection is seen from the route: near a true node, with its drift.
         near = rng.integers(0, len(nodes), n_out)
-        radius = options.outlier_radius_m * np.sqrt(rng.random(n_out))
+        radius = OUTLIER_RADIUS_M * np.sqrt(rng.random(n_out))
         angle = rng.uniform(-np.pi, np.pi, n_out)
         fake = odom[near] + radius[:, None] * np.column_stack([np.cos(angle), np.sin(angle)])
         odom = np.vstack([odom, fake])
@@ -262,9 +264,9 @@ def iter_lns(
     enumerator = TrajectoryEnumerator(pts, options, seed)
     if len(pts) > PAIR_ENUMERATION_LIMIT and max_lns is not None:
         # Listing every pair of a huge GN (10^6 ROIs: ~10^9 pairs) is out of reach.
-        pairs: Iterator[np.ndarray] | np.ndarray = _sampled_pairs(pts, options, seed)
+        pairs: Iterator[np.ndarray] | np.ndarray = _sampled_pairs(pts, seed)
     else:
-        pairs = start_end_pairs(pts, options)
+        pairs = start_end_pairs(pts)
         pairs = pairs[np.random.default_rng([seed, 1]).permutation(len(pairs))]
     count = 0
     for start, end in pairs:
@@ -280,15 +282,15 @@ def iter_lns(
 PAIR_ENUMERATION_LIMIT = 20000
 
 
-def _sampled_pairs(pts: np.ndarray, options: SimOptions, seed: int) -> Iterator[np.ndarray]:
+def _sampled_pairs(pts: np.ndarray, seed: int) -> Iterator[np.ndarray]:
     """Endless seeded (S, E) pairs: S uniform over the GN, E uniform among its partners."""
     tree = cKDTree(pts)
     rng = np.random.default_rng([seed, 4])
     while True:
         start = int(rng.integers(len(pts)))
-        near = np.array(tree.query_ball_point(pts[start], options.max_pair_m), dtype=np.int64)
+        near = np.array(tree.query_ball_point(pts[start], MAX_PAIR_M), dtype=np.int64)
         d = np.linalg.norm(pts[near] - pts[start], axis=1)
-        partners = near[d >= options.min_pair_m]
+        partners = near[d >= MIN_PAIR_M]
         if len(partners):
             yield np.array([start, int(partners[rng.integers(len(partners))])])
 
@@ -297,7 +299,7 @@ def count_trajectories(gn: RoiNetwork, options: SimOptions, seed: int = 0) -> tu
     """(number of S-E pairs, number of trajectories) the protocol yields on a GN."""
     pts = xy(gn.records)
     enumerator = TrajectoryEnumerator(pts, options, seed)
-    pairs = start_end_pairs(pts, options)
+    pairs = start_end_pairs(pts)
     return len(pairs), sum(len(enumerator.trajectories(int(s), int(e))) for s, e in pairs)
 
 
@@ -379,7 +381,7 @@ def corridor_ln(
     s = travelled[at[nodes]]
     half = noise_fraction * s
     yaw = rng.uniform(-np.pi, np.pi)
-    map_T_odom = Rigid2D(yaw, *(route[0] + rng.uniform(-1000.0, 1000.0, 2)))
+    map_T_odom = Rigid2D(yaw, *(route[0] + rng.uniform(-ODOM_OFFSET_M, ODOM_OFFSET_M, 2)))
     radius = half * np.sqrt(rng.random(len(nodes)))
     angle = rng.uniform(-np.pi, np.pi, len(nodes))
     drift = radius[:, None] * np.column_stack([np.cos(angle), np.sin(angle)])

@@ -183,7 +183,7 @@ def test_simulation_follows_the_protocol() -> None:
     gn = generate_gn(GnSpec(n_rois=120), seed=3)
     pts = xy(gn.records)
     options = SimOptions()
-    pairs = start_end_pairs(pts, options)
+    pairs = start_end_pairs(pts)
     d = np.linalg.norm(pts[pairs[:, 0]] - pts[pairs[:, 1]], axis=1)
     assert np.all((d >= 600) & (d <= 1000))
     enum = TrajectoryEnumerator(pts, options, seed=0)
