@@ -3,16 +3,15 @@
 Modes:
     paper   the paper's protocol (Sec. 7.2-7.3) on a generated 174-ROI GN, every LN the
             protocol yields for darces, and the first ``--baseline-lns`` for the
-            baselines (original DARCES, KISS-Matcher) in the same run.
+            baseline (the original DARCES) in the same run.
     stress  the same with 30 % LN outliers and 10 % label flips.
     scale   GN sizes 10^3..10^6 with no position prior: index build time and memory
             apart, per-LN time (median, p95) and outcome rates.
     generality  the paper protocol (clean and stressed) on every GN of the evaluation
             family (``gn_generator.FAMILY``), the odds decision (``darces``: Chernoff
             and Markov bounds, decided again on the EM's alignment when the hard refit
-            falls short) beside the same decision on the hard refit alone
-            (``darces_hard``) and the fixed counts
-            (``darces_counts``), in one table.
+            falls short) beside the paper's original DARCES (``darces_original``), in
+            one table.
     firstfix    the paper protocol's LNs fed as prefixes, node by node (as the rover
             drives): nodes and distance at the first fix, and whether it is right.
     null    stressed LNs of each family GN against another GN of the same statistics:
@@ -28,7 +27,7 @@ Usage (from the repository root, after ``source env.sh``)::
     python bench/darces_bench.py stress
     python bench/darces_bench.py scale --sizes 1000,10000,100000,1000000 --scale-lns 100
     python bench/darces_bench.py paper --max-lns 2000 --baseline-lns 1000 \
-        --methods darces,darces_counts,darces_original --tag odds
+        --methods darces,darces_original --tag odds
     python bench/darces_bench.py generality --max-lns 400
     python bench/darces_bench.py firstfix --max-lns 300
     python bench/darces_bench.py quick --bag /work/bags/quick --trials 20
@@ -228,9 +227,9 @@ def _generality_parts(tag: str) -> Path:
 def generality(names: list[str], n_lns: int, stress_lns: int, seed: int,
                methods: list[str] | None = None, tag: str = "") -> dict[str, Any]:
     """The paper protocol on every family GN, odds decision (Chernoff and Markov bounds)
-    beside fixed counts. ``tag``: a table of its own (:func:`_generality_stem`), e.g.
-    one method on more LNs beside the main table."""
-    methods = methods or ["darces", "darces_top3", "darces_counts"]
+    beside the original DARCES. ``tag``: a table of its own (:func:`_generality_stem`),
+    e.g. one method on more LNs beside the main table."""
+    methods = methods or ["darces", "darces_original"]
     parts = _generality_parts(tag)
     rows = []
     for name in names:
@@ -583,7 +582,7 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=7, help="LN seed (generality, firstfix)")
     p.add_argument("--methods", default=None,
                    help="paper/stress: methods of darces_eval (default: its own); "
-                   "generality: methods (default darces,darces_top3,darces_counts)")
+                   "generality: methods (default darces,darces_original)")
     p.add_argument("--tag", default="",
                    help="paper/stress/generality: results go to "
                         "darces_<mode>_<tag>.{json,md}")

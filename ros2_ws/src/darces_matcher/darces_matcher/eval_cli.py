@@ -3,12 +3,13 @@
 Example::
 
     darces_eval --gn gn.geojson --seed 0 --max-lns 2000 \\
-        --methods darces,darces_original,kiss_matcher --json out.json
+        --methods darces,darces_original --json out.json
 
-LNs are simulated from the GN (:mod:`darces_matcher.simulate`), every method matches the
-same LNs, and the outcome of each LN is judged afterwards against the truth (DESIGN.md,
-Metrics): *correct* when the recovered transform maps every true LN node (its drift-free
-odom position) to within 2 m of its GN node, *false fix* when a reported fix is not
+LNs are simulated from the GN (:mod:`darces_matcher.simulate`), every method
+(:data:`METHODS`: the matcher, and the paper's original DARCES) matches the same LNs, and
+the outcome of each LN is judged afterwards against the truth (DESIGN.md, Metrics):
+*correct* when the recovered transform maps every true LN node (its drift-free odom
+position) to within 2 m of its GN node, *false fix* when a reported fix is not
 correct, *no fix* when the method abstained.
 
 Because drift moves LN nodes by up to 1 % of the distance travelled (up to 10 m), even the
@@ -33,10 +34,9 @@ from typing import Any
 
 import numpy as np
 
-from darces_matcher.baselines import METHODS, LnMatcher, make_method
 from darces_matcher.gn_generator import FAMILY, GnSpec, family_gn, generate_gn
 from darces_matcher.hypotheses import fit_rigid_batch
-from darces_matcher.matcher import MatchConfig
+from darces_matcher.matcher import MatchConfig, Matcher
 from darces_matcher.simulate import (
     MAX_PAIR_M,
     MIN_PAIR_M,
@@ -50,10 +50,8 @@ from roi_network.network import RoiNetwork
 from roi_network.records import xy
 from roi_network.transform import Rigid2D
 
-#: Methods timed in a pass of their own over the same LNs (after the others): they run
-#: worker threads that would otherwise load the second core while the next method is
-#: timed (measured: darces' median rose by ~10 % when interleaved with kiss_matcher).
-SEPARATE_PASS = frozenset({"kiss_matcher"})
+#: The methods compared, by name: this package's matcher, and the paper's original DARCES.
+METHODS = {"darces": MatchConfig(), "darces_original": MatchConfig.original()}
 #: DESIGN.md Metrics: a fix is correct when every LN node is mapped within this, metres.
 CORRECT_M = 2.0
 #: DESIGN.md Metrics (global pose): a false fix is an error above this, metres.
@@ -165,7 +163,7 @@ def evaluate(
 
     Args:
         gn: the true GN, ``map``.
-        methods: names from :data:`~darces_matcher.baselines.METHODS`.
+        methods: names from :data:`METHODS`.
         options: LN simulation options.
         seed: random seed of the LNs (and of the GN misses).
         max_lns: evaluate at most this many LNs.
@@ -181,16 +179,13 @@ def evaluate(
     if kept is not None:
         visible_mask = np.zeros(len(gn), dtype=bool)
         visible_mask[kept] = True
-    built: dict[str, LnMatcher] = {}
+    built: dict[str, Matcher] = {}
     build_s: dict[str, float] = {}
     for name in methods:
         t0 = time.perf_counter()
-        built[name] = make_method(name, visible)
+        built[name] = Matcher(visible, METHODS[name])
         build_s[name] = time.perf_counter() - t0
     tallies = {name: Tally() for name in methods}
-    inline = [name for name in methods if name not in SEPARATE_PASS]
-    separate = [name for name in methods if name in SEPARATE_PASS]
-    held: list[tuple[SimulatedLn, float]] = []
     oracle_ok = 0
     n_lns = 0
     t_start = time.perf_counter()
@@ -207,22 +202,15 @@ def evaluate(
         oracle = oracle_error(sim, gn_pts, gn_labels, visible_mask)
         oracle_ok += oracle <= CORRECT_M
         in_subset = baseline_max_lns is None or n_lns <= baseline_max_lns
-        # Same-process methods take turns going first, so that none is systematically
-        # timed right after another (warm or cold caches, the other job's load).
-        active = [name for name in inline if name == "darces" or in_subset]
+        # The methods take turns going first, so that none is systematically timed
+        # right after another (warm or cold caches, the other job's load).
+        active = [name for name in methods if name == "darces" or in_subset]
         shift = n_lns % len(active) if active else 0
         for name in active[shift:] + active[:shift]:
             run(name, sim, oracle)
-        if separate and in_subset:
-            held.append((sim, oracle))
         if progress and n_lns % 1000 == 0:
             print(f"[darces_eval] {n_lns} LNs, {time.perf_counter() - t_start:.0f} s",
                   file=sys.stderr)
-    # Methods with their own worker threads run in a pass of their own over the same
-    # LNs: interleaved, their threads would still be busy while the next method is timed.
-    for name in separate:
-        for sim, oracle in held:
-            run(name, sim, oracle)
     report: dict[str, Any] = {
         "gn": {"rois": len(gn), "visible_rois": len(visible)},
         "lns": n_lns,
@@ -230,9 +218,8 @@ def evaluate(
         "oracle_within_2m_rate": oracle_ok / n_lns if n_lns else 0.0,
         "methods": {},
         "index_build_s": build_s,
-        "timing": "wall time of match() per LN in one process; methods other than "
-                  f"{', '.join(sorted(SEPARATE_PASS))} interleaved per LN in rotating order, "
-                  f"{', '.join(sorted(SEPARATE_PASS))} in a separate pass over the same LNs",
+        "timing": "wall time of match() per LN in one process; methods interleaved per "
+                  "LN in rotating order",
         "wall_s": time.perf_counter() - t_start,
     }
     for name, tally in tallies.items():
@@ -272,7 +259,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="most nodes of a trajectory (paper: 29)")
     p.add_argument("--walks-per-pair", type=int, default=SimOptions.walks_per_pair,
                    help="random-walk trajectories tried per start/end pair")
-    p.add_argument("--methods", default="darces,darces_original,kiss_matcher",
+    p.add_argument("--methods", default="darces,darces_original",
                    help=f"comma-separated subset of {','.join(METHODS)}")
     p.add_argument("--baseline-max-lns", type=int, default=None,
                    help="evaluate methods other than darces on the first N LNs only")

@@ -192,11 +192,11 @@ def test_darces_eval_generates_a_family_gn_by_name(tmp_path: Path) -> None:
     out = tmp_path / "out.json"
     code = darces_eval(["--synthetic", "poisson_50", "--gn-seed", "1", "--max-lns", "3",
                         "--min-nodes", "7", "--max-nodes", "10",
-                        "--methods", "darces,darces_counts", "--json", str(out)])
+                        "--methods", "darces,darces_original", "--json", str(out)])
     assert code == 0
     report = json.loads(out.read_text())
     assert report["options"]["gn"] == "synthetic:poisson_50:seed1"
-    for name in ("darces", "darces_counts"):
+    for name in ("darces", "darces_original"):
         r = report["methods"][name]
         assert r["lns"] == 3
         assert sum(r["no_fix_reasons"].values()) == r["no_fix"]
