@@ -35,6 +35,7 @@ import subprocess
 import sys
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -56,6 +57,8 @@ METRICS = ("final_error_m", "rmse_after_first_fix_m", "distance_before_first_fix
            "false_fixes", "consistency_3sigma")
 #: Any ROI this close to the route can be an LN node (far rocks are triangulated up to 30 m).
 FAR_REACH_M = 30.0
+#: ROS domain of the first of graphs run side by side (``--jobs``); the next take +1, +2...
+DOMAIN_BASE = 40
 #: Distances along the route at which the ROIs passed are counted (see rois_passed).
 PASSED_MARKS_M = (100, 200, 300)
 
@@ -125,14 +128,19 @@ class CpuSampler:
         return out
 
 
-def run_graph(bag: Path, out: Path, rate: float, run_id: str,
-              extra: list[str]) -> tuple[Path, int, float, dict[str, float], str]:
+def run_graph(bag: Path, out: Path, rate: float, run_id: str, extra: list[str],
+              domain_id: int | None = None) -> tuple[Path, int, float, dict[str, float], str]:
     """``globloc run`` on one bag; returns (run dir, exit status, wall s, CPU s per process,
-    stderr tail)."""
+    stderr tail). ``domain_id``: the ROS domain of the graph (graphs run side by side each
+    in their own), else the caller's."""
     t0 = time.monotonic()
+    env = dict(os.environ)
+    if domain_id is not None:
+        env["ROS_DOMAIN_ID"] = str(domain_id)
     proc = subprocess.Popen([*_globloc(), "run", str(bag), "--out", str(out), "--rate",
                              str(rate), "--run-id", run_id, *extra],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                            env=env)
     with CpuSampler(psutil.Process(proc.pid)) as sampler:
         _, err = proc.communicate()
     wall = time.monotonic() - t0
@@ -278,11 +286,13 @@ def _spread(values: list[float]) -> dict[str, float] | None:
             "max": float(np.max(v))}
 
 
-def bench_bag(bag: Path, args: argparse.Namespace, run_id: str) -> dict[str, Any]:
-    """Run, evaluate and compare on one bag."""
+def bench_bag(bag: Path, args: argparse.Namespace, run_id: str,
+              domain_id: int | None = None) -> dict[str, Any]:
+    """Run, evaluate and compare on one bag (its graph in ROS domain ``domain_id``)."""
     extra = [*(["--graph", str(args.graph)] if args.graph else []),
              *(["--params", str(args.params)] if args.params else [])]
-    run_dir, status, wall, cpu, err = run_graph(bag, args.out, args.rate, run_id, extra)
+    run_dir, status, wall, cpu, err = run_graph(bag, args.out, args.rate, run_id, extra,
+                                                domain_id)
     entry: dict[str, Any] = {"bag": str(bag), "run_dir": str(run_dir), "run_status": status,
                              "wall_s": wall}
     if not run_dir.is_dir():
@@ -394,7 +404,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--graph", type=Path, help="graph file (default: the package's)")
     ap.add_argument("--params", type=Path, help="params file (default: the package's)")
     ap.add_argument("--results", type=Path, default=RESULTS, help="results directory")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="graphs run side by side, each in its own ROS domain (default 1)")
     args = ap.parse_args(argv)
+    if args.jobs < 1:
+        ap.error("--jobs must be at least 1")
     for bag in args.bags:
         if not bag.is_dir():
             print(f"e2e_bench: error: bag directory not found: {bag}", file=sys.stderr)
@@ -407,16 +421,21 @@ def main(argv: list[str] | None = None) -> int:
               "tag", file=sys.stderr)
         return 1
     run_id = "bench-" + datetime.now().strftime("%Y%m%d-%H%M%S")
-    entries = []
-    for bag in args.bags:
+    def one(i: int, bag: Path) -> dict[str, Any]:
         print(f"e2e_bench: {bag} ...", file=sys.stderr, flush=True)
-        entries.append(bench_bag(bag, args, run_id))
+        # Side by side, each graph in a ROS domain of its own (they share topic names).
+        domain = DOMAIN_BASE + i if args.jobs > 1 else None
+        return bench_bag(bag, args, run_id, domain)
+
+    with ThreadPoolExecutor(max_workers=args.jobs) as pool:
+        entries = list(pool.map(one, range(len(args.bags)), args.bags))
     cont = [e.get("continuous", {}) for e in entries]
     report = {
         "tag": args.tag,
         "date": datetime.now().isoformat(timespec="seconds"),
         "machine": f"{platform.node()}, {os.cpu_count()} cores (shared with other jobs "
                    f"unless stated), Python {platform.python_version()}",
+        "jobs": args.jobs,
         "command": "python bench/e2e_bench.py " + " ".join(sys.argv[1:] if argv is None
                                                             else argv),
         "rate": args.rate,

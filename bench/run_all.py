@@ -56,6 +56,9 @@ EVAL_BAGS = {
 }
 #: Playback rate of the end-to-end runs (``globloc run --rate``).
 RATE = 5.0
+#: Graphs run side by side in the e2e step, each in its own ROS domain (2 cores keep up
+#: with two graphs at 5x).
+E2E_JOBS = 2
 #: The e2e, roi results' name: e2e_<tag>.*, roi_<tag>.*.
 TAG = "evaluation"
 #: Family GNs of the quick tier's generality table: one sparse and clustered, one dense,
@@ -124,7 +127,9 @@ def plan(tier: str, bags_dir: Path, results: Path, dry_run: bool = False) -> lis
                             skip_if=lambda bag=bag: (bag / "gn.geojson").is_file(),
                             why_skip=f"{_rel(bag)}/gn.geojson exists"))
     # 2. end to end
-    cmds.append(Command("e2e", _py("e2e_bench.py", *paths, "--rate", f"{RATE:g}", "--tag", TAG,
+    jobs = str(min(E2E_JOBS, len(paths)))
+    cmds.append(Command("e2e", _py("e2e_bench.py", *paths, "--rate", f"{RATE:g}", "--jobs", jobs,
+                                   "--tag", TAG,
                                    "--out", str(RUNS), "--results", str(results))))
     # 3. odometry
     vo_methods = [] if tier == "full" else ["--methods", *_vo_modes()]
