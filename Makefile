@@ -100,13 +100,11 @@ orbital-model: training-bags orbital-training-worlds
 	  --out $(ORBITAL_MODEL_NO_SUN)
 
 # Re-train the committed rover model: the elevation_map method's two Rock Rovers, the
-# far rocks' (used with classify_far_rocks), on every far track measured in the quick
-# bags of ROVER_TRAIN_SEEDS (120-190 per bag, 8-19 of them rocks), and the map rocks'
-# (used with classify_map_rocks), on the map's rock regions of the same drives (3-17 per
-# bag, 0-4 of them false); and the map outcrops' Outcrop Rover (PCA + kNN, used with
-# classify_map_outcrops), on the map's outcrop regions of the same drives under the
-# averaged_wide rule (5-14 per bag, 1-6 of them outcrops); about 4 min to generate and
-# 3 min to run each bag, two at a time.
+# far rocks', on every far track measured in the quick bags of ROVER_TRAIN_SEEDS (120-190
+# per bag, 8-19 of them rocks), and the map rocks', on the map's rock regions of the same
+# drives (3-17 per bag, 0-4 of them false); and the map outcrops' Outcrop Rover (PCA +
+# kNN), on the map's outcrop regions of the same drives (5-14 per bag, 1-6 of them
+# outcrops); about 4 min to generate and 3 min to run each bag, two at a time.
 # `roi_detector train ... --method per_pair` trains the paper's per-pair Rock Rover and
 # Outcrop Rover instead (not committed).
 ROVER_MODEL := $(WS)/src/roi_detector/roi_detector/models/rover.npz

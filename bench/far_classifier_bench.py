@@ -6,12 +6,12 @@ odometry, every pair; :func:`roi_detector.training.far_rock_samples`, population
 classifier trained on the other bags decides the left-out bag's tracks. Compared:
 
 - the rules alone (Sec. 4.2: the candidates);
-- the paper's order: the rules, then the classifier on the candidates
-  (``FarRockConfig.classified = "candidates"``), the paper's PCA + kNN trained on the
+- the paper's order: the rules, then the classifier on the candidates, the paper's
+  PCA + kNN trained on the
   other bags' candidates or on every track they measured;
 - the classifier in place of the size thresholds: it decides every track that passes
-  the geometric tests (``classified = "measured"``, the pipeline's default), kNN or
-  boosted trees (``roi_detector train --kind``), trained on every measured track.
+  the geometric tests (the pipeline's way), kNN or
+  boosted trees (what ``roi_detector train`` fits), trained on every measured track.
 
 Two questions about the training set, on the default recipe (boosted trees, every
 measured track), each as more rows:
@@ -19,9 +19,9 @@ measured track), each as more rows:
 - ``--learning-curve N...``: trained on N of the other bags only (the N that follow the
   left-out one, in the order given): would more training bags find more rocks?
 - ``--ignore-near M...``: the training tracks labelled false that lie within M m of a
-  truth rock left out of training (neither label; ``roi_detector train --ignore-near``,
-  whose default, 0: every track, every other row uses): a track 1-2.5 m off its rock is
-  a rock to its features and false to the matching rule.
+  truth rock left out of training (neither label; ``roi_detector train`` and every
+  other row train on every track): a track 1-2.5 m off its rock is a rock to its
+  features and false to the matching rule.
 
 Reported per row and score threshold: true and false tracks kept, their precision, and
 the counted truth rocks (above the rover thresholds, within 15 m of the route) that a
@@ -64,8 +64,7 @@ def samples(bag: str, cache: Path) -> dict:
             data = {k: z[k] for k in ("x", "y", "candidate", "xy_map", "map_x", "map_y")
                     if k in z}
     else:
-        data = far_rock_samples(bag, lambda m: print(f"{bag}: {m}", file=sys.stderr),
-                                "measured")
+        data = far_rock_samples(bag, lambda m: print(f"{bag}: {m}", file=sys.stderr))
         cache.mkdir(parents=True, exist_ok=True)
         np.savez(path, **data)
     truth = Truth.load(bag)
@@ -90,14 +89,11 @@ def leave_one_out(data: dict[str, dict], trained_on: str, kind: str, k: int = 5,
     """Per left-out bag, the classifier's score of each of its tracks (trained on the
     other bags' candidates or every track they measured; on the ``n_train`` bags that
     follow it only, when given; without the false tracks within ``ignore_near_m`` of a
-    truth rock, ``roi_detector train``'s default when None)."""
+    truth rock, none when None: ``roi_detector train`` trains on every track)."""
     from roi_detector.classifier import BinaryClassifier, ClassifierConfig
     from roi_detector.far_rocks import far_feature_names
-    from roi_detector.training import IGNORE_NEAR_M
-    from roi_detector.training import trained_on as kept_for_training
-
     names = far_feature_names()
-    near_m = IGNORE_NEAR_M if ignore_near_m is None else ignore_near_m
+    near_m = 0.0 if ignore_near_m is None else ignore_near_m
     scores = []
     keys = list(data)
     for i, out in enumerate(keys):
@@ -105,7 +101,7 @@ def leave_one_out(data: dict[str, dict], trained_on: str, kind: str, k: int = 5,
         others = (keys[i + 1:] + keys[:i])[:n_train] if n_train else keys[:i] + keys[i + 1:]
         rest = [data[b] for b in others]
         pick = [(np.ones(len(d["y"]), bool) if trained_on == "measured" else d["candidate"])
-                & kept_for_training(d["y"], d["near_rock_m"], near_m) for d in rest]
+                & ((d["y"] == 1) | ~(d["near_rock_m"] < near_m)) for d in rest]
         x = np.concatenate([d["x"][m] for d, m in zip(rest, pick, strict=True)])
         y = np.concatenate([d["y"][m] for d, m in zip(rest, pick, strict=True)])
         ok = np.isfinite(x).all(axis=1)

@@ -1,7 +1,7 @@
 """Far rocks (roi_detector.far_rocks) on bags, truth odometry: what the triangulated dark
 blobs add to the elevation map's rocks, and what their false nodes are.
 
-Per bag, the rover pipeline runs with ``RoverConfig.far_rocks`` on, every pair, the
+Per bag, the rover pipeline runs with its far rocks, every pair, the
 truth trajectory as odometry (detection geometry alone), and the rover model (default:
 the committed one; ``--model none``: the rules alone), and reports:
 
@@ -46,7 +46,7 @@ def run_bag(bag: str, model: str | None = None, log=print) -> dict:
     from roi_detector.training import drive_with_truth_odometry
     from roi_network.records import ROCK
 
-    cfg = RoverConfig(far_rocks=True, classify_far_rocks=model != "none")
+    cfg = RoverConfig()
     classifier = load_classifier(model, cfg)
     mapper = DriveMapper(cfg, classifier=classifier)
     t0 = time.perf_counter()

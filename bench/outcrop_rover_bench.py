@@ -33,10 +33,10 @@ THRESHOLDS = (0.3, 0.5, 0.7)
 KINDS = (("gradient_boosting", 5), ("knn", 5), ("knn", 3))
 
 
-def _samples(bag: str, outcrops: str, cache: str | None) -> dict:
+def _samples(bag: str, cache: str | None) -> dict:
     from roi_detector.training import drive_samples
 
-    return drive_samples(bag, outcrops=outcrops, cache=cache,
+    return drive_samples(bag, cache=cache,
                          log=lambda m: print(f"{bag}: {m}", file=sys.stderr))
 
 
@@ -70,12 +70,11 @@ def feature_auc(x: np.ndarray, y: np.ndarray) -> list[float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from roi_detector.elevation_map import DEFAULT_OUTCROP_RULE, MAP_OUTCROP_FEATURES, OUTCROP_RULES
+    from roi_detector.elevation_map import MAP_OUTCROP_FEATURES, MAP_OUTCROP_RULE
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("bags", nargs="+")
     ap.add_argument("--name", default="loo")
-    ap.add_argument("--outcrops", default=DEFAULT_OUTCROP_RULE, choices=tuple(OUTCROP_RULES))
     ap.add_argument("--cache", default=None, metavar="DIR",
                     help="the drives' samples, as roi_detector train --cache keeps them")
     ap.add_argument("--jobs", type=int, default=1)
@@ -87,10 +86,9 @@ def main(argv: list[str] | None = None) -> int:
         from concurrent.futures import ProcessPoolExecutor
 
         with ProcessPoolExecutor(args.jobs) as pool:
-            data = list(pool.map(_samples, args.bags, [args.outcrops] * len(args.bags),
-                                 [args.cache] * len(args.bags)))
+            data = list(pool.map(_samples, args.bags, [args.cache] * len(args.bags)))
     else:
-        data = [_samples(b, args.outcrops, args.cache) for b in args.bags]
+        data = [_samples(b, args.cache) for b in args.bags]
     xs = [d["outcrop_x"] for d in data]
     ys = [d["outcrop_y"].astype(np.uint8) for d in data]
     # The regions the map reports (found in at least half the rounds that examined
@@ -113,14 +111,14 @@ def main(argv: list[str] | None = None) -> int:
     auc = dict(zip(MAP_OUTCROP_FEATURES, feature_auc(np.concatenate(xs), y_all), strict=True))
     cmd = "python bench/outcrop_rover_bench.py " + " ".join(
         argv if argv is not None else sys.argv[1:])
-    out = {"command": cmd, "date": time.strftime("%Y-%m-%d %H:%M"), "outcrops": args.outcrops,
+    out = {"command": cmd, "date": time.strftime("%Y-%m-%d %H:%M"), "outcrops": MAP_OUTCROP_RULE,
            "per_bag": per_bag, "left_one_out": rows, "feature_auc": auc,
            "wall_s": round(time.perf_counter() - t0, 1)}
     RESULTS.mkdir(exist_ok=True)
     path = RESULTS / f"outcrop_rover_{args.name}.json"
     path.write_text(json.dumps(out, indent=1) + "\n")
     lines = [f"# outcrop_rover_bench: {args.name}", "", f"Command: `{cmd}`  ",
-             f"Date: {out['date']}; outcrop rule: {args.outcrops}", "",
+             f"Date: {out['date']}; outcrop rule: {MAP_OUTCROP_RULE}", "",
              "Per drive: outcrop regions found in >= min_rounds rounds (outcrops among them); "
              "reported by the map (outcrops among them).", "",
              "| drive | regions | outcrops | reported | reported outcrops |",

@@ -54,12 +54,11 @@ def _load(bag: str, cache: Path) -> dict:
 
 def fit(data: list[dict]):
     """Both Rock Rovers, trained as ``roi_detector train`` trains them
-    (:func:`roi_detector.training.fit_rock_rovers` on the far tracks it keeps)."""
-    from roi_detector.training import IGNORE_NEAR_M, fit_rock_rovers, trained_on
+    (:func:`roi_detector.training.fit_rock_rovers` on every far track)."""
+    from roi_detector.training import fit_rock_rovers
 
-    keep = [trained_on(d["y"], d["near_rock_m"], IGNORE_NEAR_M) for d in data]
-    return fit_rock_rovers(np.concatenate([d["x"][m] for d, m in zip(data, keep, strict=True)]),
-                           np.concatenate([d["y"][m] for d, m in zip(data, keep, strict=True)]),
+    return fit_rock_rovers(np.concatenate([d["x"] for d in data]),
+                           np.concatenate([d["y"] for d in data]),
                            np.concatenate([d["map_x"] for d in data]),
                            np.concatenate([d["map_y"] for d in data]))
 

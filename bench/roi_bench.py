@@ -15,7 +15,6 @@ Usage (from the repository root, after ``source env.sh``)::
     python bench/roi_bench.py --name eval bags/atacama_1km_s1 bags/atacama_1km_s2
     python bench/roi_bench.py --name recipes --every 2 --recipes bags/quick
     python bench/roi_bench.py --name cameras_other --as-they-come bags/quick_cam1024_s7
-    python bench/roi_bench.py --name outcrops --per-cell-outcrops bags/quick
 """
 
 from __future__ import annotations
@@ -206,19 +205,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--gn", action="append", default=[],
                     help="BAG_NAME=GN.geojson: also match the LN against this (detected) GN")
     ap.add_argument("--recipes", action="store_true",
-                    help="also the paper's per_pair method (and its Hessian rock mask)")
+                    help="also the paper's per_pair method")
     ap.add_argument("--as-they-come", action="store_true",
                     help="also the detector on the stereo pairs as they come (working_fx_px "
                     "0), beside the default, which resamples a camera finer than its "
                     "working resolution")
-    ap.add_argument("--per-cell-outcrops", action="store_true",
-                    help="also the map's outcrops by the per-cell rule alone, beside the "
-                    "default (the Outcrop Rover on the averaged_wide rule's candidates)")
-    ap.add_argument("--outcrops", default=None, metavar="RULE",
-                    help="the map's outcrops on the candidates of outcrop rule RULE in place "
-                    "of the default's (rows elevation_map_RULE_outcrops), decided by the "
-                    "Outcrop Rover of --model, which must have been trained on them "
-                    "(roi_detector train --outcrops RULE)")
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args(argv)
     if args.threads == 1:
@@ -226,25 +217,11 @@ def main(argv: list[str] | None = None) -> int:
     import cv2
 
     cv2.setNumThreads(args.threads)
-    from roi_detector.elevation_map import outcrop_rule
-    from roi_detector.rover_candidates import RoverThresholds
     from roi_detector.rover_pipeline import RoverConfig
 
     configs = [("elevation_map", RoverConfig(), args.model)]
-    if args.outcrops is not None:
-        try:
-            configs = [(f"elevation_map_{args.outcrops}_outcrops",
-                        RoverConfig(elevation_map=outcrop_rule(args.outcrops)), args.model)]
-        except ValueError as err:
-            ap.error(f"--outcrops: {err}")
     if args.recipes:
-        configs += [("per_pair", RoverConfig(method="per_pair"), args.model),
-                    ("per_pair_paper_rock_mask", RoverConfig(
-                        method="per_pair", thresholds=RoverThresholds(rock_method="hessian")),
-                     args.model)]
-    if args.per_cell_outcrops:
-        configs.append(("elevation_map_per_cell_outcrops", RoverConfig(
-            classify_map_outcrops=False, elevation_map=outcrop_rule("per_cell")), args.model))
+        configs.append(("per_pair", RoverConfig(method="per_pair"), args.model))
     if args.as_they_come:
         configs.append(("elevation_map_as_they_come", RoverConfig(working_fx_px=0.0),
                         args.model))

@@ -21,8 +21,6 @@ import json
 import sys
 from pathlib import Path
 
-from roi_detector.elevation_map import DEFAULT_OUTCROP_RULE, OUTCROP_RULES, outcrop_rule
-from roi_detector.far_rocks import FAR_KINDS, FAR_POPULATIONS, FarRockConfig
 from roi_detector.inputs import POSE_COVARIANCE_FILE, PairSpacing
 from roi_detector.local_network_build import (
     DEFAULT_DRIFT_FRAC,
@@ -38,13 +36,7 @@ def _cmd_ln(args) -> int:
     from roi_detector.tracking import TrackerConfig
 
     cfg = RoverConfig(method=args.method, tracker=TrackerConfig(min_obs=args.min_obs),
-                      ln=LnConfig(min_obs=args.min_obs), far_rocks=args.far_rocks,
-                      classify_far_rocks=args.classify_far_rocks,
-                      classify_map_rocks=args.classify_map_rocks,
-                      classify_map_outcrops=args.classify_map_outcrops,
-                      far=FarRockConfig(classified=args.far_classified),
-                      elevation_map=outcrop_rule(args.outcrops),
-                      working_fx_px=args.working_fx)
+                      ln=LnConfig(min_obs=args.min_obs), working_fx_px=args.working_fx)
     cov_file = odometry_covariance_file(args.odometry, args.covariance)
     ln, stats = build_ln(args.bag, args.odometry, args.model, cfg, args.every, args.drift,
                          odometry_cov=cov_file, rectify=not args.no_rectify,
@@ -87,12 +79,8 @@ def _cmd_train(args) -> int:
     if args.method == "per_pair":
         summary = train_rover_model(args.bags, args.out, every=args.every, k=args.k)
     else:
-        summary = train_rock_rovers(args.bags, args.out, k=args.k,
-                                    population=args.population, jobs=args.jobs,
-                                    kind=args.kind, ignore_near_m=args.ignore_near,
-                                    working_fx_px=args.working_fx,
-                                    outcrops=args.outcrops, cache=args.cache,
-                                    outcrop_kind=args.outcrop_kind)
+        summary = train_rock_rovers(args.bags, args.out, k=args.k, jobs=args.jobs,
+                                    working_fx_px=args.working_fx, cache=args.cache)
     print(json.dumps(summary, indent=2))
     return 0
 
@@ -116,10 +104,6 @@ def main(argv: list[str] | None = None) -> int:
         from roi_detector.detector_node import main as node_main
 
         return node_main(["roi_detector", *argv])
-    # Past the node's branch: the node has no use for the training code, which reads
-    # truth.
-    from roi_detector.training import IGNORE_NEAR_M, OUTCROP_KIND
-
     ap = argparse.ArgumentParser(prog="roi_detector", description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="cmd", required=True)
     p = sub.add_parser("ln", help="the LN a drive builds (odom)")
@@ -134,37 +118,6 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--min-obs", type=int, default=3,
                    help="observations (per_pair) or detection rounds in a row "
                    "(elevation_map) that make an LN node")
-    p.add_argument("--far-rocks", action=argparse.BooleanOptionalAction,
-                   default=RoverConfig().far_rocks,
-                   help="elevation_map: also triangulate rocks beyond the map's stereo range "
-                   "(roi_detector.far_rocks; default: on)")
-    p.add_argument("--classify-far-rocks", action=argparse.BooleanOptionalAction,
-                   default=RoverConfig().classify_far_rocks,
-                   help="far rocks: the model's far-rock Rock Rover decides them (the "
-                   "paper's Sec. 4.3 classifier)")
-    p.add_argument("--classify-map-rocks", action=argparse.BooleanOptionalAction,
-                   default=RoverConfig().classify_map_rocks,
-                   help="elevation_map: the model's map-rock Rock Rover decides which of "
-                   "the map's rock regions are rocks (the paper's Sec. 4.3 classifier on "
-                   "the map's measurements)")
-    p.add_argument("--classify-map-outcrops", action=argparse.BooleanOptionalAction,
-                   default=RoverConfig().classify_map_outcrops,
-                   help="elevation_map: the model's map outcrops' Outcrop Rover decides which "
-                   "of the map's outcrop regions are outcrops (the paper's Sec. 4.3 "
-                   "classifier; the model records the --outcrops rule it was trained on)")
-    p.add_argument("--far-classified", default=FarRockConfig().classified,
-                   choices=FAR_POPULATIONS,
-                   help="classified far rocks: the Rock Rover decides every measured track "
-                   "that passes the geometric tests, in place of the size thresholds "
-                   "(measured, default), or the candidates the rules pass (the paper's "
-                   "order)")
-    p.add_argument("--outcrops", default=DEFAULT_OUTCROP_RULE, choices=tuple(OUTCROP_RULES),
-                   help="elevation_map: the outcrop rule: the colour averaged over 0.2 m, "
-                   "saturation < 0.6 (averaged_wide, default: the Outcrop Rover's candidates), "
-                   "< 0.5 (averaged), per observed cell (per_cell), or averaged_wide's cells "
-                   "and those under 0.75 of the soil's saturation around them (soil_relative; "
-                   "with a rule other than the model's, retrain or add "
-                   "--no-classify-map-outcrops)")
     p.add_argument("--working-fx", type=float, default=RoverConfig().working_fx_px,
                    metavar="PX",
                    help="the angular resolution the detector works at, as a focal length in "
@@ -202,34 +155,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("bags", nargs="+")
     p.add_argument("--out", required=True)
     p.add_argument("--method", default="elevation_map", choices=METHODS,
-                   help="elevation_map (default): Rock Rover on the far rocks' candidates; "
-                   "per_pair: Rock Rover and Outcrop Rover on every pair's candidates")
+                   help="elevation_map (default): the far rocks' and map rocks' Rock Rovers "
+                   "and the map outcrops' Outcrop Rover on the drives' far tracks and map "
+                   "regions; per_pair: Rock Rover and Outcrop Rover on every pair's "
+                   "candidates")
     p.add_argument("--every", type=int, default=2, help="per_pair: use one stereo pair in N")
-    p.add_argument("--population", default="measured", choices=FAR_POPULATIONS,
-                   help="elevation_map: train on every measured far track (default) or on "
-                   "the far-rock candidates alone")
-    p.add_argument("--jobs", type=int, default=1,
-                   help="elevation_map: bags run at a time, one process each")
-    p.add_argument("--kind", default=FAR_KINDS[0], choices=FAR_KINDS,
-                   help="elevation_map: the far rocks' Rock Rover as boosted trees (default) "
-                   "or the paper's PCA + kNN")
-    p.add_argument("--k", type=int, default=5, help="kNN neighbours")
-    p.add_argument("--ignore-near", type=float, default=IGNORE_NEAR_M, metavar="M",
-                   help="elevation_map: leave out of training the far tracks labelled false "
-                   f"within M m of a truth rock (default {IGNORE_NEAR_M:g}: train on every "
-                   "track)")
+    p.add_argument("--k", type=int, default=5,
+                   help="kNN neighbours (per_pair's rovers, the map outcrops' Outcrop Rover)")
     p.add_argument("--working-fx", type=float, default=RoverConfig().working_fx_px,
                    metavar="PX",
                    help="elevation_map: the working resolution the samples are taken at (as "
                    "roi_detector ln --working-fx; the model records it and a detector at "
                    "another refuses it; default %(default)g)")
-    p.add_argument("--outcrops", default=DEFAULT_OUTCROP_RULE, choices=tuple(OUTCROP_RULES),
-                   help="elevation_map: the outcrop rule whose candidates the map outcrops' "
-                   "Outcrop Rover is trained on (the model records it; a map with another "
-                   "rule refuses it; default %(default)s)")
-    p.add_argument("--outcrop-kind", default=OUTCROP_KIND, choices=FAR_KINDS,
-                   help="elevation_map: the map outcrops' Outcrop Rover as the paper's PCA + "
-                   "kNN (default) or boosted trees")
     p.add_argument("--cache", default=None, metavar="DIR",
                    help="elevation_map: keep each drive's samples in DIR/<bag name>.npz and "
                    "read them from there when taken with the same settings (empty it when "

@@ -26,8 +26,6 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
 
-from roi_detector.elevation_map import DEFAULT_OUTCROP_RULE, OUTCROP_RULES, outcrop_rule
-from roi_detector.far_rocks import FAR_POPULATIONS, FarRockConfig
 from roi_detector.inputs import BadInput, FrameMaker, OdometryBuffer, PairSpacing
 from roi_detector.rover_pipeline import (
     METHODS,
@@ -87,43 +85,6 @@ class RoiDetectorNode(Node):
             d(description=f"one of {METHODS}: ROIs found in the drive's elevation map "
               "(default), or detected per pair and tracked (the paper's)"),
         ).value
-        far_rocks = self.declare_parameter(
-            "far_rocks", RoverConfig().far_rocks,
-            d(description="elevation_map method: also triangulate dark blobs beyond the "
-              "map's stereo range from the rover's motion (roi_detector.far_rocks; on by "
-              "default: more nodes, earlier and closer fixes, at a lower rock precision)"),
-        ).value
-        classify_far = self.declare_parameter(
-            "classify_far_rocks", RoverConfig().classify_far_rocks,
-            d(description="far rocks: the model's far-rock Rock Rover decides them "
-              "(the paper's Sec. 4.3 classifier; see far_classified)"),
-        ).value
-        classify_map = self.declare_parameter(
-            "classify_map_rocks", RoverConfig().classify_map_rocks,
-            d(description="elevation_map method: the model's map-rock Rock Rover decides "
-              "which of the map's rock regions are rocks (the paper's Sec. 4.3 classifier "
-              "on the map's measurements)"),
-        ).value
-        classify_outcrops = self.declare_parameter(
-            "classify_map_outcrops", RoverConfig().classify_map_outcrops,
-            d(description="elevation_map method: the model's map outcrops' Outcrop Rover "
-              "decides which of the map's outcrop regions are outcrops (the paper's Sec. "
-              "4.3 classifier; the model records the outcrops rule it was trained on)"),
-        ).value
-        far_classified = self.declare_parameter(
-            "far_classified", FarRockConfig().classified,
-            d(description=f"one of {FAR_POPULATIONS}: with classify_far_rocks, the Rock "
-              "Rover decides every measured far track that passes the geometric tests, in "
-              "place of the size thresholds (default), or the candidates the rules pass "
-              "(the paper's order)"),
-        ).value
-        outcrops = self.declare_parameter(
-            "outcrops", DEFAULT_OUTCROP_RULE,
-            d(description=f"one of {tuple(OUTCROP_RULES)}: elevation_map's outcrop rule "
-              "(roi_detector.elevation_map.OUTCROP_RULES; the default's candidates are "
-              "decided by the model's Outcrop Rover: with another rule, set "
-              "classify_map_outcrops false)"),
-        ).value
         working_fx = self.declare_parameter(
             "working_fx_px", RoverConfig().working_fx_px,
             d(description="the angular resolution the detector works at, as a focal length "
@@ -158,19 +119,8 @@ class RoiDetectorNode(Node):
         self.transports = TransportLock(str(transport), self.get_logger().warning)
         if method not in METHODS:
             raise ValueError(f"parameter 'method': unknown '{method}' (one of {METHODS})")
-        if far_classified not in FAR_POPULATIONS:
-            raise ValueError(f"parameter 'far_classified': unknown '{far_classified}' (one "
-                             f"of {FAR_POPULATIONS})")
-        try:
-            emap_cfg = outcrop_rule(str(outcrops))
-        except ValueError as e:
-            raise ValueError(f"parameter 'outcrops': {e}") from None
         cfg = RoverConfig(method=method, tracker=TrackerConfig(min_obs=int(min_obs)),
-                          far_rocks=bool(far_rocks), classify_far_rocks=bool(classify_far),
-                          classify_map_rocks=bool(classify_map),
-                          classify_map_outcrops=bool(classify_outcrops),
-                          far=FarRockConfig(classified=str(far_classified)),
-                          elevation_map=emap_cfg, working_fx_px=float(working_fx))
+                          working_fx_px=float(working_fx))
         classifier = load_classifier(model or None, cfg)
         self.bad = BadInput(lambda m: self.get_logger().warning(m))
         self.detector = RoverDetector(extrinsic, classifier, cfg, self.bad)

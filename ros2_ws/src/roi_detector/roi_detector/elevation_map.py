@@ -9,24 +9,26 @@ module does that, then measures ROIs the way the orbital catalogue defines them:
 footprint area, and height above the ground around them.
 
 - **Integration**: every stereo point is placed in odom with the pair's odometry pose and
-  accumulated per cell (``cell_m``) as an inverse-variance weighted mean height, the
+  accumulated per cell (:data:`CELL_M`) as an inverse-variance weighted mean height, the
   variance being the vertical part of the stereo range error (``Z^2 / (fx B) * sigma_d``
   along the ray). A rolling window centred near the rover holds the map: cells that fall
   out of it are forgotten (what was found there stays in the ROI list).
-- **Ground**: a grey-scale opening of the height map (a square ``ground_window_m`` wide,
+- **Ground**: a grey-scale opening of the height map (a square ``GROUND_WINDOW_M`` wide,
   wider than the largest rock), smoothed: the low envelope that follows terrain swells
   but not rocks.
 - **Rocks**: dark cells standing > ``rock_seed_height_m`` above the ground, grown down
-  to ``rock_grow_height_m`` over dark cells (hysteresis), one region per peak; kept when
+  to ``ROCK_GROW_HEIGHT_M`` over dark cells (hysteresis), one region per peak; kept when
   the region's height above the
   ring of ground around it exceeds the paper's 0.25 m and the convex hull of its cells
-  (a rock's far side is seen late or never) exceeds the paper's 0.6 m^2.
+  (a rock's far side is seen late or never) exceeds the paper's 0.6 m^2; the map rocks'
+  Rock Rover of the rover model decides which are rocks.
 - **Outcrops**: grey tabular slabs. Each pair's colour saturation and value are
   normalised by the pair's medians (auto-exposure and sun cancel) and mapped like the
-  height (optionally averaged over a small neighbourhood, ``outcrop_colour_sigma_m``);
-  connected cells far less saturated than the soil (``outcrop_max_saturation``), not
-  dark (``outcrop_min_value``) and not standing ``max_outcrop_height_m`` above the
-  ground, over > 5.5 m^2 (the paper's threshold). An outcrop keeps the
+  height, averaged over a small neighbourhood (``OUTCROP_COLOUR_SIGMA_M``); connected
+  cells far less saturated than the soil (``OUTCROP_MAX_SATURATION``), not dark
+  (``OUTCROP_MIN_VALUE``) and not standing ``MAX_OUTCROP_HEIGHT_M`` above the ground,
+  over > 5.5 m^2 (the paper's threshold), are the candidates; the map outcrops' Outcrop
+  Rover of the rover model decides which are outcrops. An outcrop keeps the
   largest footprint a round measured (a slab wider than the cells a round examines is
   cut at their border once the rover has passed).
 - **Persistence** (the tracking of the paper's Sec. 4.2, done on the map): each detection
@@ -46,7 +48,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -54,264 +56,122 @@ from scipy import ndimage
 
 from roi_network.records import OUTCROP, ROCK, empty_records
 
-#: Where a rock region's node is placed (``ElevationMapConfig.rock_centre``).
-ROCK_CENTRES = ("upper", "hull")
+#: Map cell side, m.
+CELL_M = 0.1
+#: Side of the rolling map window around the rover, m.
+WINDOW_M = 64.0
+#: 1-sigma disparity error that weights each stereo point, pixels.
+DISPARITY_SIGMA_PX = 0.5
+#: Smallest vertical 1-sigma of a point (texture, rendering, JPEG), m.
+HEIGHT_FLOOR_M = 0.02
+#: Terrain gradient that turns the horizontal part of a point's range error into a height
+#: error of the cell it lands in: far views of a rock face land in the ground around it
+#: and weigh less (0.5, a rock's flank: a view from 15 m weighs ~1/40 of one from 6 m).
+PLACEMENT_GRADIENT = 0.5
+#: Side of the grey opening that finds the ground (wider than the largest rock), m.
+GROUND_WINDOW_M = 3.2
+#: The ground is found on cells this large, m, each at GROUND_PERCENTILE of its cells.
+GROUND_CELL_M = 0.4
+#: Percentile of the fine cells' heights that a ground cell takes.
+GROUND_PERCENTILE = 25.0
+#: A rock region grows over cells this high above the ground, m.
+ROCK_GROW_HEIGHT_M = 0.1
+#: Larger rock regions are terrain, not one rock, m^2.
+ROCK_MAX_AREA_M2 = 9.0
+#: A rock region's major axis is at most this many GROUND_WINDOW_M (a longer region is a
+#: ridge or a crest, which the ground's opening keeps in its narrow direction only).
+ROCK_MAX_LENGTH_WINDOWS = 1.5
+#: Least observed fraction of the ring of ground around a rock region to measure its
+#: height (a rock's far side is hidden).
+ROCK_MIN_RING_SEEN = 0.25
+#: Least height over equivalent diameter (footprint at half height) of a rock.
+ROCK_MIN_RELIEF_RATIO = 0.25
+#: Seed cells closer than this are one peak of the watershed, m.
+ROCK_PEAK_MERGE_M = 0.3
+#: A rock region's footprint: its cells above this fraction of its peak height.
+ROCK_FOOTPRINT_FRACTION = 0.35
+#: Rock seeds, and the low cells a rock grows over, are darker than this relative value
+#: (the cell's brightness over the median of the pairs that saw it): desert rocks are
+#: darker than the soil, stereo noise and terrain bumps are soil-coloured.
+ROCK_DARK_VALUE = 0.55
+#: A region with no dark seed is a rock candidate when a cell stands this high above the
+#: ground less its spread across views, and must then measure this high, m.
+ROCK_PALE_SEED_HEIGHT_M = 0.45
+#: Cells with less accumulated weight are unobserved, 1/m^2.
+MIN_CELL_WEIGHT = 3.0
+#: Cells seen by fewer stereo pairs are unobserved.
+MIN_PAIRS = 3
+#: Cells whose height spreads more than this across the pairs that saw them are
+#: unobserved (a stereo mismatch of one view), m.
+MAX_CELL_SD_M = 0.4
+#: Cap of one pair's weight in a cell, 1/m^2.
+MAX_PAIR_WEIGHT = 2500.0
+#: 1-sigma error of a map ROI's centre (cell size, partial views), m.
+CENTRE_SIGMA_M = 0.15
+
+# The outcrop rule: a map outcrops' Outcrop Rover is trained on its candidates, and a
+# rover model records it (MAP_OUTCROP_RULE) so that a map with another rule refuses it.
+#: Outcrop cells' colour saturation, relative to the median of the pairs that saw them,
+#: is below this (the simulator's outcrops measure 0.36 of the soil's, its gravel 0.58:
+#: the Outcrop Rover tells those apart).
+OUTCROP_MAX_SATURATION = 0.6
+#: And their relative value (brightness) above this (outcrops are grey slabs, pale or
+#: not; the complement of ROCK_DARK_VALUE).
+OUTCROP_MIN_VALUE = 0.55
+#: The paper's rover outcrop area threshold, on the convex hull of the region's cells, m^2.
+OUTCROP_MIN_AREA_M2 = 5.5
+#: The saturation and value are averaged over a Gaussian this wide before the tests
+#: (a slab seen from afar is observed in sparse stripes of cells), m.
+OUTCROP_COLOUR_SIGMA_M = 0.2
+#: Iterations of the opening that removes specks from the pale mask.
+OUTCROP_OPENING = 1
+#: A region's cells cover at least this fraction of OUTCROP_MIN_AREA_M2 (a slab seen
+#: in part).
+OUTCROP_MIN_CELLS_FRACTION = 0.5
+#: Outcrops are slabs: regions standing higher than this are not, m.
+MAX_OUTCROP_HEIGHT_M = 0.45
+#: The outcrop rule a rover model records (``map_outcrop_rule`` in its provenance): a
+#: map outcrops' Outcrop Rover trained on another rule's candidates is refused.
+MAP_OUTCROP_RULE: dict = {
+    "outcrop_max_saturation": OUTCROP_MAX_SATURATION, "outcrop_min_value": OUTCROP_MIN_VALUE,
+    "outcrop_min_area_m2": OUTCROP_MIN_AREA_M2,
+    "outcrop_colour_sigma_m": OUTCROP_COLOUR_SIGMA_M, "outcrop_opening": OUTCROP_OPENING,
+    "outcrop_min_cells_fraction": OUTCROP_MIN_CELLS_FRACTION,
+    "max_outcrop_height_m": MAX_OUTCROP_HEIGHT_M}
 
 
 @dataclass(frozen=True)
 class ElevationMapConfig:
-    """Map, ground and ROI parameters (odom metres unless stated).
+    """What a user tunes of the map's ROIs (odom metres unless stated).
 
     Attributes:
-        cell_m: map cell side.
-        window_m: side of the rolling map window around the rover.
-        max_range_m: stereo points farther from the camera are not mapped: the range
-            error grows as Z^2 (1.3 m along the ray at 20 m for the MER-like bench, but
-            only ~0.1 m of it vertical at that grazing angle). Not less: with a 45 deg
-            field of view, the ROIs the route passes 2.5-6 m beside are in view only
-            6-20 m ahead.
-        disparity_sigma_px: 1-sigma disparity error that weights each point.
-        height_floor_m: smallest vertical sigma of a point (texture, rendering, JPEG).
-        placement_gradient: terrain gradient that turns the horizontal part of a
-            point's range error into a height error of the cell it lands in. The
-            vertical part alone is small at the grazing angles of far points (0.13 m at
-            15 m for the 0.2 m baseline), while their horizontal error is ~1 m: far
-            views of a rock face land in the ground around it and the ground's in the
-            rock, averaging its height away. 0.5 (a rock's flank) makes a view from
-            15 m weigh ~1/40 of one from 6 m (chosen on the training bags s101/s102:
-            docs/roi_detector.md); 0 is the vertical error alone.
-        ground_window_m: side of the opening that finds the ground (wider than the
-            largest rock footprint, ~2.8 m across).
-        rock_seed_height_m: cells this high above the ground seed a rock (paper: 0.25).
-        rock_grow_height_m: a rock region grows over cells this high.
+        max_range_m: stereo points farther from the camera than this are not mapped (the
+            range error grows as Z^2; with a 45 deg field of view the ROIs the route
+            passes 2.5-6 m beside are in view only 6-20 m ahead), m.
+        rock_seed_height_m: dark cells this high above the ground seed a rock, m.
         rock_min_height_m: least height of a rock above the plane of the ground around
-            it, as the map measures it. The paper's rover threshold is 0.25 m of the
-            rock; the map under-measures rocks (their top and far side are seen at a
-            grazing angle or not at all: on the training bag train_quick_s101 the rocks
-            found measured 0.30-0.58 m for 0.5-1.2 m), while the stereo noise of the
-            70 deg lens makes bumps of 0.26-0.36 m: 0.35 kept 4 of those 6 rocks and
-            dropped 12 of 13 false ones there. With far views weighted down
-            (``placement_gradient``) heights are measured less low, and 0.30 is the
-            threshold chosen with it on s101/s102. With dark seeds (``rock_dark_value``)
-            the soil-coloured bumps are gone and the paper's 0.25 is the threshold again
-            (0.18 doubled the false rocks; docs/roi_detector.md).
-        rock_min_area_m2: the paper's rover rock threshold.
-        rock_max_area_m2: larger regions are terrain, not one rock.
-        rock_max_length_windows: a rock region's major axis is at most this many
-            ``ground_window_m``. The ground's opening assumes every rock narrower than
-            its window, and finds the ground under it; a region much longer than the
-            window is a ridge or a crest of the terrain, which the opening keeps in its
-            narrow direction only. 1.5 (4.8 m): the catalogued rocks of five bags measure
-            up to 3.6 m (truth) and their map nodes up to 3.6 m; the map rocks above
-            4.8 m on the held-out bags s113 and s114 (4.9-8.2 m long, 2.8-4.8:1) were
-            all false (docs/roi_detector.md, 2026-11-27, sixth session). 0: no limit.
-        rock_min_ring_seen: the observed fraction of the ring of ground around a rock
-            region below which its height cannot be measured (the far side of a rock
-            is hidden: a quarter is enough).
-        rock_min_relief_ratio: a rock's height over the equivalent diameter of its
-            footprint at half that height is at least this (flatter regions are
-            terrain swells).
-        min_cell_weight: cells with less accumulated weight (1/m^2) are unobserved
-            (3: the weighted mean height within 0.58 m, 1 sigma: far views count, and
-            the rock tests below (dark seeds, relief, ring) reject what their noise
-            makes; 30 before the dark test, which lost the rocks seen only from afar).
-        min_pairs: cells seen by fewer stereo pairs are unobserved.
-        max_cell_sd_m: cells whose height spreads more than this across the pairs that
-            saw them (a stereo mismatch of one view) are unobserved.
-        max_pair_weight: cap of one pair's weight in a cell (1/m^2).
-        ground_cell_m: the ground is found on cells this large, each at the
-            ``ground_percentile`` of its fine cells (robust to single bad cells).
-        outcrop_max_saturation: outcrop cells' colour saturation, relative to the
-            median of the pairs that saw them, is below this. The simulator's outcrops
-            have 0.36 of the soil's saturation by their albedos, its gravel patches
-            0.58: with the averaged colour (``AVERAGED_OUTCROPS``) 0.6 took gravel for
-            outcrops (on 8 training bags, 27 of 51 outcrop nodes false), 0.5 none.
-        outcrop_min_value: and their value (brightness) above this. Outcrops are grey
-            slabs, pale or not: on the training bags they measure 0.74-1.54 of the
-            soil's brightness; ``AVERAGED_OUTCROPS`` uses 0.55, the complement of
-            ``rock_dark_value``.
-        outcrop_min_area_m2: the paper's rover outcrop threshold, on the convex hull of
-            the region's cells (as a rock's footprint).
-        outcrop_colour_sigma_m: > 0: the saturation and value are averaged over a
-            Gaussian this wide (weighted by the colour samples of each cell, whether or
-            not its height is observed) before the tests. A slab beside the route is
-            seen from afar, in sparse stripes of cells whose colour scatters across the
-            thresholds, and the per-cell test breaks it into pieces (on 5 training
-            bags, at the best moment of the drive, 5 of 15 counted outcrops found per
-            cell, 12 averaged). 0 (default): per observed cell.
-        outcrop_opening: iterations of the opening that removes specks from the pale
-            mask.
-        outcrop_min_cells_fraction: a region's cells must cover at least this fraction
-            of ``outcrop_min_area_m2`` (its hull the whole): a slab seen in part.
-        outcrop_soil_ratio: > 0: a cell is also pale when its saturation is under this
-            fraction of the soil's around it: the saturation of the cells within
-            ``outcrop_soil_sigma_m`` (a Gaussian) that hold colour and are not pale by
-            ``outcrop_max_saturation``. A slab seen from afar or in part measures
-            0.6-0.9 of the frame's saturation where its soil measures 1.0-1.2
-            (``bench/roi_diag.py --outcrops``); 0 (default): the absolute test alone.
-        max_outcrop_height_m: outcrops are slabs; regions standing higher are not.
-        detect_every: a detection round every this many integrated pairs.
-        centre_sigma_m: 1-sigma error of a map ROI's centre (cell size, partial views).
+            it, as the map measures it (the paper's rover threshold), m.
+        rock_min_area_m2: least convex-hull footprint of a rock (the paper's rover
+            threshold), m^2.
+        detect_every: a detection round every this many integrated stereo pairs.
         min_hit_ratio: an ROI is reported while found in at least this fraction of the
             detection rounds that re-examined its cells.
         min_rounds: and in at least this many rounds.
-        rock_split_peaks: one region per peak (watershed on the height from the seed
-            cells, seeds within ``rock_peak_merge_m`` being one peak): a rock and the
-            clutter rocks of its apron joined by cells just above the ground are split
-            instead of measured as one footprint. False: connected regions.
-        rock_peak_merge_m: seed cells closer than this are one peak.
-        rock_footprint_fraction: with ``rock_split_peaks``, a region's footprint is its
-            cells higher than this fraction of its peak (the low cells it climbs from,
-            debris or stereo smear shared with the next peak, are not the rock): 0.35
-            found 36 of 75 rocks at 40 of 42 true nodes where 0 found 35 at 39 of 43
-            and 0.5 found 27 (quick and atacama_1km s1-s3, truth odometry).
-        rock_dark_value: rock seeds, and the low cells a rock region grows over, must be
-            darker than this relative value (the cell's brightness over the median of
-            the pairs that saw it; cells higher than ``rock_seed_height_m`` grow
-            whatever their brightness). Desert rocks are darker than the soil around
-            them (varnish; on the bags rock cells measure 0.26-0.45, the soil 0.6-1.2),
-            while stereo noise and terrain bumps are soil-coloured: this made rock
-            precision 91 % from 57 % on quick and atacama_1km s1-s3 (truth odometry,
-            docs/roi_detector.md), the same at 0.65. 0 turns the test off (rocks as
-            bright as the ground).
-        rock_pale_seed_height_m: > 0: a connected region that holds no dark seed is a
-            rock candidate too when one of its cells, of any brightness, stands this
-            high above the ground less its spread across views; it must then measure
-            this high above the plane of its ring (``rock_min_height_m`` otherwise).
-            Regions with a dark seed are left as they are. Pale rocks, and sunlit
-            faces, are as bright as the soil or brighter: on the held-out bag
-            train_1km_s113, two counted rocks of 1.0 and 1.9 m^2, 0.64-0.67 m tall,
-            6.6 and 8.4 m from the route, measured 1.16-1.28 of the soil's brightness
-            and stood 0.45-0.8 m in the map, and no region was grown on them. The soil-coloured
-            bumps that ``rock_dark_value`` keeps out measure 0.26-0.36 m. 0: dark seeds
-            only.
-        rock_centre: where a rock region's node is placed. ``"upper"``: the centroid of
-            its cells above half its height (the footprint at half height, which the
-            relief test measures); ``"hull"``: the centroid of its footprint's convex
-            hull (until 2026-11-27, eighth session). The smear a tall rock leaves behind
-            it along the rays, lower than the rock, widens the footprint away from the
-            camera. Over the rock nodes of five bags (truth odometry), "upper" moved 20
-            nodes nearer their rock by more than 5 cm and 9 further, and the median node
-            error went from 0.38 to 0.20 m on atacama_1km_s1 (docs/roi_detector.md,
-            Measured). The area and the other measurements are the footprint's either
-            way.
-        map_rock_min_score: with a map-rock Rock Rover (``ElevationMap(rock_classifier=)``),
-            a rock is reported while its probability at its latest measurement is above
-            this.
-        map_outcrop_min_score: with a map outcrops' Outcrop Rover
-            (``ElevationMap(outcrop_classifier=)``), an outcrop is reported while its
-            probability at its kept measurement is above this.
+        map_rock_min_score: with a map-rock Rock Rover, a rock is reported while its
+            probability at its latest measurement is above this.
+        map_outcrop_min_score: with a map outcrops' Outcrop Rover, an outcrop is reported
+            while its probability at its kept measurement is above this.
     """
 
-    cell_m: float = 0.1
-    window_m: float = 64.0
     max_range_m: float = 20.0
-    disparity_sigma_px: float = 0.5
-    height_floor_m: float = 0.02
-    placement_gradient: float = 0.5
-    ground_window_m: float = 3.2
     rock_seed_height_m: float = 0.25
-    rock_grow_height_m: float = 0.1
     rock_min_height_m: float = 0.25
     rock_min_area_m2: float = 0.6
-    rock_max_area_m2: float = 9.0
-    rock_max_length_windows: float = 1.5
-    rock_min_ring_seen: float = 0.25
-    rock_min_relief_ratio: float = 0.25
-    min_cell_weight: float = 3.0
-    min_pairs: int = 3
-    max_cell_sd_m: float = 0.4
-    max_pair_weight: float = 2500.0
-    ground_cell_m: float = 0.4
-    ground_percentile: float = 25.0
-    outcrop_max_saturation: float = 0.6
-    outcrop_min_value: float = 0.8
-    outcrop_min_area_m2: float = 5.5
-    outcrop_colour_sigma_m: float = 0.0
-    outcrop_opening: int = 2
-    outcrop_min_cells_fraction: float = 1.0
-    outcrop_soil_ratio: float = 0.0
-    outcrop_soil_sigma_m: float = 3.0
-    max_outcrop_height_m: float = 0.45
     detect_every: int = 3
-    centre_sigma_m: float = 0.15
     min_hit_ratio: float = 0.5
     min_rounds: int = 2
-    rock_split_peaks: bool = True
-    rock_peak_merge_m: float = 0.3
-    rock_dark_value: float = 0.55
-    rock_footprint_fraction: float = 0.35
-    rock_pale_seed_height_m: float = 0.45
-    rock_centre: str = "upper"
     map_rock_min_score: float = 0.5
     map_outcrop_min_score: float = 0.5
-
-    def __post_init__(self) -> None:
-        if self.rock_centre not in ROCK_CENTRES:
-            raise ValueError(f"unknown rock_centre '{self.rock_centre}' (one of "
-                             f"{ROCK_CENTRES})")
-
-
-#: The outcrop rule on the colour averaged over 0.2 m (``replace(cfg, **AVERAGED_OUTCROPS)``;
-#: docs/roi_detector.md, 2026-11-26, late). With truth odometry it finds 8 of the four
-#: evaluation bags' 13 counted outcrops where the default finds 6, at 8/12 true nodes
-#: for 6/6. End to end, with rover_vo's odometry, seed 2's LN got 7 outcrop nodes, 6 of
-#: them false, and the run never fixed: not the default.
-AVERAGED_OUTCROPS: dict = dict(outcrop_colour_sigma_m=0.2, outcrop_max_saturation=0.5,
-                               outcrop_min_value=0.55, outcrop_opening=1,
-                               outcrop_min_cells_fraction=0.5)
-#: The averaged colour's candidates for the map outcrops' Outcrop Rover: saturation < 0.6,
-#: where the averaged rule alone took gravel patches for outcrops (on 8 training bags 21
-#: of 26 counted outcrops found, at 24 of 51 true nodes; docs/roi_detector.md,
-#: 2026-11-26, late); the classifier decides (``RoverConfig.classify_map_outcrops``).
-AVERAGED_WIDE_OUTCROPS: dict = {**AVERAGED_OUTCROPS, "outcrop_max_saturation": 0.6}
-#: :data:`AVERAGED_WIDE_OUTCROPS` and, besides, the cells under 0.75 of the local soil's
-#: saturation (``outcrop_soil_ratio``): candidates of slabs seen from afar or in part.
-SOIL_RELATIVE_OUTCROPS: dict = {**AVERAGED_WIDE_OUTCROPS, "outcrop_soil_ratio": 0.75}
-#: The outcrop rule per observed cell, saturation < 0.6 and value > 0.8 (the default
-#: until 2026-11-28, eighteenth session, decided by the rule alone).
-PER_CELL_OUTCROPS: dict = dict(outcrop_colour_sigma_m=0.0, outcrop_max_saturation=0.6,
-                               outcrop_min_value=0.8, outcrop_opening=2,
-                               outcrop_min_cells_fraction=1.0)
-#: The outcrop rules by name (``roi_detector ln --outcrops``, the node's ``outcrops``
-#: parameter): ``per_cell``, :data:`PER_CELL_OUTCROPS`; ``averaged``,
-#: :data:`AVERAGED_OUTCROPS`; ``averaged_wide``, :data:`AVERAGED_WIDE_OUTCROPS`;
-#: ``soil_relative``, :data:`SOIL_RELATIVE_OUTCROPS`.
-OUTCROP_RULES: dict[str, dict] = {"per_cell": PER_CELL_OUTCROPS, "averaged": AVERAGED_OUTCROPS,
-                                  "averaged_wide": AVERAGED_WIDE_OUTCROPS,
-                                  "soil_relative": SOIL_RELATIVE_OUTCROPS}
-#: The outcrop rule of the rover pipeline's default configuration (``RoverConfig``, the
-#: CLI's and the node's ``outcrops``): the candidates of the map outcrops' Outcrop Rover,
-#: which decides them by default (``RoverConfig.classify_map_outcrops``) and is trained
-#: on them (``roi_detector train --outcrops``).
-DEFAULT_OUTCROP_RULE = "averaged_wide"
-#: The fields of :class:`ElevationMapConfig` that make an outcrop rule: a map outcrops'
-#: Outcrop Rover records them, and is refused by a map whose rule differs.
-OUTCROP_RULE_FIELDS: tuple[str, ...] = (
-    "outcrop_max_saturation", "outcrop_min_value", "outcrop_min_area_m2",
-    "outcrop_colour_sigma_m", "outcrop_opening", "outcrop_min_cells_fraction",
-    "max_outcrop_height_m", "outcrop_soil_ratio", "outcrop_soil_sigma_m")
-
-
-def outcrop_rule_of(cfg: ElevationMapConfig) -> dict:
-    """The :data:`OUTCROP_RULE_FIELDS` of ``cfg``."""
-    return {k: getattr(cfg, k) for k in OUTCROP_RULE_FIELDS}
-
-
-def complete_outcrop_rule(rule: dict) -> dict:
-    """Every :data:`OUTCROP_RULE_FIELDS` of ``rule``, those it leaves out at their
-    defaults: a rule of :data:`OUTCROP_RULES`, or one a model records
-    (:func:`outcrop_rule_of`) without the fields it predates (they were at their
-    defaults when it was trained)."""
-    return {**outcrop_rule_of(ElevationMapConfig()), **rule}
-
-
-def outcrop_rule(name: str, cfg: ElevationMapConfig | None = None) -> ElevationMapConfig:
-    """``cfg`` (default: the defaults) with the outcrop rule ``name`` of
-    :data:`OUTCROP_RULES`; ValueError naming the rules for any other name."""
-    if name not in OUTCROP_RULES:
-        raise ValueError(f"unknown outcrop rule '{name}' (one of {tuple(OUTCROP_RULES)})")
-    return replace(cfg or ElevationMapConfig(), **complete_outcrop_rule(OUTCROP_RULES[name]))
 
 
 #: The features of a map rock region (:meth:`ElevationMap._rock_features`), the map-rock
@@ -395,7 +255,7 @@ class ElevationMap:
         self.cfg = cfg
         self.rock_classifier = rock_classifier
         self.outcrop_classifier = outcrop_classifier
-        self.n = round(cfg.window_m / cfg.cell_m)
+        self.n = round(WINDOW_M / CELL_M)
         self.origin = None  # odom x, y of cell (0, 0)'s corner
         # Per cell, over the pairs that saw it: the sum of the pairs' weights, of weight *
         # mean height and of weight * mean height^2 (mean and spread across views), and
@@ -415,22 +275,22 @@ class ElevationMap:
         #: Diagnostics: if set, called for every rock region a detection round examines,
         #: ``trace(verdict, centre_xy_odom, measured)``, verdict one of ``small``,
         #: ``ring_unseen``, ``low``, ``area``, ``flat`` (the test that rejected it) or
-        #: ``rock`` (``bench/roi_diag.py``).
+        #: ``rock``.
         self.trace: Callable[[str, np.ndarray, dict], None] | None = None
 
     # -- integration -----------------------------------------------------------------
 
     def _recentre(self, xy: np.ndarray) -> None:
         """Keep the rover in the central half of the window; shift the grids if not."""
-        half = 0.5 * self.cfg.window_m
+        half = 0.5 * WINDOW_M
         if self.origin is None:
-            self.origin = np.floor((xy - half) / self.cfg.cell_m) * self.cfg.cell_m
+            self.origin = np.floor((xy - half) / CELL_M) * CELL_M
             return
         centre = self.origin + half
-        if np.all(np.abs(xy - centre) < 0.25 * self.cfg.window_m):
+        if np.all(np.abs(xy - centre) < 0.25 * WINDOW_M):
             return
-        new_origin = np.floor((xy - half) / self.cfg.cell_m) * self.cfg.cell_m
-        shift = np.round((new_origin - self.origin) / self.cfg.cell_m).astype(int)
+        new_origin = np.floor((xy - half) / CELL_M) * CELL_M
+        shift = np.round((new_origin - self.origin) / CELL_M).astype(int)
         for name in ("w", "wz", "wzz", "npairs", "nb", "bs", "bv"):
             setattr(self, name, _shifted(getattr(self, name), shift))
         self.origin = new_origin
@@ -459,15 +319,15 @@ class ElevationMap:
         pts = p[ok][keep] @ r_odom_base.T + t_odom_base
         self._recentre(np.asarray(t_odom_base[:2], float))
         # Vertical sigma: the range error along the ray times the ray's vertical part.
-        sig_r = dist**2 / fxb * c.disparity_sigma_px
+        sig_r = dist**2 / fxb * DISPARITY_SIGMA_PX
         sig_r_per_m = sig_r / np.maximum(dist, 1e-6)
-        sig_z = np.hypot(sig_r_per_m * np.abs(rel[:, 2]), c.height_floor_m)
+        sig_z = np.hypot(sig_r_per_m * np.abs(rel[:, 2]), HEIGHT_FLOOR_M)
         # A point misplaced along its ray lands in another cell: over terrain of gradient
         # g that is a height error of g times the horizontal part of the range error.
-        sig_z = np.hypot(sig_z, c.placement_gradient * sig_r_per_m
+        sig_z = np.hypot(sig_z, PLACEMENT_GRADIENT * sig_r_per_m
                          * np.hypot(rel[:, 0], rel[:, 1]))
         wt = 1.0 / sig_z**2
-        ij = np.floor((pts[:, :2] - self.origin) / c.cell_m).astype(np.int64)
+        ij = np.floor((pts[:, :2] - self.origin) / CELL_M).astype(np.int64)
         inside = (ij >= 0).all(axis=1) & (ij < self.n).all(axis=1)
         ij, wt, z = ij[inside], wt[inside], pts[inside, 2]
         flat = ij[:, 0] * self.n + ij[:, 1]
@@ -479,7 +339,7 @@ class ElevationMap:
         pw = np.bincount(flat, wt, size)
         hit = pw > 0
         pz = np.bincount(flat, wt * z, size)[hit] / pw[hit]
-        pw = np.minimum(pw[hit], c.max_pair_weight)
+        pw = np.minimum(pw[hit], MAX_PAIR_WEIGHT)
         for acc, v in ((self.w, pw), (self.wz, pw * pz), (self.wzz, pw * pz * pz),
                        (self.npairs, 1.0)):
             acc.ravel()[hit] += v
@@ -502,12 +362,11 @@ class ElevationMap:
     def detect(self, t: float, odom_cov: np.ndarray | None = None) -> list[MapRoi]:
         """One detection round over the cells touched since the last one (plus a margin):
         update the ROI list and return the regions found this round (odom)."""
-        c = self.cfg
         if not self._touched or self.origin is None:
             return []
         box = np.array(self._touched)
         self._touched = []
-        margin = int(np.ceil(2 * c.ground_window_m / c.cell_m))
+        margin = int(np.ceil(2 * GROUND_WINDOW_M / CELL_M))
         i0, j0 = np.maximum(box[:, :2].min(axis=0) - margin, 0)
         i1, j1 = np.minimum(box[:, 2:].max(axis=0) + margin + 1, self.n)
         found = self._regions(slice(i0, i1), slice(j0, j1))
@@ -517,21 +376,20 @@ class ElevationMap:
             r.odom_cov, r.last_t = cov, t
             matched.add(self._associate(r))
         # ROIs whose cells were re-examined (inside the touched box) and not found again.
-        lo = box[:, :2].min(axis=0) * c.cell_m + self.origin
-        hi = (box[:, 2:].max(axis=0) + 1) * c.cell_m + self.origin
+        lo = box[:, :2].min(axis=0) * CELL_M + self.origin
+        hi = (box[:, 2:].max(axis=0) + 1) * CELL_M + self.origin
         for r in self.rois:
             if r.id not in matched and np.all(r.xy >= lo) and np.all(r.xy <= hi):
                 r.examined += 1
         return found
 
     def _regions(self, si: slice, sj: slice) -> list[MapRoi]:
-        c = self.cfg
         z, seen, sd = self.heights(si, sj, with_sd=True)
         if seen.sum() < 50:
             return []
-        ground = ground_surface(z, seen, c.ground_window_m / c.cell_m,
-                                max(1, round(c.ground_cell_m / c.cell_m)),
-                                c.ground_percentile)
+        ground = ground_surface(z, seen, GROUND_WINDOW_M / CELL_M,
+                                max(1, round(GROUND_CELL_M / CELL_M)),
+                                GROUND_PERCENTILE)
         rel = np.where(seen, z - ground, 0.0)
         out: list[MapRoi] = []
         off = np.array([si.start, sj.start])
@@ -541,7 +399,7 @@ class ElevationMap:
         if self.nb.any():
             nb = np.maximum(self.nb[si, sj], 1)
             colour = (self.bv[si, sj] / nb, self.bs[si, sj] / nb)
-        val = colour[0] if colour is not None and c.rock_dark_value > 0 else None
+        val = colour[0] if colour is not None else None
         # Rock seeds stand high in every view: the mean less one spread across views (a
         # stereo mismatch of one view is a high spread, not a rock).
         out += self._rocks(rel, np.where(seen, rel - sd, 0.0), z, seen, off, val, colour)
@@ -552,12 +410,11 @@ class ElevationMap:
     def heights(self, si: slice = slice(None), sj: slice = slice(None), with_sd: bool = False):
         """Mean height (odom z, NaN where unobserved) and the observed mask of a window;
         with ``with_sd`` also the spread of the height across the pairs (m)."""
-        c = self.cfg
         w = self.w[si, sj]
         mean = self.wz[si, sj] / np.maximum(w, 1e-9)
         var = self.wzz[si, sj] / np.maximum(w, 1e-9) - mean**2
-        seen = (w >= c.min_cell_weight) & (self.npairs[si, sj] >= c.min_pairs) & \
-            (var <= c.max_cell_sd_m**2)
+        seen = (w >= MIN_CELL_WEIGHT) & (self.npairs[si, sj] >= MIN_PAIRS) & \
+            (var <= MAX_CELL_SD_M**2)
         z = np.where(seen, mean, np.nan)
         if with_sd:
             return z, seen, np.sqrt(np.clip(var, 0.0, None))
@@ -569,7 +426,7 @@ class ElevationMap:
         Gaussian ``sigma_m`` wide, each cell weighted by its colour samples (whether or
         not its height is observed), and the cells that hold colour after averaging
         (weight > 0.5): ``(have, sat, val)``."""
-        s = sigma_m / self.cfg.cell_m
+        s = sigma_m / CELL_M
         n = ndimage.gaussian_filter(self.nb[si, sj], s)
         sat = ndimage.gaussian_filter(self.bs[si, sj], s) / np.maximum(n, 1e-6)
         val = ndimage.gaussian_filter(self.bv[si, sj], s) / np.maximum(n, 1e-6)
@@ -577,11 +434,10 @@ class ElevationMap:
 
     def _cell_xy(self, ij: np.ndarray) -> np.ndarray:
         """Odom x, y of the centres of cells ``ij`` (indices in the whole map)."""
-        return (ij + 0.5) * self.cfg.cell_m + self.origin
+        return (ij + 0.5) * CELL_M + self.origin
 
     def _measure(self, label: int, cells: np.ndarray, off: np.ndarray, z_ground: float,
                  height: float) -> MapRoi | None:
-        c = self.cfg
         xy = self._cell_xy(cells + off)
         if len(xy) < 3:
             return None
@@ -591,9 +447,9 @@ class ElevationMap:
         mo = cv2.moments(hull)
         centre = np.array([mo["m10"], mo["m01"]]) / mo["m00"] if mo["m00"] > 0 else \
             xy.mean(axis=0)
-        area = float(cv2.contourArea(hull)) + c.cell_m * np.sqrt(len(xy)) * c.cell_m
-        area = max(area, len(xy) * c.cell_m**2)
-        w, v = np.linalg.eigh(np.cov(xy.T) + np.eye(2) * c.cell_m**2 / 12)
+        area = float(cv2.contourArea(hull)) + CELL_M * np.sqrt(len(xy)) * CELL_M
+        area = max(area, len(xy) * CELL_M**2)
+        w, v = np.linalg.eigh(np.cov(xy.T) + np.eye(2) * CELL_M**2 / 12)
         w = np.clip(w, 0.0, None)
         ci, cj = (cells + off).T
         # The pairs that saw its cells, at least: the most that saw one of them (a slab
@@ -607,12 +463,11 @@ class ElevationMap:
     def _rocks(self, rel, rel_low, z, seen, off, val=None, colour=None) -> list[MapRoi]:
         c = self.cfg
         seeds = rel_low > c.rock_seed_height_m
-        grow = rel > c.rock_grow_height_m
+        grow = rel > ROCK_GROW_HEIGHT_M
         if val is not None:
-            dark = val < c.rock_dark_value
+            dark = val < ROCK_DARK_VALUE
             grow &= dark | (rel > c.rock_seed_height_m)
-            pale_seeds = seeds & (rel_low > c.rock_pale_seed_height_m) \
-                if c.rock_pale_seed_height_m > 0 else np.zeros_like(seeds)
+            pale_seeds = seeds & (rel_low > ROCK_PALE_SEED_HEIGHT_M)
             seeds &= dark
         else:
             pale_seeds = np.zeros_like(seeds)
@@ -631,10 +486,7 @@ class ElevationMap:
         keep |= pale
         mask = keep[lab]
         pale_cells = pale[lab]
-        if c.rock_split_peaks:
-            lab, n = self._split_peaks(rel, seeds & mask, mask)
-        else:
-            lab, n = ndimage.label(mask)
+        lab, n = self._split_peaks(rel, seeds & mask, mask)
         out = []
         if n == 0:
             return out
@@ -651,7 +503,7 @@ class ElevationMap:
             cells = np.argwhere(reg)
             corner = np.array([pad[0].start, pad[1].start])
             trace = functools.partial(self._trace_region, cells + corner + off)
-            if len(cells) * c.cell_m**2 < 0.25 * c.rock_min_area_m2:
+            if len(cells) * CELL_M**2 < 0.25 * c.rock_min_area_m2:
                 trace("small", n_cells=len(cells))
                 continue
             # The ground around the rock: a plane through the ring of cells 0.1-0.5 m
@@ -660,23 +512,22 @@ class ElevationMap:
             ring = ndimage.binary_dilation(reg, iterations=5) & ring_all[pad]
             ring_seen = ring & seen[pad]
             plane = None
-            if ring_seen.sum() >= max(8, c.rock_min_ring_seen * ring.sum()):
+            if ring_seen.sum() >= max(8, ROCK_MIN_RING_SEEN * ring.sum()):
                 plane = _plane(np.argwhere(ring_seen), z[pad][ring_seen])
             if plane is None:
                 trace("ring_unseen", ring_seen=float(ring_seen.sum() / max(ring.sum(), 1)))
                 continue
             above = z[pad][reg] - (plane[0] * cells[:, 0] + plane[1] * cells[:, 1] + plane[2])
             height = float(np.percentile(above, 95))
-            min_height = max(c.rock_min_height_m, c.rock_pale_seed_height_m) if is_pale[k] \
+            min_height = max(c.rock_min_height_m, ROCK_PALE_SEED_HEIGHT_M) if is_pale[k] \
                 else c.rock_min_height_m
             if height <= min_height:
                 trace("low", height_m=height)
                 continue
             r = self._measure(ROCK, cells + corner, off, float(np.median(z[pad][ring_seen])),
                               height)
-            if r is None or not c.rock_min_area_m2 < r.area_m2 < c.rock_max_area_m2 or \
-                    (c.rock_max_length_windows > 0
-                     and r.major_m > c.rock_max_length_windows * c.ground_window_m):
+            if r is None or not c.rock_min_area_m2 < r.area_m2 < ROCK_MAX_AREA_M2 or \
+                    r.major_m > ROCK_MAX_LENGTH_WINDOWS * GROUND_WINDOW_M:
                 trace("area", height_m=height, area_m2=None if r is None else r.area_m2,
                       major_m=None if r is None else r.major_m)
                 continue
@@ -686,22 +537,22 @@ class ElevationMap:
             # cells a little above the ground (stereo smear around the rock, grown at
             # 0.1 m) widens the footprint but not the width at half height.
             upper = above >= 0.5 * height
-            if c.rock_centre == "upper" and upper.sum() >= 3:
+            if upper.sum() >= 3:
                 # The rock's centre: that of its cells above half its height (the
                 # footprint at half height, as the relief test below measures it). The
                 # smear a tall rock leaves behind it, along the rays and lower than the
-                # rock, widens the footprint and had moved the hull's centroid off it.
+                # rock, widens the footprint and would move the hull's centroid off it.
                 r.xy = self._cell_xy(cells[upper] + corner + off).mean(axis=0)
-            half = max(int(np.count_nonzero(upper)), 1) * c.cell_m**2
+            half = max(int(np.count_nonzero(upper)), 1) * CELL_M**2
             relief = height / np.sqrt(4 * half / np.pi)
-            if relief >= c.rock_min_relief_ratio:
+            if relief >= ROCK_MIN_RELIEF_RATIO:
                 r.features = self._rock_features(
                     r, lab == k, ring_seen, pad, plane, above, rel, rel_low, seen, off,
                     colour, relief, len(cells), bool(is_pale[k]))
                 if self.rock_classifier is not None:
                     r.score = float(self.rock_classifier(r.features[None])[0])
                 out.append(r)
-            trace("rock" if relief >= c.rock_min_relief_ratio else "flat", height_m=height,
+            trace("rock" if relief >= ROCK_MIN_RELIEF_RATIO else "flat", height_m=height,
                   area_m2=r.area_m2, relief=float(relief))
         return out
 
@@ -713,7 +564,6 @@ class ElevationMap:
         """The :data:`MAP_ROCK_FEATURES` of a rock region (window arrays; ``reg_full``
         the region's mask over the window, ``ring_seen`` the observed ring over ``pad``,
         ``colour`` the relative value and saturation maps or None)."""
-        c = self.cfg
         val, sat = colour if colour is not None else (None, None)
         reg = reg_full[pad]
         i0, j0 = off
@@ -725,7 +575,7 @@ class ElevationMap:
             v_reg = val[pad][reg]
             v_ring = val[pad][ring_seen]
             value = float(np.median(v_reg))
-            dark = float(np.mean(v_reg < c.rock_dark_value))
+            dark = float(np.mean(v_reg < ROCK_DARK_VALUE))
             contrast = float(np.median(v_ring)) - value if len(v_ring) else nan
             value_lo = float(np.percentile(v_reg, 10))
         else:
@@ -736,23 +586,23 @@ class ElevationMap:
         zr = rel[pad][ring_seen]
         resid = zr - (plane[0] * ij[:, 0] + plane[1] * ij[:, 1])
         roughness = float(np.std(resid - np.median(resid)))
-        slope = float(np.hypot(plane[0], plane[1]) / c.cell_m)
+        slope = float(np.hypot(plane[0], plane[1]) / CELL_M)
         # Clutter around it: the share of the observed cells 0.5-2.5 m outside the region
         # that stand above the grow height and are dark (a field of small rocks, which
         # the map can merge into one false rock, is a crowd of such cells).
-        near = round(0.5 / c.cell_m)
-        far = round(2.5 / c.cell_m)
+        near = round(0.5 / CELL_M)
+        far = round(2.5 / CELL_M)
         rows, cols = np.nonzero(reg_full)
         box = (slice(max(rows.min() - far, 0), rows.max() + far + 1),
                slice(max(cols.min() - far, 0), cols.max() + far + 1))
         rb = reg_full[box]
         annulus = ndimage.binary_dilation(rb, iterations=far) & \
             ~ndimage.binary_dilation(rb, iterations=near) & seen[box]
-        bumpy = rel[box] > c.rock_grow_height_m
+        bumpy = rel[box] > ROCK_GROW_HEIGHT_M
         if val is not None:
-            bumpy &= val[box] < (c.rock_dark_value or 0.55)
+            bumpy &= val[box] < ROCK_DARK_VALUE
         clutter = float(bumpy[annulus].mean()) if annulus.any() else 0.0
-        hull_fill = n_cells * c.cell_m**2 / max(r.area_m2, 1e-6)
+        hull_fill = n_cells * CELL_M**2 / max(r.area_m2, 1e-6)
         feats = np.array([
             r.height_m, np.log(r.area_m2), relief, np.log(max(r.major_m, 1e-3)),
             r.minor_m / max(r.major_m, 1e-3), hull_fill, float(np.max(rel_low[pad][reg])),
@@ -781,39 +631,31 @@ class ElevationMap:
         otherwise be one region, its footprint the hull of all of them."""
         from skimage.segmentation import watershed
 
-        c = self.cfg
-        it = max(1, round(c.rock_peak_merge_m / c.cell_m / 2))
+        it = max(1, round(ROCK_PEAK_MERGE_M / CELL_M / 2))
         markers, n = ndimage.label(ndimage.binary_dilation(seeds, iterations=it) & mask)
         if n == 0:
             return np.zeros(mask.shape, np.int32), 0
         lab = watershed(-rel, markers, mask=mask)
-        if c.rock_footprint_fraction > 0:
-            # Each region's footprint: its cells above a fraction of its peak height (the
-            # low cells a region climbs from, debris or stereo smear, shared with the
-            # next peak, are not the rock).
-            peak = ndimage.maximum(rel, lab, np.arange(n + 1))
-            lab = np.where(rel >= c.rock_footprint_fraction * np.asarray(peak)[lab], lab, 0)
+        # Each region's footprint: its cells above a fraction of its peak height (the low
+        # cells a region climbs from, debris or stereo smear, shared with the next peak,
+        # are not the rock).
+        peak = ndimage.maximum(rel, lab, np.arange(n + 1))
+        lab = np.where(rel >= ROCK_FOOTPRINT_FRACTION * np.asarray(peak)[lab], lab, 0)
         return lab, n
 
     def _outcrops(self, rel, ground, seen, si, sj, off, colour) -> list[MapRoi]:
         """The outcrop regions of the window ``si``, ``sj`` (``colour``: its cells'
         relative value and saturation, as :meth:`_regions` reads them)."""
-        c = self.cfg
         nb = self.nb[si, sj]
         if (nb > 0).sum() < 100:
             return []
-        if c.outcrop_colour_sigma_m > 0:
-            # The colour averaged over a small neighbourhood, every cell with colour
-            # samples contributing (a slab seen from afar is observed in sparse stripes of
-            # cells, and its per-cell colour scatters across the thresholds).
-            have, sat, val = self.averaged_colour(c.outcrop_colour_sigma_m, si, sj)
-            low = ~(seen & (rel >= c.max_outcrop_height_m))
-        else:
-            have = seen & (nb > 0)
-            val, sat = colour
-            low = rel < c.max_outcrop_height_m
+        # The colour averaged over a small neighbourhood, every cell with colour samples
+        # contributing (a slab seen from afar is observed in sparse stripes of cells, and
+        # its per-cell colour scatters across the thresholds).
+        have, sat, val = self.averaged_colour(OUTCROP_COLOUR_SIGMA_M, si, sj)
+        low = ~(seen & (rel >= MAX_OUTCROP_HEIGHT_M))
         pale = self.outcrop_colour(have, sat, val) & low
-        pale = ndimage.binary_opening(pale, iterations=c.outcrop_opening)
+        pale = ndimage.binary_opening(pale, iterations=OUTCROP_OPENING)
         pale = ndimage.binary_closing(pale, iterations=3) & have
         lab, _ = ndimage.label(pale)
         out = []
@@ -821,15 +663,15 @@ class ElevationMap:
             if sl is None:
                 continue
             reg = lab[sl] == k
-            if reg.sum() * c.cell_m**2 < c.outcrop_min_cells_fraction * c.outcrop_min_area_m2:
+            if reg.sum() * CELL_M**2 < OUTCROP_MIN_CELLS_FRACTION * OUTCROP_MIN_AREA_M2:
                 continue
             cells = np.argwhere(reg) + np.array([sl[0].start, sl[1].start])
             rel_reg = rel[sl][reg & seen[sl]]
             height = float(np.percentile(rel_reg, 95)) if len(rel_reg) else 0.0
-            if height > c.max_outcrop_height_m:
+            if height > MAX_OUTCROP_HEIGHT_M:
                 continue
             r = self._measure(OUTCROP, cells, off, float(np.nanmedian(ground[sl][reg])), height)
-            if r is not None and r.area_m2 >= c.outcrop_min_area_m2:
+            if r is not None and r.area_m2 >= OUTCROP_MIN_AREA_M2:
                 r.features = self._outcrop_features(r, lab == k, rel, seen, colour, nb,
                                                     self.npairs[si, sj])
                 if self.outcrop_classifier is not None:
@@ -841,34 +683,9 @@ class ElevationMap:
                        val: np.ndarray) -> np.ndarray:
         """The cells (holding colour: ``have``) whose relative saturation ``sat`` and
         value ``val`` are an outcrop's. Outcrops are grey slabs: far less saturated than
-        the reddish soil (``outcrop_max_saturation``; and, with ``outcrop_soil_ratio``,
-        than the soil around them) and not dark (rocks, desert pavement and rock shadows
-        are dark: ``outcrop_min_value``)."""
-        c = self.cfg
-        grey = sat < c.outcrop_max_saturation
-        if c.outcrop_soil_ratio > 0:
-            grey |= sat < c.outcrop_soil_ratio * self._soil_saturation(have & ~grey, sat)
-        return have & grey & (val > c.outcrop_min_value)
-
-    def _soil_saturation(self, soil: np.ndarray, sat: np.ndarray) -> np.ndarray:
-        """The saturation of the ``soil`` cells around each cell (Gaussian,
-        ``outcrop_soil_sigma_m``), inf where none is near."""
-        c = self.cfg
-        # On blocks of ~0.5 m (the soil varies over metres): sums per block, filtered,
-        # each cell given its block's value.
-        f = max(1, round(0.5 / c.cell_m))
-        h, w_ = soil.shape
-        ph, pw = -h % f, -w_ % f
-
-        def blocks(a):
-            a = np.pad(a.astype(np.float32), ((0, ph), (0, pw)))
-            return a.reshape(a.shape[0] // f, f, a.shape[1] // f, f).sum(axis=(1, 3))
-
-        s = c.outcrop_soil_sigma_m / (c.cell_m * f)
-        w = ndimage.gaussian_filter(blocks(soil), s)
-        ws = ndimage.gaussian_filter(blocks(np.where(soil, sat, 0.0)), s)
-        bg = np.where(w > 1e-3, ws / np.maximum(w, 1e-6), np.inf)
-        return np.repeat(np.repeat(bg, f, axis=0), f, axis=1)[:h, :w_]
+        the reddish soil (:data:`OUTCROP_MAX_SATURATION`) and not dark (rocks, desert
+        pavement and rock shadows are dark: :data:`OUTCROP_MIN_VALUE`)."""
+        return have & (sat < OUTCROP_MAX_SATURATION) & (val > OUTCROP_MIN_VALUE)
 
     def _outcrop_features(self, r: MapRoi, reg_full: np.ndarray, rel: np.ndarray,
                           seen: np.ndarray, colour: tuple, nb: np.ndarray,
@@ -877,15 +694,14 @@ class ElevationMap:
         ``reg_full`` its mask, ``rel`` the height above the ground, ``colour`` the cells'
         relative value and saturation, ``nb`` their colour samples, ``npairs`` the pairs
         that saw them)."""
-        c = self.cfg
         val, sat = colour
         rows, cols = np.nonzero(reg_full)
-        far = round(1.5 / c.cell_m)
+        far = round(1.5 / CELL_M)
         box = (slice(max(rows.min() - far, 0), rows.max() + far + 1),
                slice(max(cols.min() - far, 0), cols.max() + far + 1))
         reg = reg_full[box]
         ring = ndimage.binary_dilation(reg, iterations=far) & \
-            ~ndimage.binary_dilation(reg, iterations=round(0.3 / c.cell_m))
+            ~ndimage.binary_dilation(reg, iterations=round(0.3 / CELL_M))
         rs, rv, rh, rsn, nbb = (a[box] for a in (sat, val, rel, seen, nb))
         hv = nbb > 0
         in_c = reg & hv
@@ -897,10 +713,10 @@ class ElevationMap:
 
         s_in, v_in = rs[in_c], rv[in_c]
         h_in = rh[reg & rsn]
-        rocky = (rh > c.rock_grow_height_m) & rsn & (rv < (c.rock_dark_value or 0.55))
+        rocky = (rh > ROCK_GROW_HEIGHT_M) & rsn & (rv < ROCK_DARK_VALUE)
         npairs = npairs[box][reg]
         feats = np.array([
-            np.log(max(r.area_m2, 1e-3)), reg.sum() * c.cell_m**2 / max(r.area_m2, 1e-6),
+            np.log(max(r.area_m2, 1e-3)), reg.sum() * CELL_M**2 / max(r.area_m2, 1e-6),
             np.log(max(r.major_m, 1e-3)), r.minor_m / max(r.major_m, 1e-3), r.height_m,
             pct(h_in, 50), float(np.std(h_in)) if len(h_in) else nan,
             float((reg & rsn).sum()) / max(float(reg.sum()), 1.0),
@@ -965,7 +781,7 @@ class ElevationMap:
             rois = self.consistent()
         rec = empty_records(len(rois))
         for i, r in enumerate(rois):
-            s2 = self.cfg.centre_sigma_m**2 + (0.1 * r.major_m) ** 2
+            s2 = CENTRE_SIGMA_M**2 + (0.1 * r.major_m) ** 2
             rec[i]["id"], rec[i]["label"] = r.id, r.label
             rec[i]["x"], rec[i]["y"], rec[i]["z"] = r.xy[0], r.xy[1], r.z
             rec[i]["area_m2"], rec[i]["height_m"] = r.area_m2, r.height_m

@@ -11,13 +11,13 @@ range known, the rock's angular size gives its width and height. This is the pap
 per-image detection (Sec. 4.2: ROIs found in each image, tracked as they enter and leave
 the view) with the rover's odometry as the stereo baseline.
 
-- **Blobs** (:func:`dark_blobs`): pixels darker than ``dark_value`` relative to the
+- **Blobs** (:func:`dark_blobs`): pixels darker than ``DARK_VALUE`` relative to the
   median brightness of the ground the pair sees (the same test as the map's dark rock
   seeds: desert rocks are varnished, the soil is not), in connected components; each
   blob's stereo disparity gives a rough range (metres off at 20 m), enough to keep the
   blobs ``min_depth_m`` to ``max_depth_m`` deep and to start a track.
 - **Tracks** (:class:`FarRockTracker`): a blob joins the track whose rock projects
-  nearest to it in the pair's image (within ``gate_px`` plus half the blob), each track
+  nearest to it in the pair's image (within ``GATE_PX`` plus half the blob), each track
   keeping the odom ray of every view; the rock's position is the weighted least-squares
   intersection of those rays' bearings on the ground plane (across each bearing, the
   bearing error at its range; along it, the blob's stereo range at its error), its height
@@ -28,12 +28,13 @@ the view) with the rover's odometry as the stereo baseline.
   height = range x (tan elevation of the blob's top - tan elevation of its bottom), their
   medians over the views; area = pi/4 width^2 (the footprint seen edge-on is unknown).
 - **A candidate** when the views span ``min_parallax_deg`` of bearing, the rays meet
-  within ``max_residual_px`` (a static object: a blob that slides with the view is not
-  one), the rock was seen from at most ``max_nearest_m``, and its height and area pass
+  within ``MAX_RESIDUAL_PX`` (a static object: a blob that slides with the view is not
+  one), the rock was seen from at most ``MAX_NEAREST_M``, and its height and area pass
   the paper's rover thresholds (Sec. 4.2).
 - **Classification** (Sec. 4.3): with a classifier, the paper's "Rock Rover" decides
-  which tracks are rocks (:attr:`FarRockConfig.classified`: every track that passes
-  the geometric tests, in place of the size thresholds, or the candidates), on
+  which tracks are rocks (every track that passes the geometric tests, in place of the
+  size thresholds: from 12-40 m a rock's dark blob gives its area at a median 0.62 of
+  the truth, too scattered for the thresholds), on
   :func:`far_rock_features`: the paper's appearance features (RGB, HSV, gray, Gabor,
   weighted entropy) of its blob and the ground ring around it, the median over its
   views, with the track's geometry.
@@ -58,126 +59,86 @@ from roi_detector.stereo import StereoCamera
 #: Weighted-entropy window of a blob's appearance (pixels, full resolution; the rover
 #: metrics' 7 px at half resolution is 14 px here, but a far blob is 12-200 px).
 ENTROPY_SIZE_PX: Final = 7
-#: Far-track populations: which tracks a far rocks' Rock Rover is trained on
-#: (``roi_detector train --population``) and which it decides at run time
-#: (:attr:`FarRockConfig.classified`): every measured track (10-20x more than the
-#: candidates, nearly all of them small dark blobs that the rules refuse), or the
-#: candidates (every rule passed, size included).
-FAR_POPULATIONS: Final = ("candidates", "measured")
-#: The far rocks' Rock Rover's kinds (``roi_detector train --kind``): boosted trees (the
-#: default: left one training bag out they keep more of the true far rocks, at a higher
-#: precision, than the paper's kNN: docs/roi_detector.md) or the paper's PCA + kNN.
-FAR_KINDS: Final = ("gradient_boosting", "knn")
 #: The track geometry that :func:`far_rock_features` adds to the appearance.
 GEOMETRY_NAMES: Final = ("far_log_width_m", "far_height_m", "far_log_nearest_m",
                          "far_log_views", "far_parallax_deg", "far_residual_px",
                          "far_relief", "far_dark_value", "far_dark_saturation")
 
 
+#: Blob pixels are darker than this, relative to the median value (HSV) of the ground
+#: the pair sees (the map's ROCK_DARK_VALUE).
+DARK_VALUE = 0.55
+#: And less saturated than this, relative to the ground's median saturation: a shadow
+#: keeps the soil's colour (only darker), a rock is greyer.
+MAX_SATURATION = 0.9
+#: Smallest blob, pixels.
+MIN_BLOB_PX = 12
+#: Association gate beyond half the blob's size, pixels.
+GATE_PX = 6.0
+#: A track not seen in this many consecutive pairs where it is in view is closed.
+MAX_MISSED = 3
+#: Least spread of the bearings of a track that the Rock Rover decides, deg (the spread
+#: is one of its features; with the stereo ranges at their estimated errors a track seen
+#: over a few degrees is placed as well as the others).
+CLASSIFIED_MIN_PARALLAX_DEG = 0.0
+#: 1-sigma error of a blob's centroid, pixels: the prior of the fit while the track is
+#: followed.
+BEARING_SIGMA_PX = 1.0
+#: RMS distance of the views' rays from the triangulated rock, in pixels at each view's
+#: range, of a rock.
+MAX_RESIDUAL_PX = 2.5
+#: The paper's rover rock height and area thresholds (m, m^2), of a far-rock candidate.
+MIN_HEIGHT_M = 0.25
+MIN_AREA_M2 = 0.6
+#: 1-sigma error of a blob's median disparity, which places it along its ray, pixels:
+#: the prior of the fit while the track is followed.
+DISPARITY_SIGMA_PX = 0.5
+#: The bearing scale that variance component estimation gives a closed track is at least
+#: this share of BEARING_SIGMA_PX (a short track's residuals can be near zero by chance).
+MIN_BEARING_SCALE = 0.5
+#: 1 sigma of where the dark blob sits on the rock (its dark, shaded part, not its
+#: outline), times the rock's measured width, added to the position covariance.
+CENTRE_SIGMA_WIDTH = 0.5
+#: 1-sigma odometry error per metre between the views (relative drift across the track),
+#: added to the position covariance.
+ODOM_SIGMA_PER_M = 0.01
+#: A rock must have been seen from at most this far, m (at 30 m a 0.25 m height is 4
+#: pixels).
+MAX_NEAREST_M = 30.0
+#: Tracks whose rocks are closer than this are one rock, m; and a far rock this close to
+#: a map rock is that rock.
+MERGE_M = 1.5
+
+
 @dataclass(frozen=True)
 class FarRockConfig:
-    """Blob, track and rock parameters (metres, pixels of the full-resolution image).
+    """What a user tunes of the far rocks (metres, pixels of the full-resolution image).
 
     Attributes:
-        dark_value: blob pixels are darker than this, relative to the median value (HSV)
-            of the ground the pair sees (the map's ``rock_dark_value``).
-        max_saturation: and less saturated than this, relative to the ground's median
-            saturation: a shadow keeps the soil's colour (only darker), a rock is
-            greyer (on the bags: soil 72, shadow 77-87, dark rock 54, grey rock 37).
-        min_depth_m: blobs nearer than this (stereo depth) are the elevation map's.
-        max_depth_m: blobs farther than this are not followed (a pixel is > 0.1 m).
-        min_blob_px: smallest blob (pixels).
-        gate_px: association gate beyond half the blob's size (pixels).
-        max_missed: a track not seen in this many consecutive pairs where it is in view
-            is closed.
+        min_depth_m: blobs nearer than this (stereo depth) are the elevation map's, m.
+        max_depth_m: blobs farther than this are not followed, m.
         min_views: least views of a rock.
-        min_parallax_deg: least spread of the bearings of its views (a candidate of
-            the rules).
-        classified_min_parallax_deg: least spread of the bearings of a track that the
-            classifier decides (``classified="measured"``): the spread is one of its
-            features, and with the stereo ranges at their estimated errors
-            (``variance_components``) a track seen over a few degrees is placed as well
-            as the others (left one training bag out, without the 4 deg test, the
-            classifier keeps 102 true tracks for 15 false, where it kept 73 for 10 with
-            it; their median distance from the rock 0.44 m, 0.39 m with it:
-            docs/roi_detector.md).
-        bearing_sigma_px: 1-sigma error of a blob's centroid (pixels).
-        max_residual_px: RMS distance of the views' rays from the triangulated rock,
-            in pixels at each view's range.
-        min_height_m: the paper's rover rock height threshold.
-        min_area_m2: the paper's rover rock area threshold.
-        disparity_sigma_px: 1-sigma error of a blob's median disparity, which places it
-            along its ray (0: bearings alone): the prior of the fit while the track is
-            followed.
-        variance_components: when the track closes, estimate the scale of its bearing
-            errors and of its stereo ranges' errors from its own residuals (variance
-            component estimation, a few re-weighted fits) and place the rock with them,
-            instead of the priors ``bearing_sigma_px`` and ``disparity_sigma_px``. On
-            the 12 training bags a blob's median disparity errs ~0.45 of the prior
-            (0.89 m at 20 m, for 2.0 m), its centroid 1.25 px; the priors' fit placed the
-            rock a median 0.83 m from it, the estimated scales 0.74 m
-            (docs/roi_detector.md).
-        min_bearing_scale: the estimated bearing scale is at least this share of
-            ``bearing_sigma_px`` (a short track's residuals can be near zero by chance).
-        centre_sigma_width: 1 sigma of where the dark blob sits on the rock (its dark,
-            shaded part, not its outline), times the rock's measured width, added to the
-            position covariance: the tracks' residuals cannot see it, and without it the
-            covariance's sigmas were ~15x too small on the training bags.
-        odom_sigma_per_m: 1-sigma odometry error per metre between the views (relative
-            drift across the track), added to the position covariance.
-        max_nearest_m: a rock must have been seen from at most this far (at 30 m a
-            0.25 m height is 4 pixels).
-        merge_m: tracks whose rocks are closer than this are one rock.
-        min_score: with a classifier, a track it decides is a rock when the Rock Rover's
-            score (kNN: vote share; boosted trees: probability) is above this.
-        classified: with a classifier, which tracks it decides (:data:`FAR_POPULATIONS`):
-            ``"measured"``: every track that passes the geometric tests (views, bearing
-            spread, ray residual, nearest range), the classifier standing in for the
-            size thresholds (from 12-40 m a rock's dark blob gives its area at a median
-            0.62 of the truth, 0.05-1.1 from the 10th to the 90th percentile, so
-            that the thresholds refuse most of the true rocks: docs/roi_detector.md);
-            ``"candidates"``: the paper's order, the rules (size included) then the
-            classifier.
+        min_parallax_deg: least spread of the bearings of a far-rock candidate's views
+            (the rules without a classifier), deg.
+        min_score: a track the Rock Rover decides is a rock when its probability is
+            above this.
     """
 
-    dark_value: float = 0.55
-    max_saturation: float = 0.9
     min_depth_m: float = 12.0
     max_depth_m: float = 40.0
-    min_blob_px: int = 12
-    gate_px: float = 6.0
-    max_missed: int = 3
     min_views: int = 6
     min_parallax_deg: float = 4.0
-    classified_min_parallax_deg: float = 0.0
-    bearing_sigma_px: float = 1.0
-    max_residual_px: float = 2.5
-    min_height_m: float = 0.25
-    min_area_m2: float = 0.6
-    disparity_sigma_px: float = 0.5
-    variance_components: bool = True
-    min_bearing_scale: float = 0.5
-    centre_sigma_width: float = 0.5
-    odom_sigma_per_m: float = 0.01
-    max_nearest_m: float = 30.0
-    merge_m: float = 1.5
     min_score: float = 0.5
-    classified: str = "measured"
-
-    def __post_init__(self) -> None:
-        if self.classified not in FAR_POPULATIONS:
-            raise ValueError(f"far rocks: classified: unknown '{self.classified}' (one of "
-                             f"{FAR_POPULATIONS})")
 
     def passes_geometry(self, parallax_deg, residual_px, nearest_m, classified=False):
         """The geometric tests of a far track (bearing spread, ray residual, nearest
         range): scalars or arrays, elementwise. ``classified``: those of a track that
         the classifier decides in place of the size thresholds
-        (``classified_min_parallax_deg``)."""
-        least = self.classified_min_parallax_deg if classified else self.min_parallax_deg
+        (:data:`CLASSIFIED_MIN_PARALLAX_DEG`)."""
+        least = CLASSIFIED_MIN_PARALLAX_DEG if classified else self.min_parallax_deg
         return (np.asarray(parallax_deg) >= least) & \
-            (np.asarray(residual_px) <= self.max_residual_px) & \
-            (np.asarray(nearest_m) <= self.max_nearest_m)
+            (np.asarray(residual_px) <= MAX_RESIDUAL_PX) & \
+            (np.asarray(nearest_m) <= MAX_NEAREST_M)
 
 
 @dataclass
@@ -256,8 +217,8 @@ def dark_blobs(bgr: np.ndarray, disp: np.ndarray, camera: StereoCamera,
     grid = (slice(None, valid.shape[0] * step, step), slice(None, valid.shape[1] * step, step))
     ground_value = float(np.median(value[grid][valid]))
     ground_sat = float(np.median(sat[grid][valid]))
-    dark = (value < cfg.dark_value * max(ground_value, 1.0)) & \
-        (sat < cfg.max_saturation * max(ground_sat, 1.0))
+    dark = (value < DARK_VALUE * max(ground_value, 1.0)) & \
+        (sat < MAX_SATURATION * max(ground_sat, 1.0))
     n, lab, stats, cents = cv2.connectedComponentsWithStats(dark.astype(np.uint8), connectivity=8)
     out = []
     if describe:
@@ -266,7 +227,7 @@ def dark_blobs(bgr: np.ndarray, disp: np.ndarray, camera: StereoCamera,
     for k in range(1, n):
         x0, y0, w, h, area = stats[k]
         # Too small, or cut by the image border (its centroid and size are not the rock's).
-        if area < cfg.min_blob_px or x0 == 0 or y0 == 0 or x0 + w == bgr.shape[1] or \
+        if area < MIN_BLOB_PX or x0 == 0 or y0 == 0 or x0 + w == bgr.shape[1] or \
                 y0 + h == bgr.shape[0]:
             continue
         # The disparity grid's rows and columns inside the blob's box (grid row i is
@@ -390,7 +351,8 @@ class FarRock:
             read.
         candidate: every rule of a candidate passed (Sec. 4.2).
         passed: what the LN gets: without a classifier, a candidate; with one, a track
-            it decides (:attr:`FarRockConfig.classified`) that it scores a rock.
+            it decides (every track that passes the geometric tests) that it scores a
+            rock.
         features: :func:`far_rock_features` (None when the blobs carry no appearance).
         score: the Rock Rover's score (NaN: no classifier, or a track it does not
             decide).
@@ -470,12 +432,12 @@ class FarRockTracker:
                 pred[i] = (camera.fx * pc[0] / pc[2] + camera.cx,
                            camera.fy * pc[1] / pc[2] + camera.cy)
         taken = np.zeros(len(self.tracks), bool)
-        sigma = self.cfg.bearing_sigma_px / camera.fx
+        sigma = BEARING_SIGMA_PX / camera.fx
         new = []
         for blob in sorted(blobs, key=lambda b: -b.n_px):
             half = 0.5 * np.array([blob.box[2] - blob.box[0] + 1, blob.box[3] - blob.box[1] + 1])
             d = np.abs(pred - blob.uv)
-            ok = ~taken & np.all(d <= half + self.cfg.gate_px, axis=1)
+            ok = ~taken & np.all(d <= half + GATE_PX, axis=1)
             view = self._view(blob, t, r_oc, centre, camera)
             if ok.any():
                 i = int(np.flatnonzero(ok)[np.argmin(np.hypot(*d[ok].T))])
@@ -495,7 +457,7 @@ class FarRockTracker:
                 in_view = bool(np.isfinite(pred[i]).all() and 0 <= pred[i, 0] < camera.width
                                and 0 <= pred[i, 1] < camera.height)
                 tr.missed += 1 if in_view else 0
-                if tr.missed > self.cfg.max_missed or not in_view:
+                if tr.missed > MAX_MISSED or not in_view:
                     self._close(tr)
                     continue
             keep.append(tr)
@@ -530,30 +492,30 @@ class FarRockTracker:
         # median disparity.
         cos = float(centroid @ r_oc[:, 2])
         rng = blob.depth_m / max(cos, 0.1) * float(np.linalg.norm(centroid[:2]))
-        sigma = rng * blob.depth_m / camera.fxb * self.cfg.disparity_sigma_px
+        sigma = rng * blob.depth_m / camera.fxb * DISPARITY_SIGMA_PX
         return _View(t, centre, centroid, float(np.arccos(np.clip(left @ right, -1, 1))),
                      tan_el(top), tan_el(bottom), self._travelled,
-                     rng if self.cfg.disparity_sigma_px > 0 else np.nan, sigma,
+                     rng, sigma,
                      blob.appearance)
 
     def rocks(self, classified: bool = True) -> list[FarRock]:
         """The closed tracks that pass every rock test, one per rock: a rock whose blob
         was followed by several tracks (lost and found again) is the best-viewed of them,
-        the others within ``merge_m`` dropped. ``classified=False``: the candidates, as
+        the others within :data:`MERGE_M` dropped. ``classified=False``: the candidates, as
         if there were no classifier (benchmarks)."""
         kept: list[FarRock] = []
         for r in sorted((r for r in self.measured if (r.passed if classified else r.candidate)),
                         key=lambda r: -r.n_views):
-            if all(np.linalg.norm(r.xy - k.xy) > self.cfg.merge_m for k in kept):
+            if all(np.linalg.norm(r.xy - k.xy) > MERGE_M for k in kept):
                 kept.append(r)
         return kept
 
     def _measure(self, tr: FarTrack) -> FarRock:
         cfg = self.cfg
-        sigma = cfg.bearing_sigma_px / self._fx
-        fitted = None
-        if cfg.variance_components:
-            fitted = tr.refine(sigma, cfg.min_bearing_scale)
+        sigma = BEARING_SIGMA_PX / self._fx
+        # Variance component estimation: the track placed with the bearing and stereo
+        # range errors its own residuals give.
+        fitted = tr.refine(sigma, MIN_BEARING_SCALE)
         c = np.array([v.centre for v in tr.views])
         rays = np.array([v.ray for v in tr.views])
         rho = np.maximum(np.hypot(*(tr.point[:2] - c[:, :2]).T), 0.5)
@@ -570,33 +532,24 @@ class FarRockTracker:
         height = float(np.median(heights))
         width = float(np.median(widths))
         area = float(np.pi / 4 * width * width)
-        if fitted is not None:
-            # The fit's own covariance (bearings and stereo ranges at their estimated
-            # errors) and where the blob sits on the rock.
-            cov = np.linalg.pinv(fitted[1]) + np.eye(2) * (cfg.centre_sigma_width * width) ** 2
-        else:
-            # The rays' geometry at the bearing error, scaled by the residual.
-            info = np.zeros((2, 2))
-            for ri, r2 in zip(rays, rho, strict=False):
-                d2 = ri[:2] / max(np.linalg.norm(ri[:2]), 1e-9)
-                info += (np.eye(2) - np.outer(d2, d2)) / (r2 * sigma) ** 2
-            cov = np.linalg.pinv(info) * max(1.0, (residual / cfg.bearing_sigma_px) ** 2)
+        # The fit's own covariance (bearings and stereo ranges at their estimated errors)
+        # and where the blob sits on the rock.
+        cov = np.linalg.pinv(fitted[1]) + np.eye(2) * (CENTRE_SIGMA_WIDTH * width) ** 2
         # The relative odometry drift over the views, the odometry at the last view.
         span = tr.views[-1].travelled - tr.views[0].travelled
-        cov = cov + np.eye(2) * (cfg.odom_sigma_per_m * span) ** 2 + tr.odom_cov
+        cov = cov + np.eye(2) * (ODOM_SIGMA_PER_M * span) ** 2 + tr.odom_cov
         geometric = bool(cfg.passes_geometry(spread, residual, rng.min()))
-        candidate = geometric and height > cfg.min_height_m and area > cfg.min_area_m2
+        candidate = geometric and height > MIN_HEIGHT_M and area > MIN_AREA_M2
         decidable = bool(cfg.passes_geometry(spread, residual, rng.min(), classified=True))
         app = [v.appearance for v in tr.views if v.appearance is not None]
         feats = far_rock_features(app, width, height, float(rng.min()), len(tr.views),
                                   spread, residual) if app else None
         score, passed = float("nan"), candidate
         if self.classifier is not None:
-            # The Rock Rover decides the candidates (the paper's order) or, in place of the
-            # size thresholds, every track that passed its geometric tests.
-            decided = candidate if cfg.classified == "candidates" else decidable
+            # The Rock Rover decides, in place of the size thresholds, every track that
+            # passed its geometric tests.
             passed = False
-            if decided:
+            if decidable:
                 if feats is None:
                     raise ValueError("far rocks: a classifier needs the blobs' appearance "
                                      "(dark_blobs(describe=True))")

@@ -30,18 +30,23 @@ from roi_network.records import empty_records
 ODOM_PLACEHOLDER_CRS = "EPSG:32719"
 
 
+#: Two same-class nodes nearer than this (or than half the larger footprint) are one
+#: ROI, m.
+MERGE_M = 1.0
+#: A track id seen again this far from its LN node is a new ROI (the detector restarted
+#: and reuses ids), m.
+ID_JUMP_M = 5.0
+
+
 @dataclass(frozen=True)
 class LnConfig:
-    """Attributes:
+    """Local Network parameters.
+
+    Attributes:
         min_obs: observations of a track before it enters the LN.
-        merge_m: smallest distance under which two same-class nodes are one ROI, m.
-        id_jump_m: a track id seen again this far from its LN node is a new ROI (the
-            detector restarted and reuses ids), m.
     """
 
     min_obs: int = 3
-    merge_m: float = 1.0
-    id_jump_m: float = 5.0
 
 
 class LocalNetwork:
@@ -67,7 +72,7 @@ class LocalNetwork:
             row = t.copy()
             if node is not None and node in index:
                 old = recs[index[node]]
-                if np.hypot(old["x"] - t["x"], old["y"] - t["y"]) > self.cfg.id_jump_m:
+                if np.hypot(old["x"] - t["x"], old["y"] - t["y"]) > ID_JUMP_M:
                     node = None
             if node is None or node not in index:
                 node = self._next_id
@@ -84,7 +89,7 @@ class LocalNetwork:
         return not _same(before, self.records)
 
     def _merge_revisits(self) -> None:
-        """Fold same-class nodes within the larger half-footprint (or merge_m) into one."""
+        """Fold same-class nodes within the larger half-footprint (or MERGE_M) into one."""
         r = self.records
         alive = np.ones(len(r), bool)
         for i in range(len(r)):
@@ -94,7 +99,7 @@ class LocalNetwork:
                 if not alive[j] or r["label"][j] != r["label"][i]:
                     continue
                 d = np.hypot(r["x"][i] - r["x"][j], r["y"][i] - r["y"][j])
-                if d < max(self.cfg.merge_m, 0.5 * max(r["major_m"][i], r["major_m"][j])):
+                if d < max(MERGE_M, 0.5 * max(r["major_m"][i], r["major_m"][j])):
                     r[i] = _fuse(r[i], r[j])
                     alive[j] = False
                     for k, v in self._track_to_node.items():

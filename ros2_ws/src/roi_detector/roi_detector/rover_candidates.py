@@ -4,11 +4,10 @@ Appearance masks come from the left image, geometry from the stereo pair: every 
 region is measured in 3D (base_link) against a local ground fit around it, and kept only
 above the rover's geometric thresholds:
 
-- rock: area on the ground > 0.6 m^2 and higher than 0.25 m above the ground; texture
-  mask (``rock_method="hessian"``, the paper's) the fusion of the > 2 sigma and < -2 sigma
-  masks of the Hessian eigenvalues; or (``rock_method="stereo_height"``, the default, the
-  better recipe on our imagery) the pixels standing > ``seed_height_m`` above the local
-  ground, grown down to ``grow_height_m``.
+- rock: area on the ground > 0.6 m^2 and higher than 0.25 m above the ground; the
+  pixels standing > ``SEED_HEIGHT_M`` above the local ground, grown down to
+  ``GROW_HEIGHT_M`` (on this imagery a better rock mask than the paper's fusion of the
+  Hessian eigenvalue masks).
 - outcrop: area > 5.5 m^2; texture mask the OR of the < -2 sigma Hessian mask and the
   < -2 sigma weighted-entropy mask.
 """
@@ -32,42 +31,42 @@ HESSIAN_SIGMA_PX = 2.0
 ENTROPY_SIZE_PX = 7
 
 
+#: Larger "rocks" are terrain swells or several rocks and clutter merged (not in the
+#: paper; the world's largest rock footprint is 6 m^2), m^2.
+ROCK_MAX_AREA_M2 = 8.0
+#: Skip regions cut by the left, right or bottom image border (partly seen: their area
+#: and centre are wrong; they are measured whole in another pair).
+SKIP_BORDER_REGIONS = True
+#: Rock seeds: pixels this high above the local ground, m.
+SEED_HEIGHT_M = 0.25
+#: Rock regions grow over pixels this high, m.
+GROW_HEIGHT_M = 0.08
+#: A region with fewer valid stereo points has no usable depth.
+MIN_POINTS = 15
+#: A region whose top stands higher than this is no outcrop (outcrops are slabs at most
+#: 0.3 m thick; rocks stand higher), m.
+MAX_OUTCROP_HEIGHT_M = 0.6
+#: Neighbouring pixels whose depths differ by more than this fraction of the depth
+#: belong to different objects.
+DEPTH_JUMP_FRAC = 0.04
+
+
 @dataclass(frozen=True)
 class RoverThresholds:
-    """Rover candidate thresholds (paper Sec. 4.2) and the recipe choices around them.
+    """Rover candidate thresholds (paper Sec. 4.2).
 
     Attributes:
         rock_min_area_m2: rock footprint area on the ground, m^2 (paper: 0.6).
         rock_min_height_m: rock height above the local ground, m (paper: 0.25).
-        rock_max_area_m2: larger "rocks" are terrain swells or several rocks and clutter
-            merged (not in the paper; the world's largest rock footprint is 6 m^2).
         max_depth_m: candidates whose median depth is farther are not measured well
-            enough (range sigma ~0.5 m at 16 m). Not closer: with a 45 deg field of view,
-            an ROI the route passes 4 m beside is in view only while > 10 m ahead.
-        skip_border_regions: skip regions cut by the left, right or bottom image border.
+            enough (range sigma ~0.5 m at 16 m), m.
         outcrop_min_area_m2: outcrop area on the ground, m^2 (paper: 5.5).
-        rock_method: ``"stereo_height"`` or ``"hessian"`` (the paper's texture mask).
-        seed_height_m: stereo_height seeds: pixels this high above the ground, m.
-        grow_height_m: stereo_height regions grow over pixels this high, m.
-        min_points: a region with fewer valid stereo points has no usable depth.
-        max_outcrop_height_m: a region whose top stands higher than this is no outcrop
-            (outcrops are slabs at most 0.3 m thick; rocks stand higher).
-        depth_jump_frac: neighbouring pixels whose depths differ by more than this
-            fraction of the depth belong to different objects (stereo_height recipe).
     """
 
     rock_min_area_m2: float = 0.6
     rock_min_height_m: float = 0.25
-    rock_max_area_m2: float = 8.0
     max_depth_m: float = 16.0
-    skip_border_regions: bool = True
     outcrop_min_area_m2: float = 5.5
-    rock_method: str = "stereo_height"
-    seed_height_m: float = 0.25
-    grow_height_m: float = 0.08
-    min_points: int = 15
-    max_outcrop_height_m: float = 0.6
-    depth_jump_frac: float = 0.04
 
 
 @dataclass
@@ -140,8 +139,8 @@ def footprint_ellipse(xy: np.ndarray) -> tuple[float, float, float]:
 
 
 def measure_region(mask: np.ndarray, bbox: tuple[int, int, int, int], label: int,
-                   points: np.ndarray, height: np.ndarray, camera: StereoCamera,
-                   cfg: RoverThresholds) -> Candidate | None:
+                   points: np.ndarray, height: np.ndarray,
+                   camera: StereoCamera) -> Candidate | None:
     """Measure one region in 3D; None when it has too few valid stereo points.
 
     The ground plane is fitted to the ring of pixels around the region (the local
@@ -162,7 +161,7 @@ def measure_region(mask: np.ndarray, bbox: tuple[int, int, int, int], label: int
     big[y0 - Y0:y1 - Y0, x0 - X0:x1 - X0] = mask
     finite = np.isfinite(pts_w[..., 2])
     ok = big & finite
-    if ok.sum() < cfg.min_points:
+    if ok.sum() < MIN_POINTS:
         return None
     pts = pts_w[ok]
     ring = cv2.dilate(big.astype(np.uint8), np.ones((2 * m - 1, 2 * m - 1), np.uint8)) > 0
@@ -209,36 +208,27 @@ def _regions(mask: np.ndarray, min_px: int) -> list[tuple[np.ndarray, tuple]]:
     return out
 
 
-def rock_mask(gray: np.ndarray, height: np.ndarray, cfg: RoverThresholds,
-              metrics: dict[str, np.ndarray] | None,
-              depth: np.ndarray | None = None) -> np.ndarray:
-    """Pixels that may belong to a rock (see the module docstring for both recipes)."""
-    if cfg.rock_method == "hessian":
-        if metrics is None:
-            raise ValueError("rock_method 'hessian' needs the Hessian eigenvalue images")
-        return paper_mask(ROCK, metrics, gray.shape)
-    if cfg.rock_method != "stereo_height":
-        raise ValueError(f"rock_method: unknown '{cfg.rock_method}' "
-                         "(expected 'stereo_height' or 'hessian')")
+def rock_mask(height: np.ndarray, depth: np.ndarray | None = None) -> np.ndarray:
+    """Pixels that may belong to a rock: those standing above the local ground (see the
+    module), cut where the depth jumps."""
     from skimage.filters import apply_hysteresis_threshold
 
     h = np.nan_to_num(height, nan=0.0)
-    m = apply_hysteresis_threshold(h, cfg.grow_height_m, cfg.seed_height_m)
+    m = apply_hysteresis_threshold(h, GROW_HEIGHT_M, SEED_HEIGHT_M)
     if depth is not None:
         # Two rocks one behind the other touch in the image: cut the mask where the
         # depth jumps, so each is measured on its own.
         z = np.nan_to_num(depth, nan=0.0)
         jump = np.maximum(np.abs(np.diff(z, axis=0, prepend=z[:1])),
                           np.abs(np.diff(z, axis=1, prepend=z[:, :1])))
-        m &= ~(jump > cfg.depth_jump_frac * np.maximum(z, 1.0))
+        m &= ~(jump > DEPTH_JUMP_FRAC * np.maximum(z, 1.0))
     return cv2.morphologyEx(m.astype(np.uint8), cv2.MORPH_OPEN,
                             np.ones((3, 3), np.uint8)).astype(bool)
 
 
 def rover_candidates(gray: np.ndarray, points: np.ndarray, camera: StereoCamera,
                      cfg: RoverThresholds, metrics: dict[str, np.ndarray] | None,
-                     on_no_depth=None,
-                     metrics_for_rocks: dict[str, np.ndarray] | None = None) -> list[Candidate]:
+                     on_no_depth=None) -> list[Candidate]:
     """Rock and outcrop candidates of one stereo pair, above the rover thresholds.
 
     Args:
@@ -247,14 +237,13 @@ def rover_candidates(gray: np.ndarray, points: np.ndarray, camera: StereoCamera,
         camera: the stereo model.
         cfg: thresholds and recipes.
         metrics: :func:`metric_images` of the left image; None skips the outcrop
-            family (and is an error for the paper's rock recipe).
+            family.
         on_no_depth: called once per region that has no valid depth (bad-input count).
-        metrics_for_rocks: metrics for the paper's rock recipe (default ``metrics``).
     """
     height = local_ground_height(points)
     depth = (points - camera.t_base_cam) @ camera.r_base_cam[:, 2]
     out: list[Candidate] = []
-    families = [(ROCK, rock_mask(gray, height, cfg, metrics_for_rocks or metrics, depth))]
+    families = [(ROCK, rock_mask(height, depth))]
     if metrics is not None:
         families.append((OUTCROP, paper_mask(OUTCROP, metrics, gray.shape)))
     # Appearance masks also fire on the sky and the far field (smooth, low entropy):
@@ -265,20 +254,20 @@ def rover_candidates(gray: np.ndarray, points: np.ndarray, camera: StereoCamera,
         for region, bbox in _regions(mask & valid, min_px=10):
             # Cut by the image border: partly seen, so its area and centre are wrong; it
             # is measured whole in another pair.
-            if cfg.skip_border_regions and (bbox[0] == 0 or bbox[2] == w or bbox[3] == h):
+            if SKIP_BORDER_REGIONS and (bbox[0] == 0 or bbox[2] == w or bbox[3] == h):
                 continue
-            c = measure_region(region, bbox, label, points, height, camera, cfg)
+            c = measure_region(region, bbox, label, points, height, camera)
             if c is None:
                 if on_no_depth is not None:
                     on_no_depth()
                 continue
             if c.depth_m > cfg.max_depth_m:
                 continue
-            if label == ROCK and not (cfg.rock_min_area_m2 < c.area_m2 < cfg.rock_max_area_m2
+            if label == ROCK and not (cfg.rock_min_area_m2 < c.area_m2 < ROCK_MAX_AREA_M2
                                       and c.height_m > cfg.rock_min_height_m):
                 continue
             if label == OUTCROP and (c.area_m2 < cfg.outcrop_min_area_m2
-                                     or c.height_m > cfg.max_outcrop_height_m):
+                                     or c.height_m > MAX_OUTCROP_HEIGHT_M):
                 continue
             out.append(c)
     return out

@@ -5,11 +5,13 @@ Two methods (``RoverConfig.method``):
 - ``"elevation_map"`` (default): ``RoverDetector.observe`` turns a stereo pair into its
   3D points and colour; ``DriveMapper.add_pair`` fuses them into the drive's elevation
   map in odom with the pair's odometry pose, where rocks and outcrops are found and kept
-  (:mod:`roi_detector.elevation_map`). With ``far_rocks`` (on by default) the pair's dark
-  blobs are also tracked and triangulated from the rover's motion, for the rocks beyond
-  the map's reach (:mod:`roi_detector.far_rocks`).
-- ``"per_pair"`` (the paper's): ``observe`` detects and classifies ROIs in the pair
-  (base_link); ``add_pair`` places them in odom and tracks them across pairs.
+  (:mod:`roi_detector.elevation_map`). The pair's dark blobs are also tracked and
+  triangulated from the rover's motion, for the rocks beyond the map's reach
+  (:mod:`roi_detector.far_rocks`). The rover model's Rock Rovers and Outcrop Rover
+  decide which of the map's regions and far rocks are ROIs.
+- ``"per_pair"`` (the paper's baseline): ``observe`` detects and classifies ROIs in the
+  pair (base_link; PCA + kNN); ``add_pair`` places them in odom and tracks them across
+  pairs.
 
 Either way ``DriveMapper`` keeps the Local Network up to date. The offline build
 (:mod:`roi_detector.local_network_build`) and the two nodes call exactly these (the nodes
@@ -19,7 +21,6 @@ they run is loaded and checked against the configuration here (:func:`load_class
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -27,17 +28,20 @@ import cv2
 import numpy as np
 
 from roi_detector.elevation_map import (
-    DEFAULT_OUTCROP_RULE,
-    OUTCROP_RULES,
+    MAP_OUTCROP_RULE,
     ElevationMap,
     ElevationMapConfig,
     appearance,
-    complete_outcrop_rule,
     is_monochrome,
-    outcrop_rule,
-    outcrop_rule_of,
 )
-from roi_detector.far_rocks import Blob, FarRock, FarRockConfig, FarRockTracker, dark_blobs
+from roi_detector.far_rocks import MERGE_M as FAR_MERGE_M
+from roi_detector.far_rocks import (
+    Blob,
+    FarRock,
+    FarRockConfig,
+    FarRockTracker,
+    dark_blobs,
+)
 from roi_detector.inputs import StereoFrame
 from roi_detector.local_network import LnConfig, LocalNetwork
 from roi_detector.rover_candidates import (
@@ -66,80 +70,48 @@ from roi_network.records import ROCK, empty_records
 
 @dataclass(frozen=True)
 class RoverConfig:
-    """Every parameter of the rover pipeline, defaults in one place.
+    """Every parameter of the rover pipeline a user tunes, defaults in one place.
 
     Attributes:
-        method: ``"elevation_map"`` or ``"per_pair"`` (the paper's; see the module).
-        far_rocks: elevation_map method: also triangulate the rocks the map cannot reach
-            (:mod:`roi_detector.far_rocks`). On by default since 2026-11-26: end to end it
-            brings every 1 km seed and quick within 1 m (docs/e2e.md), at a lower rock
-            precision of the LN (docs/roi_detector.md).
-        classify_far_rocks: far rocks: the rover model's far-rock Rock Rover (the paper's
-            Sec. 4.3 classifier, here boosted trees) decides them, in place of the size
-            thresholds (``far.classified``). On by default since 2026-11-26 (evening): on
-            the four evaluation bags it raises the LN's rock precision from 79 % to 93 %
-            and its counted rocks from 43 to 46 of 75 (docs/roi_detector.md).
-        classify_map_rocks: elevation_map method: the rover model's map-rock Rock Rover
-            decides which of the map's rock regions (those the height, area, ring and
-            relief rules pass) are rocks (``ElevationMap(rock_classifier=)``).
-        classify_map_outcrops: elevation_map method: the rover model's map outcrops'
-            Outcrop Rover decides which of the map's outcrop regions are outcrops
-            (``ElevationMap(outcrop_classifier=)``). The model records the outcrop rule
-            its candidates came from; a map with another rule refuses it.
+        method: ``"elevation_map"`` (ROIs found in the drive's fused height map, with the
+            far rocks triangulated beyond it; the rover model's Rock Rovers and Outcrop
+            Rover decide them) or ``"per_pair"`` (the paper's: ROIs detected and
+            classified per stereo pair, PCA + kNN, then tracked).
         working_fx_px: the angular resolution the detector works at, as a focal length
             (pixels per radian at the image centre): a rectified pair whose left focal
             length is finer is resampled to it (:func:`at_working_resolution`), one
-            coarser is used as it is; 0 keeps every pair as it comes. Every pixel
-            parameter (the stereo search range, blob sizes, gates, ray residuals) and the
-            committed Rock Rovers, whose features include pixel-scale texture and ray
-            residuals, were set on the simulator's 640 x 480, 70 deg camera (fx 457 px).
-            On a 1024 x 768, 60 deg camera (fx 887 px) without it, the far rocks' Rock
-            Rover took 11 of 13 far tracks it kept for rocks wrongly (docs/roi_detector.md,
-            seventeenth session). A rover model records the value it was trained at.
+            coarser is used as it is; 0 keeps every pair as it comes. The pixel
+            parameters and the committed Rock Rovers are set at the simulator's 640 x
+            480, 70 deg camera (fx 457 px); a rover model records the value it was
+            trained at.
+        elevation_map: the elevation map's parameters (elevation_map method).
+        far: the far rocks' parameters (elevation_map method).
+        stereo: the stereo matcher's parameters.
+        thresholds: the rover candidate thresholds (per_pair method).
+        tracker: the tracker's parameters (per_pair method).
+        ln: the Local Network's parameters.
     """
 
     method: str = "elevation_map"
-    elevation_map: ElevationMapConfig = field(
-        default_factory=lambda: outcrop_rule(DEFAULT_OUTCROP_RULE))
-    far_rocks: bool = True
-    classify_far_rocks: bool = True
-    classify_map_rocks: bool = True
-    classify_map_outcrops: bool = True
+    working_fx_px: float = 460.0
+    elevation_map: ElevationMapConfig = field(default_factory=ElevationMapConfig)
     far: FarRockConfig = field(default_factory=FarRockConfig)
     stereo: StereoConfig = field(default_factory=StereoConfig)
     thresholds: RoverThresholds = field(default_factory=RoverThresholds)
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     ln: LnConfig = field(default_factory=LnConfig)
-    outcrops: bool = True
-    working_fx_px: float = 460.0
-
-    @property
-    def classifies_far_rocks(self) -> bool:
-        """The far rocks' Rock Rover decides the far rocks (``far.classified``: which)."""
-        return self.method == "elevation_map" and self.far_rocks and self.classify_far_rocks
-
-    @property
-    def classifies_map_rocks(self) -> bool:
-        """The map rocks' Rock Rover decides the elevation map's rock regions."""
-        return self.method == "elevation_map" and self.classify_map_rocks
-
-    @property
-    def classifies_map_outcrops(self) -> bool:
-        """The map outcrops' Outcrop Rover decides the elevation map's outcrop regions."""
-        return self.method == "elevation_map" and self.outcrops and self.classify_map_outcrops
-
-    @property
-    def runs_classifier(self) -> bool:
-        """A rover model has a part in this configuration (per_pair, or far rocks, map
-        rocks or map outcrops classified)."""
-        return self.method == "per_pair" or self.classifies_far_rocks or \
-            self.classifies_map_rocks or self.classifies_map_outcrops
 
 
 METHODS = ("elevation_map", "per_pair")
 #: A pair is resampled only when its focal length exceeds the working one by more than
 #: this factor (the simulator's 457 px camera stays as it is under the default 460).
 RESAMPLE_ABOVE = 1.02
+#: The depth-edge test on the grid the elevation map integrates (half resolution,
+#: :func:`~roi_detector.stereo.mask_depth_edges`): a point is dropped where the
+#: disparities in a window this wide (pixels) span more than EDGE_MAX_RELATIVE_RANGE of
+#: its own (an occlusion edge). Not applied by the per-pair method.
+EDGE_WINDOW_PX = 3
+EDGE_MAX_RELATIVE_RANGE = 0.15
 
 
 def at_working_resolution(frame: StereoFrame, working_fx_px: float) -> StereoFrame:
@@ -172,7 +144,7 @@ class PairObservation:
         records: per_pair method: the pair's classified detections (ROI records).
         points: elevation_map method: (H/2, W/2, 3) stereo points, NaN where invalid.
         appearance: elevation_map method: (H/2, W/2, 2) relative saturation and value.
-        blobs: elevation_map method with ``far_rocks``: the pair's dark blobs.
+        blobs: elevation_map method: the pair's dark blobs.
     """
 
     records: np.ndarray | None = None
@@ -233,14 +205,12 @@ class RoverDetector:
         left = cv2.cvtColor(frame.left, cv2.COLOR_BGR2GRAY)
         right = cv2.cvtColor(frame.right, cv2.COLOR_BGR2GRAY)
         st = self.cfg.stereo
-        raw = self._disparity(left, right, None)
-        disp = mask_depth_edges(raw, st.edge_window_px, st.edge_max_relative_range)
+        raw = self._disparity(left, right)
+        disp = mask_depth_edges(raw, EDGE_WINDOW_PX, EDGE_MAX_RELATIVE_RANGE)
         points = points_base(disp, camera, self._rays[::2, ::2], st.max_range_m)
         h, w = points.shape[:2]
         small = cv2.resize(frame.left, (w, h), interpolation=cv2.INTER_AREA)
-        blobs = dark_blobs(frame.left, raw, camera, self.cfg.far,
-                           describe=self.describe_blobs) if self.cfg.far_rocks \
-            else None
+        blobs = dark_blobs(frame.left, raw, camera, self.cfg.far, describe=self.describe_blobs)
         colour = appearance(small, np.isfinite(points[..., 2]))
         if is_monochrome(small):
             # A monochrome camera's pair (or grey JPEGs): no colour to tell an outcrop's
@@ -254,22 +224,10 @@ class RoverDetector:
                         "outcrops are not looked for (rocks are)")
         return PairObservation(points=points, appearance=colour, blobs=blobs)
 
-    def _disparity(self, left: np.ndarray, right: np.ndarray,
-                   left_half: np.ndarray | None) -> np.ndarray:
-        """Disparity on the half-resolution grid, in full-resolution pixels.
-
-        From the full-resolution pair (downscale 1) or, 8x cheaper, from the
-        half-resolution pair (downscale 2; disparities doubled back).
-        """
-        st = self.cfg.stereo
-        if st.downscale == 2:
-            h, w = left.shape[0] // 2, left.shape[1] // 2
-            if left_half is None:
-                left_half = cv2.resize(left, (w, h), interpolation=cv2.INTER_AREA)
-            right_s = cv2.resize(right, (w, h), interpolation=cv2.INTER_AREA)
-            half = dataclasses.replace(st, num_disparities=max(16, st.num_disparities // 32 * 16))
-            return 2.0 * disparity(left_half, right_s, half)
-        return disparity(left, right, st)[::2, ::2]
+    def _disparity(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
+        """Disparity of the full-resolution pair on the half-resolution grid, in
+        full-resolution pixels."""
+        return disparity(left, right, self.cfg.stereo)[::2, ::2]
 
     def candidates(self, frame: StereoFrame) -> tuple[list[Candidate], dict | None]:
         """Candidates above the rover thresholds (unclassified) and the metric images, at
@@ -283,14 +241,13 @@ class RoverDetector:
         # points, the grid of the metric images: 4x fewer pixels, and a rover ROI still
         # covers tens to thousands.
         st = self.cfg.stereo
-        disp = self._disparity(left, right, metrics["_gray"])
+        disp = self._disparity(left, right)
         points = points_base(disp, camera, self._rays[::2, ::2], st.max_range_m)
         cands = rover_candidates(
             metrics["_gray"], points, camera, self.cfg.thresholds,
-            metrics if self.cfg.outcrops else None,
-            on_no_depth=lambda: self.on_bad(
+            metrics, on_no_depth=lambda: self.on_bad(
                 "no valid depth", f"a candidate at {frame.stamp_ns * 1e-9:.3f} s has too "
-                "few stereo points"), metrics_for_rocks=metrics)
+                "few stereo points"))
         return cands, metrics
 
     def detect(self, frame: StereoFrame) -> list[Candidate]:
@@ -308,9 +265,8 @@ def detections_to_records(dets: list[Candidate]) -> np.ndarray:
     """ROI records (base_link) of detections; covariance: the stereo range error along
     the line of sight and the lateral error across it (base_link x-y)."""
     rec = empty_records(len(dets))
-    tcfg = TrackerConfig()
     for i, d in enumerate(dets):
-        cov = observation_covariance(d.bearing, d.range_sigma_m, d.major_m, tcfg)
+        cov = observation_covariance(d.bearing, d.range_sigma_m, d.major_m)
         r = rec[i]
         r["x"], r["y"], r["z"] = d.center
         r["id"], r["label"] = i + 1, d.label
@@ -341,29 +297,25 @@ def installed_model() -> Path | None:
 
 
 def load_classifier(path: str | None, cfg: RoverConfig | None = None):
-    """The rover model of ``path`` (default: the committed model) when ``cfg`` runs a
-    classifier (per_pair, or far or map rocks with ``classify_far_rocks`` /
-    ``classify_map_rocks``); else, or for 'none', None.
+    """The rover model of ``path`` (default: the committed model; 'none': None) for
+    ``cfg``'s method.
 
-    per_pair uses the committed model if it holds the per-pair classifiers (else none:
-    every candidate kept); ``classify_far_rocks`` and ``classify_map_rocks`` ask for a
-    classifier, so a missing one is an error; a model named by ``path`` must hold those
-    of ``cfg``'s method.
+    elevation_map needs its far rocks' and map rocks' Rock Rovers and its map outcrops'
+    Outcrop Rover, so a missing model is an error; per_pair uses the committed model if
+    it holds the per-pair classifiers (else none: every candidate kept). A model named by
+    ``path`` must hold those of ``cfg``'s method (:func:`check_model`).
 
     Raises:
-        ValueError: an unreadable model, or none with the classifiers ``cfg`` needs.
+        ValueError: an unreadable model, or none where ``cfg`` needs one.
     """
     cfg = cfg or RoverConfig()
-    if path == "none" or not cfg.runs_classifier:
+    if path == "none":
         return None
     model = Path(path) if path else installed_model()
     if model is None:
-        for need, on in (("classify_far_rocks", cfg.classifies_far_rocks),
-                         ("classify_map_rocks", cfg.classifies_map_rocks),
-                         ("classify_map_outcrops", cfg.classifies_map_outcrops)):
-            if on:
-                raise ValueError(f"{need}: no rover model (none at {DEFAULT_MODEL}; "
-                                 "train one: make rover-model)")
+        if cfg.method == "elevation_map":
+            raise ValueError(f"no rover model (none at {DEFAULT_MODEL}; train one: make "
+                             "rover-model; or run without one: model 'none')")
         return None
     clf = RoverClassifier.load(model)
     if not path and cfg.method == "per_pair" and not clf.per_pair:
@@ -373,70 +325,62 @@ def load_classifier(path: str | None, cfg: RoverConfig | None = None):
 
 
 def check_model(classifier: RoverClassifier | None, cfg: RoverConfig) -> None:
-    """Raise ValueError when a rover model lacks what ``cfg``'s method runs, or was
-    trained at another working resolution (a model that does not record one, as those
-    before 2026-11-28, seventeenth session, was trained at the default)."""
+    """Raise ValueError when a rover model lacks what ``cfg``'s method runs, was trained
+    at another working resolution (a model that records none was trained at the
+    default), or its map outcrops' Outcrop Rover on the candidates of another outcrop
+    rule than :data:`~roi_detector.elevation_map.MAP_OUTCROP_RULE`."""
     if classifier is None:
         return
     where = classifier.meta.get("path", "the rover model")
-    trained_fx = classifier.meta.get("provenance", {}).get("working_fx_px")
-    if cfg.runs_classifier and trained_fx is not None and \
+    prov = classifier.meta.get("provenance", {})
+    trained_fx = prov.get("working_fx_px")
+    if trained_fx is not None and \
             abs(float(trained_fx) - cfg.working_fx_px) > 0.02 * max(float(trained_fx), 1.0):
         raise ValueError(f"{where}: trained at a working resolution of {float(trained_fx):g} "
                          f"px (focal length), the detector works at {cfg.working_fx_px:g} "
                          f"px: its features would not mean the same (retrain it at this "
                          f"resolution, or set working_fx_px to {float(trained_fx):g})")
-    if cfg.method == "per_pair" and not classifier.per_pair:
-        raise ValueError(f"{where}: no Rock Rover / Outcrop Rover for the per_pair method "
-                         "(train them: roi_detector train --method per_pair)")
-    if cfg.classifies_far_rocks and not classifier.far_rocks:
-        raise ValueError(f"{where}: no far-rock Rock Rover to classify far rocks with "
-                         "(train it: roi_detector train)")
-    if cfg.classifies_map_rocks and not classifier.map_rocks:
-        raise ValueError(f"{where}: no map-rock Rock Rover to classify the map's rocks "
-                         "with (train it: roi_detector train; or --no-classify-map-rocks, "
-                         "node parameter classify_map_rocks: false)")
-    if cfg.classifies_map_outcrops:
-        if not classifier.map_outcrops:
-            raise ValueError(f"{where}: no map outcrops' Outcrop Rover to classify the map's "
-                             "outcrops with (train it: roi_detector train; or "
-                             "--no-classify-map-outcrops, node parameter "
-                             "classify_map_outcrops: false)")
-        trained = classifier.meta.get("provenance", {}).get("map_outcrop_rule")
-        mine = outcrop_rule_of(cfg.elevation_map)
-        trained = None if trained is None else complete_outcrop_rule(trained)
-        if trained is not None and any(
-                not np.isclose(float(trained.get(k, np.nan)), float(v)) for k, v in mine.items()):
-            names = [n for n, r in OUTCROP_RULES.items()
-                     if outcrop_rule_of(outcrop_rule(n)) == {k: trained.get(k) for k in mine}]
-            raise ValueError(f"{where}: its Outcrop Rover was trained on the candidates of "
-                             f"another outcrop rule ({names[0] if names else trained}) "
-                             f"than the map's ({mine}): use that rule (--outcrops, node "
-                             "parameter outcrops), retrain, or let the rule alone decide "
-                             "(--no-classify-map-outcrops, node parameter "
-                             "classify_map_outcrops: false)")
+    if cfg.method == "per_pair":
+        if not classifier.per_pair:
+            raise ValueError(f"{where}: no Rock Rover / Outcrop Rover for the per_pair "
+                             "method (train them: roi_detector train --method per_pair)")
+        return
+    for held, what in ((classifier.far_rocks, "far-rock Rock Rover"),
+                       (classifier.map_rocks, "map-rock Rock Rover"),
+                       (classifier.map_outcrops, "map outcrops' Outcrop Rover")):
+        if not held:
+            raise ValueError(f"{where}: no {what} for the elevation_map method (train it: "
+                             "roi_detector train; or run without a model: model 'none')")
+    trained = prov.get("map_outcrop_rule")
+    if trained is not None and (
+            trained.get("outcrop_soil_ratio", 0.0) != 0.0
+            or any(not np.isclose(float(trained.get(k, np.nan)), float(v))
+                   for k, v in MAP_OUTCROP_RULE.items())):
+        raise ValueError(f"{where}: its Outcrop Rover was trained on the candidates of "
+                         f"another outcrop rule ({trained}) than the map's "
+                         f"({MAP_OUTCROP_RULE}): retrain it (roi_detector train)")
 
 
 def map_outcrop_classifier(classifier: RoverClassifier | None, cfg: RoverConfig):
-    """The map outcrops' Outcrop Rover (probability of features) when ``cfg`` classifies
-    map outcrops and the model holds one, else None."""
-    if classifier is None or not cfg.classifies_map_outcrops or not classifier.map_outcrops:
+    """The map outcrops' Outcrop Rover (probability of features) when ``cfg`` runs the
+    elevation map and the model holds one, else None."""
+    if classifier is None or cfg.method != "elevation_map" or not classifier.map_outcrops:
         return None
     return classifier.map_outcrop_proba
 
 
 def far_classifier(classifier: RoverClassifier | None, cfg: RoverConfig):
-    """The far rocks' Rock Rover (vote share of features) when ``cfg`` classifies far
-    rocks and the model holds one, else None."""
-    if classifier is None or not cfg.classifies_far_rocks or not classifier.far_rocks:
+    """The far rocks' Rock Rover (vote share of features) when ``cfg`` runs the
+    elevation map and the model holds one, else None."""
+    if classifier is None or cfg.method != "elevation_map" or not classifier.far_rocks:
         return None
     return classifier.far_rock_proba
 
 
 def map_rock_classifier(classifier: RoverClassifier | None, cfg: RoverConfig):
-    """The map rocks' Rock Rover (probability of features) when ``cfg`` classifies map
-    rocks and the model holds one, else None."""
-    if classifier is None or not cfg.classifies_map_rocks or not classifier.map_rocks:
+    """The map rocks' Rock Rover (probability of features) when ``cfg`` runs the
+    elevation map and the model holds one, else None."""
+    if classifier is None or cfg.method != "elevation_map" or not classifier.map_rocks:
         return None
     return classifier.map_rock_proba
 
@@ -529,10 +473,10 @@ class DriveMapper:
         cfg: pipeline configuration.
         ln: the LN to extend (default: a new one).
         classifier: the rover model whose far-rock Rock Rover decides the far rocks
-            with ``cfg.classify_far_rocks`` (the pairs' blobs must then carry
-            their appearance: the RoverDetector given the same model and config), and
-            whose map-rock Rock Rover decides the map's rocks with
-            ``cfg.classify_map_rocks``; None: the rules alone.
+            (the pairs' blobs must then carry their appearance: the RoverDetector given
+            the same model and config), whose map-rock Rock Rover decides the map's
+            rocks and whose map outcrops' Outcrop Rover its outcrops; None: the rules
+            alone.
     """
 
     def __init__(self, cfg: RoverConfig = RoverConfig(), ln: LocalNetwork | None = None,
@@ -583,15 +527,13 @@ class DriveMapper:
 
     def _map_and_far_records(self, far_rocks: list[FarRock] | None = None) -> np.ndarray:
         """The map's ROI records, and the far rocks (default: the tracker's) that no
-        reported map rock stands near (within ``far.merge_m`` or half its major axis: the
+        reported map rock stands near (within ``far_rocks.MERGE_M`` or half its major axis: the
         map measures what it reaches better than a far view does; a rock beside an
         outcrop is a rock). A map rock the map does not report (found in too few of its
         rounds) does not hide a far rock."""
         reported = self.map.consistent()
         rec = self.map.to_records(reported)
-        if not self.cfg.far_rocks:
-            return rec
-        near = [(r.xy, max(self.cfg.far.merge_m, 0.5 * r.major_m)) for r in reported
+        near = [(r.xy, max(FAR_MERGE_M, 0.5 * r.major_m)) for r in reported
                 if r.label == ROCK]
         far = [r for r in (self.far.rocks() if far_rocks is None else far_rocks)
                if all(np.linalg.norm(r.xy - xy) > d for xy, d in near)]

@@ -91,6 +91,10 @@ class StereoCamera:
         return uv, z
 
 
+#: SGBM uniqueness margin, percent.
+UNIQUENESS_RATIO = 5
+
+
 @dataclass(frozen=True)
 class StereoConfig:
     """SGBM and range parameters.
@@ -100,23 +104,13 @@ class StereoConfig:
             fx * B / num_disparities (1.6 m at 96 px for the MER-like bench: the
             ground at the bottom of the view is at about 2 m).
         block_size: SGBM matching block (pixels, odd).
-        uniqueness_ratio: SGBM uniqueness margin, percent.
         max_range_m: points farther than this (metres, depth) are dropped: stereo range
             error grows as Z^2 and the heights of rocks become unreliable beyond it.
-        downscale: 1 (full resolution) or 2 (half: 4x fewer pixels, disparities halved).
-        edge_window_px, edge_max_relative_range: :func:`mask_depth_edges` on the grid
-            the elevation map integrates (half resolution): a point is dropped where the
-            disparities around it span more than this fraction of its own (an occlusion
-            edge). 0 keeps every point. Not applied by the per-pair method.
     """
 
     num_disparities: int = 96
     block_size: int = 5
-    uniqueness_ratio: int = 5
     max_range_m: float = 20.0
-    downscale: int = 1
-    edge_window_px: int = 3
-    edge_max_relative_range: float = 0.15
 
 
 def disparity(left_gray: np.ndarray, right_gray: np.ndarray,
@@ -130,7 +124,7 @@ def disparity(left_gray: np.ndarray, right_gray: np.ndarray,
     sgbm = cv2.StereoSGBM_create(
         minDisparity=0, numDisparities=n, blockSize=config.block_size,
         P1=8 * config.block_size**2, P2=32 * config.block_size**2,
-        uniquenessRatio=config.uniqueness_ratio, speckleWindowSize=50, speckleRange=2,
+        uniquenessRatio=UNIQUENESS_RATIO, speckleWindowSize=50, speckleRange=2,
         mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
     # SGBM leaves the leftmost n columns without disparity; padding both images on the
     # left by n columns lets those pixels match whatever of them the right image sees.

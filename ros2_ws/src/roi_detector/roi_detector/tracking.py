@@ -24,32 +24,32 @@ import numpy as np
 
 from roi_network.records import OUTCROP, ROCK, empty_records
 
+#: The association gate widens by this many stereo range sigmas of the observation.
+GATE_RANGE_SIGMAS = 3.0
+#: A track is kept (published, fed to the LN) only while it was detected in at least
+#: this fraction of the pairs that had its centre in view within range: rocks are
+#: re-detected pair after pair, terrain swells and clutter flicker.
+MIN_HIT_RATIO = 0.5
+#: 1-sigma error of an observed centre across the line of sight, m.
+LATERAL_SIGMA_M = 0.05
+#: Extra centre error as a fraction of the footprint's major axis (a partly seen ROI's
+#: centre moves as more of it is seen).
+FOOTPRINT_SIGMA_FRAC = 0.15
+#: Per-track observations kept for the medians of area and height.
+MAX_OBS_KEPT = 64
+
 
 @dataclass(frozen=True)
 class TrackerConfig:
-    """Association, confirmation and uncertainty parameters.
+    """Association and confirmation parameters.
 
     Attributes:
         gate_m: smallest association radius, metres.
-        gate_range_sigmas: the gate widens by this many stereo range sigmas.
         min_obs: observations that confirm a track.
-        min_hit_ratio: a track is kept (published, fed to the LN) only while it was
-            detected in at least this fraction of the pairs that had its centre in view
-            within range: rocks are re-detected pair after pair, terrain swells and
-            clutter flicker.
-        lateral_sigma_m: 1-sigma error of an observed centre across the line of sight, m.
-        footprint_sigma_frac: extra centre error as a fraction of the footprint's major
-            axis (a partly seen ROI's centre moves as more of it is seen).
-        max_obs_kept: per-track observations kept for the medians of area and height.
     """
 
     gate_m: float = 1.0
-    gate_range_sigmas: float = 3.0
     min_obs: int = 3
-    min_hit_ratio: float = 0.5
-    lateral_sigma_m: float = 0.05
-    footprint_sigma_frac: float = 0.15
-    max_obs_kept: int = 64
 
 
 @dataclass
@@ -139,16 +139,16 @@ class Track:
             self.heights.append(obs.height_m)
 
 
-def observation_covariance(bearing_odom: np.ndarray, range_sigma: float, major_m: float,
-                           cfg: TrackerConfig) -> np.ndarray:
+def observation_covariance(bearing_odom: np.ndarray, range_sigma: float,
+                           major_m: float) -> np.ndarray:
     """(2, 2) odom covariance of an observed centre: range error along the line of sight
     ``bearing_odom`` (unit x-y), lateral error across it, footprint scatter on both."""
     b = np.asarray(bearing_odom, float)
     b = b / max(float(np.hypot(*b)), 1e-9)
     n = np.array([-b[1], b[0]])
-    extra = (cfg.footprint_sigma_frac * major_m) ** 2
+    extra = (FOOTPRINT_SIGMA_FRAC * major_m) ** 2
     return ((range_sigma**2 + extra) * np.outer(b, b)
-            + (cfg.lateral_sigma_m**2 + extra) * np.outer(n, n))
+            + (LATERAL_SIGMA_M**2 + extra) * np.outer(n, n))
 
 
 class Tracker:
@@ -179,7 +179,7 @@ class Tracker:
                         continue
                     tr = self.tracks[i]
                     gate = max(self.cfg.gate_m, 0.5 * tr.ellipse[0]) + \
-                        self.cfg.gate_range_sigmas * float(np.sqrt(np.trace(obs.cov) / 2))
+                        GATE_RANGE_SIGMAS * float(np.sqrt(np.trace(obs.cov) / 2))
                     if d[i] < gate and d[i] < best_d:
                         best, best_d = int(i), float(d[i])
             if best is None:
@@ -190,7 +190,7 @@ class Tracker:
                 best = len(self.tracks) - 1
             else:
                 tr = self.tracks[best]
-            tr.add(obs, self.cfg.max_obs_kept)
+            tr.add(obs, MAX_OBS_KEPT)
             centres[best] = tr.xy
             taken.add(best)
             touched.append(tr)
@@ -208,8 +208,8 @@ class Tracker:
                 t.n_missed += 1
 
     def consistent(self) -> list[Track]:
-        """Tracks detected in at least ``min_hit_ratio`` of the pairs that saw them."""
-        r = self.cfg.min_hit_ratio
+        """Tracks detected in at least :data:`MIN_HIT_RATIO` of the pairs that saw them."""
+        r = MIN_HIT_RATIO
         return [t for t in self.tracks if t.n_obs >= r * (t.n_obs + t.n_missed)]
 
 

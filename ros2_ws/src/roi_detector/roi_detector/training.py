@@ -4,14 +4,14 @@ Labels follow DESIGN.md's matching rule: a candidate placed in map with the trut
 matches a truth ROI (rois.geojson) within max(1 m, half the truth major axis) and takes
 that ROI's class; otherwise it is a negative.
 
-- elevation_map method (default): the far rocks' Rock Rover, on every measured far track
-  (or every far-rock candidate) of a drive run with the truth trajectory as odometry
-  (:func:`far_rock_samples`); and, from the same drive, the map rocks' Rock Rover, on
-  every rock region of the elevation map found in at least ``min_rounds`` detection
-  rounds, at its latest measurement (:func:`map_rock_samples`); and the map outcrops'
-  Outcrop Rover, on every outcrop region of that map (its outcrop rule's candidates)
-  found in at least ``min_rounds`` rounds, at its kept measurement
-  (:func:`map_outcrop_samples`).
+- elevation_map method (default): the far rocks' Rock Rover (boosted trees), on every
+  measured far track of a drive run with the truth trajectory as odometry
+  (:func:`far_rock_samples`); and, from the same drive, the map rocks' Rock Rover (boosted
+  trees), on every rock region of the elevation map found in at least ``min_rounds``
+  detection rounds, at its latest measurement (:func:`map_rock_samples`); and the map
+  outcrops' Outcrop Rover (the paper's PCA + kNN), on every outcrop region of that map
+  (the outcrop rule's candidates) found in at least ``min_rounds`` rounds, at its kept
+  measurement (:func:`map_outcrop_samples`).
 - per_pair method: Rock Rover and Outcrop Rover, on every candidate of every
   ``every``-th stereo pair (:func:`labelled_candidates`).
 """
@@ -26,15 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from roi_detector.classifier import BinaryClassifier, ClassifierConfig
-from roi_detector.elevation_map import (
-    DEFAULT_OUTCROP_RULE,
-    MAP_OUTCROP_FEATURES,
-    MAP_ROCK_FEATURES,
-    outcrop_rule,
-    outcrop_rule_of,
-)
+from roi_detector.elevation_map import MAP_OUTCROP_FEATURES, MAP_OUTCROP_RULE, MAP_ROCK_FEATURES
 from roi_detector.evaluation import match_nodes, true_nodes
-from roi_detector.far_rocks import FAR_KINDS, FAR_POPULATIONS, far_feature_names
+from roi_detector.far_rocks import far_feature_names
 from roi_detector.inputs import BadInput, load_rover_params, read_stereo_frames
 from roi_detector.local_network_build import build_ln
 from roi_detector.rover_classifier import (
@@ -55,20 +49,13 @@ from roi_detector.rover_pipeline import (
 from roi_detector.truth import Truth, match_to_truth
 from roi_network.records import OUTCROP, ROCK, xy
 
-#: Far tracks labelled false that lie within this distance (m) of a truth rock are left
-#: out of the Rock Rover's training, neither label (``roi_detector train --ignore-near``;
-#: 0: every track, the default). Such a track can be the rock's own blob placed
-#: 1-2.5 m off by its triangulation: a rock to its features, false to the matching rule.
-#: Left one training bag out, 2.5 m finds 83 of 157 counted rocks where training on every
-#: track finds 75, at the same precision (87 %); on the LN of four evaluation bags it
-#: found one rock more and kept three false rocks more (docs/roi_detector.md,
-#: 2026-11-28): not the default.
-IGNORE_NEAR_M = 0.0
-#: The map outcrops' Outcrop Rover's classifier (``roi_detector train --outcrop-kind``):
-#: the paper's PCA + kNN. Left one of the 12 training drives out, it kept 35 of the 38
-#: outcrop regions the map reports and none of the 40 others; boosted trees kept 34 and 1
-#: (``bench/outcrop_rover_bench.py``; docs/roi_detector.md, eighteenth session).
+#: The Rock Rovers' classifier (far rocks' and map rocks'): boosted trees.
+ROCK_ROVER_KIND = "gradient_boosting"
+#: The map outcrops' Outcrop Rover's classifier: the paper's PCA + kNN.
 OUTCROP_KIND = "knn"
+#: The far-track population the far rocks' Rock Rover is trained on (every measured
+#: track, as it decides at run time), recorded in the model.
+FAR_POPULATION = "measured"
 
 
 def labelled_candidates(bag_dir: str, feature_sets: tuple[str, ...], every: int = 2,
@@ -146,35 +133,25 @@ def drive_with_truth_odometry(bag_dir: str, mapper: DriveMapper, log=print,
     return truth, stats
 
 
-def far_rock_samples(bag_dir: str, log=print, population: str = "measured",
-                     working_fx_px: float = RoverConfig().working_fx_px,
-                     outcrops: str = DEFAULT_OUTCROP_RULE) -> dict:
+def far_rock_samples(bag_dir: str, log=print,
+                     working_fx_px: float = RoverConfig().working_fx_px) -> dict:
     """The far tracks of a drive (truth trajectory as the odometry, every pair): every
-    candidate (the rules passed) or every measured track (``population``), with its
-    :func:`~roi_detector.far_rocks.far_rock_features`, whether it matches a truth rock,
-    whether it is a candidate, and its position in map.
+    measured track, with its :func:`~roi_detector.far_rocks.far_rock_features`, whether
+    it matches a truth rock, whether it is a candidate (the rules passed), and its
+    position in map.
 
     Returns:
         dict with ``x`` (N, F) float32, ``y`` (N,) 0/1, ``candidate`` (N,) bool,
         ``xy_map`` (N, 2), ``near_rock_m`` (N,) (:func:`near_rock_distance`); the same
         drive's map rocks (:func:`map_rock_samples`) as ``map_x``, ``map_y``; and its map
-        outcrops under the outcrop rule ``outcrops`` (:func:`map_outcrop_samples`) as
-        ``outcrop_x``, ``outcrop_y``, and whether the map reports each
-        (``outcrop_reported``).
+        outcrops (:func:`map_outcrop_samples`) as ``outcrop_x``, ``outcrop_y``, and
+        whether the map reports each (``outcrop_reported``).
     """
-    if population not in FAR_POPULATIONS:
-        raise ValueError(f"population: unknown '{population}' (one of {FAR_POPULATIONS})")
-    # No classifier: every track is measured and described, and every map rock reported,
+    # No classifier: every track is measured and described, and every map ROI reported,
     # whatever a model would say.
-    # The outcrop rule does not change the rocks: the far rocks are dropped only beside
-    # a map rock.
-    mapper = DriveMapper(RoverConfig(far_rocks=True, classify_far_rocks=False,
-                                     classify_map_rocks=False, classify_map_outcrops=False,
-                                     elevation_map=outcrop_rule(outcrops),
-                                     working_fx_px=working_fx_px))
+    mapper = DriveMapper(RoverConfig(working_fx_px=working_fx_px))
     truth, _ = drive_with_truth_odometry(bag_dir, mapper, log, describe=True)
-    tracks = [r for r in mapper.far.measured if r.features is not None
-              and (r.candidate or population == "measured")]
+    tracks = [r for r in mapper.far.measured if r.features is not None]
     n_feat = len(far_feature_names())
     map_x, map_y = map_rock_samples(mapper.map, truth)
     outcrop_x, outcrop_y, reported = map_outcrop_samples(mapper.map, truth)
@@ -239,23 +216,6 @@ def near_rock_distance(xy_map: np.ndarray, truth: Truth) -> np.ndarray:
     return cKDTree(xy(rocks)).query(np.asarray(xy_map, float))[0]
 
 
-def trained_on(y: np.ndarray, near_rock_m: np.ndarray,
-               ignore_near_m: float = IGNORE_NEAR_M) -> np.ndarray:
-    """Mask of the far tracks the Rock Rover trains on: every rock, and every non-rock
-    at least ``ignore_near_m`` from a truth rock (:data:`IGNORE_NEAR_M`; 0: every
-    track).
-
-    Raises:
-        ValueError: ``ignore_near_m`` negative or not finite.
-    """
-    if not np.isfinite(ignore_near_m) or ignore_near_m < 0:
-        raise ValueError(f"ignore_near_m: {ignore_near_m} m, not a distance >= 0")
-    y, near = np.asarray(y), np.asarray(near_rock_m, float)
-    if y.shape != near.shape:
-        raise ValueError(f"labels {y.shape} and distances {near.shape} differ in shape")
-    return (y == 1) | ~(near < ignore_near_m)
-
-
 def _seeds(bags: list[str]) -> list:
     seeds = []
     for bag in bags:
@@ -269,16 +229,14 @@ def _seeds(bags: list[str]) -> list:
     return seeds
 
 
-def drive_samples(bag: str, population: str = "measured",
-                  working_fx_px: float = RoverConfig().working_fx_px,
-                  outcrops: str = DEFAULT_OUTCROP_RULE, cache: str | Path | None = None,
-                  log=print) -> dict:
+def drive_samples(bag: str, working_fx_px: float = RoverConfig().working_fx_px,
+                  cache: str | Path | None = None, log=print) -> dict:
     """:func:`far_rock_samples` of a drive, kept in ``cache`` (a directory; None: none)
     as ``<bag name>.npz`` with the settings they were taken with, and read from there
     when those settings match (re-taken, and overwritten, when they do not). A cache
     does not know the code: empty it when the detector changes."""
-    settings = {"population": population, "working_fx_px": float(working_fx_px),
-                "outcrops": outcrops}
+    settings = {"population": FAR_POPULATION, "working_fx_px": float(working_fx_px),
+                "outcrops": MAP_OUTCROP_RULE}
     path = None if cache is None else Path(cache) / f"{Path(bag).name}.npz"
     if path is not None and path.is_file():
         try:
@@ -287,7 +245,7 @@ def drive_samples(bag: str, population: str = "measured",
                     return {k: z[k] for k in z.files if k != "settings"}
         except (OSError, ValueError, KeyError) as e:
             log(f"{path}: not a samples cache ({e}): taking the samples again")
-    data = far_rock_samples(bag, log, population, working_fx_px, outcrops)
+    data = far_rock_samples(bag, log, working_fx_px)
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.stem + ".tmp.npz")
@@ -296,13 +254,12 @@ def drive_samples(bag: str, population: str = "measured",
     return data
 
 
-def _drive_samples_quiet(bag: str, population: str, working_fx_px: float,
-                         outcrops: str, cache: str | None) -> dict:
-    return drive_samples(bag, population, working_fx_px, outcrops, cache, lambda m: None)
+def _drive_samples_quiet(bag: str, working_fx_px: float, cache: str | None) -> dict:
+    return drive_samples(bag, working_fx_px, cache, lambda m: None)
 
 
 def fit_rock_rovers(far_x: np.ndarray, far_y: np.ndarray, map_x: np.ndarray,
-                    map_y: np.ndarray, k: int = 5, kind: str = "gradient_boosting",
+                    map_y: np.ndarray, k: int = 5, kind: str = ROCK_ROVER_KIND,
                     where: str = "the drives") -> tuple:
     """The two Rock Rovers fitted on their samples: the far rocks' on the far tracks
     ``far_x``, ``far_y`` (those with a non-finite feature left out), the map rocks' on the
@@ -342,42 +299,31 @@ def fit_outcrop_rover(x: np.ndarray, y: np.ndarray, k: int = 5,
     return BinaryClassifier(MAP_OUTCROP_CLASSIFIER, MAP_OUTCROP_FEATURES, cfg).fit(x, y)
 
 
-def train_rock_rovers(bags: list[str], out: str, k: int = 5, log=print,
-                      population: str = "measured", jobs: int = 1,
-                      kind: str = "gradient_boosting",
-                      ignore_near_m: float = IGNORE_NEAR_M,
+def train_rock_rovers(bags: list[str], out: str, k: int = 5, log=print, jobs: int = 1,
                       working_fx_px: float = RoverConfig().working_fx_px,
-                      outcrops: str = DEFAULT_OUTCROP_RULE,
-                      cache: str | None = None, outcrop_kind: str = OUTCROP_KIND) -> dict:
-    """Train the elevation_map method's classifiers (``kind``: boosted trees, or the
-    paper's PCA + kNN with ``k`` neighbours) on the drives of ``bags`` (``jobs`` bags at a
-    time, each in its own process) and write them to ``out``: the far rocks' Rock Rover
-    on the far tracks (``population``, see :data:`FAR_POPULATIONS`) less the false ones
-    within ``ignore_near_m`` of a truth rock (:func:`trained_on`); the map rocks' on the
-    map's rock regions (:func:`map_rock_samples`); the map outcrops' Outcrop Rover on the
-    map's outcrop regions under the outcrop rule ``outcrops``
-    (:func:`map_outcrop_samples`), which the model records, as ``outcrop_kind``; left out,
-    with a log line, when those are not both outcrops and non-outcrops. ``cache``: a
-    directory that keeps each drive's samples (:func:`drive_samples`)."""
-    for name, value in (("kind", kind), ("outcrop_kind", outcrop_kind)):
-        if value not in FAR_KINDS:
-            raise ValueError(f"{name}: unknown '{value}' (one of {FAR_KINDS})")
-    trained_on(np.zeros(0), np.zeros(0), ignore_near_m)  # a bad distance fails here
-    rule = outcrop_rule_of(outcrop_rule(outcrops))  # an unknown rule fails here
+                      cache: str | None = None) -> dict:
+    """Train the elevation_map method's classifiers on the drives of ``bags`` (``jobs``
+    bags at a time, each in its own process) and write them to ``out``: the far rocks'
+    Rock Rover on every measured far track and the map rocks' on the map's rock regions
+    (:func:`map_rock_samples`), as :data:`ROCK_ROVER_KIND`; the map outcrops' Outcrop
+    Rover on the map's outcrop regions (:func:`map_outcrop_samples`), as
+    :data:`OUTCROP_KIND` with ``k`` neighbours, left out, with a log line, when those are
+    not both outcrops and non-outcrops. The model records the outcrop rule
+    (:data:`~roi_detector.elevation_map.MAP_OUTCROP_RULE`) and ``working_fx_px``.
+    ``cache``: a directory that keeps each drive's samples (:func:`drive_samples`)."""
     t0 = time.perf_counter()
-    x, y, mx, my, ox, oy, ignored = [], [], [], [], [], [], 0
+    x, y, mx, my, ox, oy = [], [], [], [], [], []
     if jobs > 1:
         from concurrent.futures import ProcessPoolExecutor
 
         with ProcessPoolExecutor(jobs) as pool:
             n = len(bags)
-            samples = list(pool.map(_drive_samples_quiet, bags, [population] * n,
-                                    [working_fx_px] * n, [outcrops] * n, [cache] * n))
+            samples = list(pool.map(_drive_samples_quiet, bags, [working_fx_px] * n,
+                                    [cache] * n))
     else:
-        samples = [drive_samples(bag, population, working_fx_px, outcrops, cache, log)
-                   for bag in bags]
+        samples = [drive_samples(bag, working_fx_px, cache, log) for bag in bags]
     for bag, data in zip(bags, samples, strict=True):
-        log(f"{bag}: {len(data['y'])} far tracks ({population}), {int(data['y'].sum())} "
+        log(f"{bag}: {len(data['y'])} far tracks, {int(data['y'].sum())} "
             f"rocks; {int(data['candidate'].sum())} candidates; {len(data['map_y'])} map "
             f"rock regions, {int(data['map_y'].sum())} rocks; {len(data['outcrop_y'])} map "
             f"outcrop regions, {int(data['outcrop_y'].sum())} outcrops")
@@ -385,35 +331,30 @@ def train_rock_rovers(bags: list[str], out: str, k: int = 5, log=print,
         my.append(data["map_y"])
         ox.append(data["outcrop_x"])
         oy.append(data["outcrop_y"])
-        keep = trained_on(data["y"], data["near_rock_m"], ignore_near_m)
-        ignored += int((~keep).sum())
-        x.append(data["x"][keep])
-        y.append(data["y"][keep])
+        x.append(data["x"])
+        y.append(data["y"])
     clf, map_clf, n = fit_rock_rovers(np.concatenate(x), np.concatenate(y),
-                                      np.concatenate(mx), np.concatenate(my), k, kind,
+                                      np.concatenate(mx), np.concatenate(my), k,
                                       where=str(bags))
     ox, oy = np.concatenate(ox), np.concatenate(oy)
-    outcrop_clf = fit_outcrop_rover(ox, oy, k, outcrop_kind)
+    outcrop_clf = fit_outcrop_rover(ox, oy, k)
     if outcrop_clf is None:
         log(f"no map outcrops' Outcrop Rover: {len(oy)} outcrop regions, {int(oy.sum())} "
             "of them outcrops, not both outcrops and non-outcrops")
     summary = {"method": "elevation_map", "bags": [str(Path(b).resolve()) for b in bags],
-               "seeds": _seeds(bags), "kind": kind, "k": k,
+               "seeds": _seeds(bags), "kind": ROCK_ROVER_KIND, "k": k,
                "threshold": RoverConfig().far.min_score,
-               "population": population, "working_fx_px": working_fx_px,
+               "population": FAR_POPULATION, "working_fx_px": working_fx_px,
                "samples": n["far_samples"],
                "rocks": n["far_rocks"], "negatives": n["far_samples"] - n["far_rocks"],
-               "ignore_near_m": ignore_near_m, "ignored_near_rocks": ignored,
                "map_rock_samples": n["map_samples"], "map_rocks": n["map_rocks"],
                "map_rock_threshold": RoverConfig().elevation_map.map_rock_min_score,
                "map_outcrop_samples": len(oy), "map_outcrops": int(oy.sum()),
-               "map_outcrop_rule": rule, "map_outcrop_kind": outcrop_kind,
+               "map_outcrop_rule": dict(MAP_OUTCROP_RULE), "map_outcrop_kind": OUTCROP_KIND,
                "train_s": round(time.perf_counter() - t0, 1),
                "samples_cache": None if cache is None else str(cache),
                "command": f"roi_detector train {' '.join(bags)} --out {out} "
-                          f"--population {population} --kind {kind} "
-                          f"--ignore-near {ignore_near_m:g} --working-fx {working_fx_px:g} "
-                          f"--outcrops {outcrops} --outcrop-kind {outcrop_kind}"}
+                          f"--working-fx {working_fx_px:g}"}
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     classifiers = {FAR_ROCK_CLASSIFIER: clf, MAP_ROCK_CLASSIFIER: map_clf}
     if outcrop_clf is not None:

@@ -7,7 +7,6 @@ import numpy as np
 import pytest
 
 from roi_detector.elevation_map import (
-    AVERAGED_OUTCROPS,
     MAP_OUTCROP_FEATURES,
     MAP_ROCK_FEATURES,
     ElevationMap,
@@ -119,12 +118,9 @@ def _the_slab(emap, pts, app):
 def test_outcrop_from_pale_cells():
     """A 3 x 3 m slab 0.1 m thick whose colour is far less saturated than the soil."""
     pts, app = _slab()
-    rec = _the_slab(ElevationMap(ElevationMapConfig(detect_every=2)), pts, app)
-    assert 7.0 < rec["area_m2"] < 11.0
     # On the averaged colour, which crosses the threshold about 0.2 m inside the slab's
     # edge: 2.6 m of its 3 m.
-    rec = _the_slab(ElevationMap(ElevationMapConfig(detect_every=2, **AVERAGED_OUTCROPS)),
-                    pts, app)
+    rec = _the_slab(ElevationMap(ElevationMapConfig(detect_every=2)), pts, app)
     assert 6.0 < rec["area_m2"] < 11.0
     # The same slab with the soil's colour: nothing (the paper's 5.5 m^2 is the size).
     emap = ElevationMap(ElevationMapConfig(detect_every=2))
@@ -136,60 +132,10 @@ def test_outcrop_seen_in_sparse_stripes_is_found_on_its_smoothed_colour():
     """The slab seen in sparse stripes, its points' saturation scattered across the
     threshold (0.4 +- 0.25)."""
     pts, app = _slab(stripes=True, scatter=0.25)
-    rec = _the_slab(ElevationMap(ElevationMapConfig(detect_every=2, **AVERAGED_OUTCROPS)),
-                    pts, app)
+    rec = _the_slab(ElevationMap(ElevationMapConfig(detect_every=2)), pts, app)
     assert 5.5 < rec["area_m2"] < 11.0
     # Its observations are the 8 pairs that saw it, not a median over its unseen stripes.
     assert rec["n_obs"] == 8
-    # Per observed cell (the default): the stripes and the scatter break the slab into
-    # pieces below the paper's 5.5 m^2.
-    emap = ElevationMap(ElevationMapConfig(detect_every=2))
-    _drive(emap, pts, appearance=app)
-    assert len(emap.to_records()) == 0
-
-
-def test_a_gravel_patch_is_no_outcrop_on_the_averaged_colour():
-    """A flat 4 x 4 m patch of gravel: greyer than the soil, but not an outcrop's grey
-    (the simulator's gravel has 0.58 of the soil's saturation and 0.82 of its value,
-    its outcrops 0.36 and 0.84-1.15)."""
-    pts = _scene(rock=False, swell=False)
-    x, y = pts[:, 0, 0], pts[:, 0, 1]
-    patch = (np.abs(x - 10.0) < 2.0) & (np.abs(y + 3.0) < 2.0)
-    app = np.ones((len(pts), 1, 2), np.float32)
-    app[patch, 0] = (0.58, 0.82)
-    averaged = ElevationMapConfig(detect_every=2, **AVERAGED_OUTCROPS)
-    emap = ElevationMap(averaged)
-    _drive(emap, pts, appearance=app)
-    assert len(emap.to_records()) == 0
-    app[patch, 0] = (0.36, 0.95)  # the same patch in an outcrop's colour
-    emap = ElevationMap(averaged)
-    _drive(emap, pts, appearance=app)
-    rec = emap.to_records()
-    assert len(rec) == 1 and rec["label"][0] == OUTCROP
-
-
-def test_a_slab_greyer_than_its_soil_by_the_soil_relative_rule():
-    """A slab at 0.8 of the frame's saturation on soil at 1.15 (0.7 of its soil, as a
-    slab seen from afar measures) is no candidate by the absolute test (0.6) and one by
-    ``soil_relative``; uniform soil scattered +-0.1 gives none."""
-    from roi_detector.elevation_map import outcrop_rule
-
-    pts, app = _slab(scatter=0.05)
-    slab = app[:, 0, 0] < 0.7
-    app[slab, 0, 0] = 0.8
-    app[~slab, 0, 0] = 1.15
-    wide = outcrop_rule("averaged_wide", ElevationMapConfig(detect_every=2))
-    relative = outcrop_rule("soil_relative", ElevationMapConfig(detect_every=2))
-    emap = ElevationMap(wide)
-    _drive(emap, pts, appearance=app)
-    assert len(emap.to_records()) == 0
-    rec = _the_slab(ElevationMap(relative), pts, app)
-    assert 5.5 < rec["area_m2"] < 11.0  # its edge cells, averaged with the soil, are not
-    soil = np.ones_like(app)
-    soil[:, 0, 0] += np.random.default_rng(1).normal(0.0, 0.1, len(soil))
-    emap = ElevationMap(relative)
-    _drive(emap, pts, appearance=soil)
-    assert len(emap.to_records()) == 0
 
 
 def test_an_outcrop_keeps_its_largest_footprint_a_rock_its_latest():
@@ -209,20 +155,23 @@ def test_an_outcrop_keeps_its_largest_footprint_a_rock_its_latest():
     assert emap.rois[1].area_m2 == 1.0 and emap.rois[1].rounds == 2
 
 
-def test_window_follows_the_rover_and_keeps_odom_positions():
-    cfg = ElevationMapConfig(window_m=20.0, detect_every=100)
-    emap = ElevationMap(cfg)
+def test_window_follows_the_rover_and_keeps_odom_positions(monkeypatch):
+    from roi_detector import elevation_map
+    from roi_detector.elevation_map import CELL_M
+
+    monkeypatch.setattr(elevation_map, "WINDOW_M", 20.0)
+    emap = ElevationMap(ElevationMapConfig(detect_every=100))
     pts = _scene(swell=False)
     for _ in range(3):  # a cell is observed once three pairs saw it
         emap.integrate(pts, None, np.eye(3), np.zeros(3), CAMERA, FXB)
     z0, _ = emap.heights()
-    at = np.floor((np.array([9.0, 2.0]) - emap.origin) / cfg.cell_m).astype(int)
+    at = np.floor((np.array([9.0, 2.0]) - emap.origin) / CELL_M).astype(int)
     top = z0[at[0], at[1]]
     assert np.isfinite(top)
     # The rover moves 6 m: the window shifts, the rock's cell keeps its height.
     emap.integrate(pts[:0], None, np.eye(3), np.array([6.0, 0.0, 0.0]), CAMERA, FXB)
     z1, _ = emap.heights()
-    at1 = np.floor((np.array([9.0, 2.0]) - emap.origin) / cfg.cell_m).astype(int)
+    at1 = np.floor((np.array([9.0, 2.0]) - emap.origin) / CELL_M).astype(int)
     assert z1[at1[0], at1[1]] == top
 
 
@@ -257,20 +206,24 @@ def test_depth_edges_are_dropped_and_smooth_ground_kept():
     assert mask_depth_edges(disp, 3, 0.0) is disp
 
 
-def test_a_far_view_misplaced_along_its_ray_weighs_less():
+def test_a_far_view_misplaced_along_its_ray_weighs_less(monkeypatch):
     """A cell seen from 4 m at ground height and from 18 m at 0.3 m (a rock face whose
     points the far view's range error of ~1 m put in this cell): the horizontal part of the
     range error, times the terrain gradient, makes the far view count for little."""
+    from roi_detector import elevation_map
+
+    monkeypatch.setattr(elevation_map, "MIN_PAIRS", 1)
+    monkeypatch.setattr(elevation_map, "MIN_CELL_WEIGHT", 1.0)
 
     def cell_height(gradient):
-        emap = ElevationMap(ElevationMapConfig(placement_gradient=gradient, min_pairs=1,
-                                               min_cell_weight=1.0))
+        monkeypatch.setattr(elevation_map, "PLACEMENT_GRADIENT", gradient)
+        emap = ElevationMap(ElevationMapConfig())
         near = np.tile([4.02, 0.02, 0.0], (20, 1))[:, None, :]  # base_link at (0, 0)
         far = np.tile([18.02, 0.02, 0.3], (20, 1))[:, None, :]  # base_link at (-14, 0)
         emap.integrate(near, None, np.eye(3), np.zeros(3), CAMERA, FXB)
         emap.integrate(far, None, np.eye(3), np.array([-14.0, 0.0, 0.0]), CAMERA, FXB)
         z, seen = emap.heights()
-        ij = np.floor((np.array([4.02, 0.02]) - emap.origin) / emap.cfg.cell_m).astype(int)
+        ij = np.floor((np.array([4.02, 0.02]) - emap.origin) / elevation_map.CELL_M).astype(int)
         assert seen[ij[0], ij[1]]
         return z[ij[0], ij[1]]
 
@@ -299,10 +252,8 @@ def test_a_rock_is_darker_than_the_soil():
     assert len(rec) == 1 and rec["label"][0] == ROCK
     assert np.hypot(rec["x"][0] - 9.0, rec["y"][0] - 2.0) < 0.3
     # A block 0.35 m tall with the soil's brightness is a bump of soil (below the pale
-    # height, ``rock_pale_seed_height_m``), unless the dark test is off.
-    low = _scene(rock_h=0.35)
-    assert len(_found(low, 1.0, rock_pale_seed_height_m=0.4)) == 0
-    assert len(_found(low, 1.0, rock_dark_value=0.0)) == 1
+    # height, ``ROCK_PALE_SEED_HEIGHT_M``).
+    assert len(_found(_scene(rock_h=0.35), 1.0)) == 0
 
 
 def _ridge(length, width=1.0, height=0.8):
@@ -323,33 +274,22 @@ def _ridge(length, width=1.0, height=0.8):
 def test_a_ridge_longer_than_the_ground_window_is_no_rock():
     """A dark ridge 0.8 m tall, 1 m wide: 2.5 m long it is a rock; 6 m long (area 6 m^2,
     under the largest rock's, and steep enough for the relief test) it is terrain,
-    longer than 1.5 ground windows (4.8 m); without that limit it was taken for a rock."""
+    longer than 1.5 ground windows (4.8 m)."""
     short = _found(_ridge(2.5))
     assert len(short) == 1 and short["label"][0] == ROCK, short
     assert short["major_m"][0] < 4.8
     assert len(_found(_ridge(6.0))) == 0
-    long_ = _found(_ridge(6.0), rock_max_length_windows=0.0)
-    assert len(long_) == 1 and long_["label"][0] == ROCK, long_
-    assert long_["major_m"][0] > 4.8 and long_["area_m2"][0] < 9.0
 
 
 def test_a_pale_rock_stands_on_its_height_alone():
     """A block as bright as the soil (or brighter: a sunlit pale rock) is a rock when its
-    cells stand rock_pale_seed_height_m above the ground and the region measures as much;
-    without pale seeds it is not; a dark block of the same size is either way."""
-    tall = _scene(rock_h=0.7)
-    for value in (1.0, 1.3):
-        rec = _found(tall, value, rock_pale_seed_height_m=0.4)
-        assert len(rec) == 1 and rec["label"][0] == ROCK, rec
-        assert np.hypot(rec["x"][0] - 9.0, rec["y"][0] - 2.0) < 0.3
-        assert rec["height_m"][0] > 0.6
-        assert len(_found(tall, value, rock_pale_seed_height_m=0.0)) == 0
-    # A 0.5 m block: a pale rock under a 0.45 m pale height, none under 0.55 m; dark, a
-    # rock under either.
-    mid = _scene(rock_h=0.5)
-    assert len(_found(mid, 1.0, rock_pale_seed_height_m=0.45)) == 1
-    assert len(_found(mid, 1.0, rock_pale_seed_height_m=0.55)) == 0
-    assert len(_found(mid, rock_pale_seed_height_m=0.55)) == 1
+    cells stand ROCK_PALE_SEED_HEIGHT_M (0.45 m) above the ground and the region measures
+    as much; a 0.35 m one is not (test_a_rock_is_darker_than_the_soil)."""
+    rec = _found(_scene(rock_h=0.7), 1.3)
+    assert len(rec) == 1 and rec["label"][0] == ROCK, rec
+    assert np.hypot(rec["x"][0] - 9.0, rec["y"][0] - 2.0) < 0.3
+    assert rec["height_m"][0] > 0.6
+    assert len(_found(_scene(rock_h=0.5), 1.0)) == 1
 
 
 def test_two_rocks_joined_by_low_cells_are_two_regions():
@@ -363,17 +303,12 @@ def test_two_rocks_joined_by_low_cells_are_two_regions():
     z = z + np.where(a | b, 0.5, np.where(ridge, 0.15, 0.0))
     pts = np.column_stack([x, y, z + RNG.normal(0, 0.01, len(x))])[:, None, :]
     app = _dark_where_raised(pts, swell=False)
-    found = {}
-    for split in (True, False):
-        emap = ElevationMap(ElevationMapConfig(detect_every=2, rock_split_peaks=split))
-        _drive(emap, pts, appearance=app)
-        found[split] = emap.to_records()
-    two = found[True]
+    emap = ElevationMap(ElevationMapConfig(detect_every=2))
+    _drive(emap, pts, appearance=app)
+    two = emap.to_records()
     assert len(two) == 2 and np.all(two["label"] == ROCK), two
     assert np.allclose(np.sort(two["y"]), [-1.3, 1.3], atol=0.3)
     assert np.all(two["area_m2"] < 1.8)
-    # As one connected region the pair is one rock between them (or none: too large).
-    assert len(found[False]) <= 1
 
 
 def _dome_with_smear(height=0.8, radius=0.6, smear=0.45):
@@ -395,19 +330,11 @@ def _dome_with_smear(height=0.8, radius=0.6, smear=0.45):
 
 def test_a_rock_is_placed_on_its_upper_part_not_on_its_smear():
     """The rock's centre is that of its cells above half its height: the smear behind a
-    tall rock, lower than the rock, widens its footprint away from the camera and had
-    moved the footprint's hull centroid off the rock (``rock_centre="hull"``)."""
-    pts = _dome_with_smear()
-    upper = _found(pts)
+    tall rock, lower than the rock, widens its footprint away from the camera and would
+    move the footprint's hull centroid off the rock."""
+    upper = _found(_dome_with_smear())
     assert len(upper) == 1 and upper["label"][0] == ROCK, upper
     assert np.hypot(upper["x"][0] - 9.0, upper["y"][0] - 2.0) < 0.08
-    hull = _found(pts, rock_centre="hull")
-    assert len(hull) == 1
-    assert hull["x"][0] - 9.0 > 0.12  # pulled behind the rock, along the smear
-    # The footprint (and so the area) is the same either way: only the centre moves.
-    assert abs(hull["area_m2"][0] - upper["area_m2"][0]) < 1e-6
-    with pytest.raises(ValueError, match="rock_centre 'uper'"):
-        ElevationMapConfig(rock_centre="uper")
 
 
 def test_trace_reports_each_rock_region_and_the_test_that_rejected_it():
@@ -440,40 +367,6 @@ def test_trace_reports_each_rock_region_and_the_test_that_rejected_it():
     _drive(emap, tiny, appearance=_dark_where_raised(tiny))
     assert events and {v for v, _, _ in events} == {"small"}, events
     assert all(m["n_cells"] < 15 for _, _, m in events)
-
-
-def test_outcrop_rules_by_name_in_the_library_and_the_cli(monkeypatch):
-    """``per_cell`` is the library's default configuration (the rule that stands alone),
-    ``averaged`` is AVERAGED_OUTCROPS, ``averaged_wide`` the pipeline's default (the
-    Outcrop Rover's candidates); a rule sets every outcrop field, whatever ``cfg`` held;
-    ``roi_detector ln --outcrops`` passes the rule to the detector; an unknown name is
-    refused with the names."""
-    from roi_detector import cli
-    from roi_detector.elevation_map import DEFAULT_OUTCROP_RULE, OUTCROP_RULES, outcrop_rule
-    from roi_detector.rover_pipeline import RoverConfig
-
-    assert outcrop_rule("per_cell") == ElevationMapConfig()
-    assert RoverConfig().elevation_map == outcrop_rule(DEFAULT_OUTCROP_RULE) == \
-        outcrop_rule("averaged_wide")
-    averaged = outcrop_rule("averaged", ElevationMapConfig(detect_every=2))
-    assert averaged.detect_every == 2
-    assert all(getattr(averaged, k) == v for k, v in AVERAGED_OUTCROPS.items())
-    assert outcrop_rule("per_cell", averaged) == ElevationMapConfig(detect_every=2)
-    with pytest.raises(ValueError, match="per_cell"):
-        outcrop_rule("smoothed")
-    seen = []
-
-    def build_ln(bag, odometry, model, cfg, *args, **kwargs):
-        seen.append(cfg.elevation_map)
-        raise ValueError("stop here")  # the CLI reports it and exits 1
-
-    monkeypatch.setattr(cli, "build_ln", build_ln)
-    for flags, name in (([], "averaged_wide"), (["--outcrops", "averaged"], "averaged"),
-                        (["--outcrops", "per_cell", "--no-classify-map-outcrops"], "per_cell")):
-        assert cli.main(["ln", "BAG", "--odometry", "o.tum", "--out", "ln", *flags]) == 1
-        assert seen[-1] == outcrop_rule(name) and name in OUTCROP_RULES
-    with pytest.raises(SystemExit):  # argparse names the choices
-        cli.main(["ln", "BAG", "--odometry", "o.tum", "--out", "ln", "--outcrops", "x"])
 
 
 def _fixed_score(seen: list, score: float):

@@ -79,10 +79,9 @@ def _drive(camera, tracker, cfg, steps, **scene):
     tracker.close_all()
 
 
-@pytest.mark.parametrize("variance_components", [False, True])
-def test_a_rock_beside_the_route_is_triangulated_and_measured(variance_components):
+def test_a_rock_beside_the_route_is_triangulated_and_measured():
     camera = _camera()
-    cfg = FarRockConfig(variance_components=variance_components)
+    cfg = FarRockConfig()
     tracker = FarRockTracker(cfg)
     # 11 m beside the route, seen from 33 m down to 16 m (it leaves the 70 deg view),
     # always beyond the elevation map's 20 m... and 12 m blob limit.
@@ -95,7 +94,7 @@ def test_a_rock_beside_the_route_is_triangulated_and_measured(variance_component
     # short of its centre and all alike: the estimated range error is then small and the
     # fit leans on them, within the half width that the covariance allows for where the
     # blob sits on the rock.
-    assert np.hypot(r.xy[0] - 32.0, r.xy[1] - 11.0) < (0.6 if variance_components else 0.4)
+    assert np.hypot(r.xy[0] - 32.0, r.xy[1] - 11.0) < 0.6
     assert r.width_m == pytest.approx(1.2, rel=0.2)
     assert r.height_m == pytest.approx(0.6, rel=0.25)
     assert r.parallax_deg > 8 and r.residual_px < 1.0
@@ -148,7 +147,7 @@ def test_the_ln_gets_the_far_rocks_no_map_roi_stands_near():
         return FarRock(i, np.array([x, y]), 0.3, np.eye(2) * 0.04, 1.2, 0.5, 1.13, 20, 10.0,
                        0.5, 15.0, True, True)
 
-    mapper = DriveMapper(RoverConfig(far_rocks=True))
+    mapper = DriveMapper(RoverConfig())
     mapper.map.rois = [MapRoi(7, ROCK, np.array([10.0, 5.0]), 0.2, 1.5, 0.6, 1.6, 1.2, 0.0,
                               rounds=3, examined=3, n_pairs=12),
                        MapRoi(8, OUTCROP, np.array([40.0, 0.0]), 0.1, 30.0, 0.2, 8.0, 5.0,
@@ -158,21 +157,18 @@ def test_the_ln_gets_the_far_rocks_no_map_roi_stands_near():
     mapper.far.measured = [far(1, 10.8, 5.3), far(2, 30.0, -8.0), far(3, 42.0, 0.0)]
     rec = mapper._map_and_far_records()
     assert sorted(rec["id"]) == [7, 8, FAR_ROCK_ID_BASE + 2, FAR_ROCK_ID_BASE + 3]
-    off = DriveMapper(RoverConfig(far_rocks=False))  # far rocks off: the map's alone
-    off.far.measured = [far(2, 30.0, -8.0)]
-    assert len(off._map_and_far_records()) == 0
 
 
 def test_a_map_rock_the_map_does_not_report_does_not_hide_a_far_rock():
     """A map rock found in too few of its rounds is not in the LN: the far rock seen at its
-    place is (on the held-out s113 one rock was lost between the two, 2026-11-27)."""
+    place is (else the rock would be lost between the two)."""
     from roi_detector.elevation_map import MapRoi
     from roi_detector.far_rocks import FarRock
     from roi_detector.rover_pipeline import DriveMapper, RoverConfig
 
     far = FarRock(1, np.array([10.5, 5.2]), 0.3, np.eye(2) * 0.04, 1.2, 0.5, 1.13, 20,
                   10.0, 0.5, 15.0, True, True)
-    mapper = DriveMapper(RoverConfig(far_rocks=True))
+    mapper = DriveMapper(RoverConfig())
     flicker = MapRoi(7, ROCK, np.array([10.0, 5.0]), 0.2, 1.5, 0.6, 1.6, 1.2, 0.0,
                      rounds=1, examined=4, n_pairs=12)
     mapper.map.rois = [flicker]
@@ -201,33 +197,30 @@ def test_dark_blob_reads_the_disparity_of_its_own_rows():
 
 
 
-def test_far_rocks_are_on_and_classified_by_default_and_the_cli_turns_them_off(monkeypatch):
-    """One default (RoverConfig) for the library, the offline CLI and the node;
-    ``roi_detector ln --no-far-rocks`` builds the map's LN alone,
-    ``--no-classify-far-rocks`` leaves the far rocks to the rules, ``--far-classified
-    candidates`` classifies in the paper's order."""
+def test_the_cli_builds_the_library_default_configuration(monkeypatch):
+    """One default (RoverConfig) for the library, the offline CLI and the node: ``roi_detector
+    ln`` with no flag runs it; --method and --min-obs set what they name; the flags of
+    removed variants are refused."""
     from roi_detector import cli
+    from roi_detector.local_network import LnConfig
     from roi_detector.rover_pipeline import RoverConfig
+    from roi_detector.tracking import TrackerConfig
 
-    cfg = RoverConfig()
-    assert cfg.far_rocks and cfg.classify_far_rocks and cfg.far.classified == "measured"
     seen = []
 
     def build_ln(bag, odometry, model, cfg, *args, **kwargs):
-        seen.append((cfg.far_rocks, cfg.classify_far_rocks, cfg.far.classified))
+        seen.append(cfg)
         raise ValueError("stop here")  # the CLI reports it and exits 1
 
     monkeypatch.setattr(cli, "build_ln", build_ln)
-    for flags, expected in (([], (True, True, "measured")),
-                            (["--no-far-rocks"], (False, True, "measured")),
-                            (["--far-rocks"], (True, True, "measured")),
-                            (["--no-classify-far-rocks"], (True, False, "measured")),
-                            (["--far-classified", "candidates"], (True, True, "candidates"))):
-        assert cli.main(["ln", "BAG", "--odometry", "o.tum", "--out", "ln.geojson",
-                         *flags]) == 1
-        assert seen[-1] == expected
-    with pytest.raises(SystemExit):  # argparse names the choices
-        cli.main(["ln", "BAG", "--odometry", "o.tum", "--out", "ln", "--far-classified", "x"])
+    ln = ["ln", "BAG", "--odometry", "o.tum", "--out", "ln.geojson"]
+    assert cli.main(ln) == 1 and seen[-1] == RoverConfig()
+    assert cli.main([*ln, "--method", "per_pair", "--min-obs", "2"]) == 1
+    assert seen[-1] == RoverConfig(method="per_pair", tracker=TrackerConfig(min_obs=2),
+                                   ln=LnConfig(min_obs=2))
+    for gone in ("--no-far-rocks", "--no-classify-map-outcrops"):
+        with pytest.raises(SystemExit):
+            cli.main([*ln, gone])
 
 
 def _drive_described(camera, tracker, cfg, steps, **scene):
@@ -265,38 +258,15 @@ def _says(answer, seen):
     return proba
 
 
-def test_the_classifier_decides_the_candidates_in_the_papers_order():
-    from roi_detector.far_rocks import far_feature_names
+def test_the_classifier_stands_in_for_the_size_thresholds_on_every_measured_track(
+        monkeypatch):
+    """The Rock Rover decides every track that passed the geometric tests, whatever its
+    measured size: the small rock, refused by the area threshold, is a rock when the
+    classifier says so, and the candidate is not when it says no. A track that fails the
+    geometry never reaches it; a classifier needs the blobs' appearance."""
+    from roi_detector import far_rocks
 
-    camera, cfg = _camera(), FarRockConfig(classified="candidates")
-    seen = []
-    rock, small = (32.0, 11.0, 0.6, 0.6), (30.0, -10.0, 0.3, 0.3)
-    steps = np.arange(0.0, 20.0, 0.45)
-    yes = FarRockTracker(cfg, _says(0.8, seen))
-    _drive_described(camera, yes, cfg, steps, rocks=[rock, small])
-    assert len(yes.rocks()) == 1 and yes.rocks()[0].score == pytest.approx(0.8)
-    # Only the candidate (the small rock fails the rules) reached the classifier.
-    assert len(seen) == 1
-    names = far_feature_names()
-    assert seen[0][names.index("far_height_m")] == pytest.approx(0.6, rel=0.25)
-    no = FarRockTracker(cfg, _says(0.2, []))
-    _drive_described(camera, no, cfg, steps, rocks=[rock, small])
-    assert no.rocks() == [] and len(no.rocks(classified=False)) == 1
-    (cand,) = [m for m in no.measured if m.candidate]
-    assert not cand.passed and cand.score == pytest.approx(0.2)
-    # A classifier needs the blobs' appearance.
-    blind = FarRockTracker(cfg, _says(0.8, []))
-    with pytest.raises(ValueError, match="appearance"):
-        _drive(camera, blind, cfg, steps, rocks=[rock])
-
-
-def test_the_classifier_stands_in_for_the_size_thresholds_on_every_measured_track():
-    """By default (``classified="measured"``) the Rock Rover decides every track that
-    passed the geometric tests, whatever its measured size: the small rock, refused by the
-    area threshold, is a rock when the classifier says so, and the candidate is not when
-    it says no. A track that fails the geometry never reaches it."""
     camera, cfg = _camera(), FarRockConfig()
-    assert cfg.classified == "measured"
     rock, small = (32.0, 11.0, 0.6, 0.6), (30.0, -10.0, 0.3, 0.3)
     steps = np.arange(0.0, 20.0, 0.45)
     seen = []
@@ -304,35 +274,34 @@ def test_the_classifier_stands_in_for_the_size_thresholds_on_every_measured_trac
     _drive_described(camera, yes, cfg, steps, rocks=[rock, small])
     got = sorted(yes.rocks(), key=lambda r: r.xy[1])
     assert len(got) == 2 and np.hypot(*(got[0].xy - [30.0, -10.0])) < 1.0
-    assert not got[0].candidate and got[0].passed and got[0].area_m2 < cfg.min_area_m2
+    assert not got[0].candidate and got[0].passed and got[0].area_m2 < far_rocks.MIN_AREA_M2
     assert len(yes.rocks(classified=False)) == 1  # the rules alone: the big rock
     decided = [m for m in yes.measured if np.isfinite(m.score)]
     assert len(seen) == len(decided) >= 2
-    assert all(m.parallax_deg >= cfg.classified_min_parallax_deg
-               and m.residual_px <= cfg.max_residual_px for m in decided)
+    assert all(m.parallax_deg >= far_rocks.CLASSIFIED_MIN_PARALLAX_DEG
+               and m.residual_px <= far_rocks.MAX_RESIDUAL_PX for m in decided)
     no = FarRockTracker(cfg, _says(0.2, []))
     _drive_described(camera, no, cfg, steps, rocks=[rock, small])
     assert no.rocks() == [] and len(no.rocks(classified=False)) == 1
     # Geometry still gates: with a 90 deg bearing-spread demand on the tracks it decides,
     # no track is decided.
-    strict = FarRockConfig(classified_min_parallax_deg=90.0)
-    seen = []
-    none = FarRockTracker(strict, _says(0.8, seen))
-    _drive_described(camera, none, strict, steps, rocks=[rock, small])
-    assert none.rocks() == [] and seen == []
     # The rules' bearing-spread test is the candidates' alone: the classifier still decides
-    # both tracks, where in the paper's order (the candidates) it decides none.
+    # both tracks.
     rules_strict = FarRockConfig(min_parallax_deg=90.0)
     both = FarRockTracker(rules_strict, _says(0.8, []))
     _drive_described(camera, both, rules_strict, steps, rocks=[rock, small])
     assert len(both.rocks()) == 2 and both.rocks(classified=False) == []
-    paper = FarRockConfig(min_parallax_deg=90.0, classified="candidates")
+    # A classifier needs the blobs' appearance.
+    blind = FarRockTracker(cfg, _says(0.8, []))
+    with pytest.raises(ValueError, match="appearance"):
+        _drive(camera, blind, cfg, steps, rocks=[rock])
+    # Geometry still gates: with a 90 deg bearing-spread demand on the tracks it decides,
+    # no track is decided.
+    monkeypatch.setattr(far_rocks, "CLASSIFIED_MIN_PARALLAX_DEG", 90.0)
     seen = []
-    order = FarRockTracker(paper, _says(0.8, seen))
-    _drive_described(camera, order, paper, steps, rocks=[rock, small])
-    assert order.rocks() == [] and seen == []
-    with pytest.raises(ValueError, match=r"classified.*'tracks'"):
-        FarRockConfig(classified="tracks")
+    none = FarRockTracker(cfg, _says(0.8, seen))
+    _drive_described(camera, none, cfg, steps, rocks=[rock, small])
+    assert none.rocks() == [] and seen == []
 
 
 def _noisy_track(rng, bearing_px, range_share, n=30):

@@ -338,11 +338,11 @@ def test_ln_builder_corrupt_saved_ln(tmp_path):
     assert "kept aside" in log and "Traceback" not in log
 
 
-def test_roi_detector_refuses_an_unknown_outcrop_rule(tiny_bag, tmp_path):
+def test_roi_detector_refuses_an_unknown_method(tiny_bag, tmp_path):
     """A parameter value the node does not know stops it at start with a one-line error
     that names the parameter and the values it takes."""
     proc = _start(["roi_detector", "--ros-args", "-p", "model_path:=none",
-                   "-p", "outcrops:=smoothed", "--params-file", str(tiny_bag / "rover.yaml")],
+                   "-p", "method:=smoothed", "--params-file", str(tiny_bag / "rover.yaml")],
                   _domain() + 2, tmp_path / "roi_detector.log")
     try:
         proc.wait(timeout=60)
@@ -350,7 +350,7 @@ def test_roi_detector_refuses_an_unknown_outcrop_rule(tiny_bag, tmp_path):
         _stop(proc)
     log = (tmp_path / "roi_detector.log").read_text()
     assert proc.returncode != 0
-    assert "parameter 'outcrops'" in log and "averaged" in log and "Traceback" not in log
+    assert "parameter 'method'" in log and "per_pair" in log and "Traceback" not in log
 
 
 def test_cli_ln_reads_raw_images_alike(tiny_bag, tmp_path):
@@ -465,7 +465,7 @@ def test_roi_detector_node_reads_raw_images(tiny_bag, tmp_path):
 
 
 def test_count_ln_counts_the_truth(tiny_bag):
-    """count_ln (what `roi_detector eval` and bench/roi_score_sweep.py count): the truth
+    """count_ln (what `roi_detector eval` counts): the truth
     catalogue placed in odom finds every counted ROI at full precision; one counted rock
     left out and a node on no ROI lower the recall and the precision by one each."""
     from roi_detector.evaluation import count_ln, counted_rois

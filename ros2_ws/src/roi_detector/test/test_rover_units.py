@@ -1,6 +1,5 @@
 """Rover-side building blocks on small synthetic inputs: geometry, tracking, LN, inputs."""
 
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -17,7 +16,7 @@ from roi_detector.inputs import (
     write_tum,
 )
 from roi_detector.local_network import LnConfig, LocalNetwork, load_or_fresh
-from roi_detector.rover_candidates import RoverThresholds, measure_region
+from roi_detector.rover_candidates import measure_region
 from roi_detector.rover_pipeline import (
     FAR_ROCK_ID_BASE,
     SESSION_ID_SPAN,
@@ -93,15 +92,14 @@ def test_measure_region_area_height_centre():
     mask = h > 0.25
     ys, xs = np.nonzero(mask)
     bbox = (xs.min(), ys.min(), xs.max() + 1, ys.max() + 1)
-    c = measure_region(mask[bbox[1]:bbox[3], bbox[0]:bbox[2]], bbox, ROCK, pts, h, cam,
-                       RoverThresholds())
+    c = measure_region(mask[bbox[1]:bbox[3], bbox[0]:bbox[2]], bbox, ROCK, pts, h, cam)
     assert c is not None
     assert c.area_m2 == pytest.approx(1.0, rel=0.15)
     assert c.height_m == pytest.approx(0.5, abs=0.05)
     assert np.hypot(c.center[0] - 5.5, c.center[1]) < 0.15
     # No valid depth: nothing measured.
     none = measure_region(mask[bbox[1]:bbox[3], bbox[0]:bbox[2]], bbox, ROCK,
-                          np.full_like(pts, np.nan), h, cam, RoverThresholds())
+                          np.full_like(pts, np.nan), h, cam)
     assert none is None
 
 
@@ -345,17 +343,22 @@ def test_rover_classifier_round_trip(tmp_path):
 
 def test_a_far_rock_model_serves_the_elevation_map_and_only_it(tmp_path):
     """A model holding the far rocks' Rock Rover alone: loaded, applied to far-rock
-    features, refused by name for the per_pair method; the committed default falls back
-    to no classifier for a method it has none for."""
+    features, given to the far rocks; refused by name for the elevation_map method (which
+    needs the map's rovers too) and the per_pair method."""
     from roi_detector.classifier import BinaryClassifier, ClassifierConfig, ModelFileError
-    from roi_detector.cli import load_classifier
     from roi_detector.far_rocks import far_feature_names
     from roi_detector.rover_classifier import (
         FAR_ROCK_CLASSIFIER,
         RoverClassifier,
         save_rover_model,
     )
-    from roi_detector.rover_pipeline import DriveMapper, RoverConfig, RoverDetector, check_model
+    from roi_detector.rover_pipeline import (
+        DriveMapper,
+        RoverConfig,
+        RoverDetector,
+        check_model,
+        load_classifier,
+    )
 
     names = far_feature_names()
     rng = np.random.default_rng(3)
@@ -369,34 +372,26 @@ def test_a_far_rock_model_serves_the_elevation_map_and_only_it(tmp_path):
     assert model.far_rocks and not model.per_pair
     probe = np.array([[3.0], [-3.0]], np.float32) * np.ones(len(names), np.float32)
     assert model.far_rock_proba(probe).tolist() == [1.0, 0.0]
-    # Far rocks classified, as by default; the map's rocks and outcrops by their rules.
-    classify = RoverConfig(classify_map_rocks=False, classify_map_outcrops=False)
-    assert DriveMapper(classify, classifier=model).far.classifier is not None
-    # The defaults classify the map's rocks too: a model without their Rock Rover is
-    # refused by name.
+    mapper = DriveMapper(RoverConfig(), classifier=model)
+    assert mapper.far.classifier is not None and mapper.map.rock_classifier is None
+    # The elevation_map method classifies the map's rocks too: a model without their Rock
+    # Rover is refused by name.
     with pytest.raises(ValueError, match=r"far\.npz.*map-rock"):
         load_classifier(str(path), RoverConfig())
-    # Turned off: no model is loaded, the far rocks keep to the rules.
-    rules = RoverConfig(classify_far_rocks=False, classify_map_rocks=False,
-                        classify_map_outcrops=False)
-    assert load_classifier(str(path), rules) is None
-    assert DriveMapper(rules, classifier=model).far.classifier is None
-    assert not RoverDetector([0.0] * 6 + [1.0], model, rules).describe_blobs
-    assert load_classifier(str(path), classify) is not None
+    # Without a model the detector does not describe the far blobs.
+    assert not RoverDetector([0.0] * 6 + [1.0], None, RoverConfig()).describe_blobs
     per_pair = RoverConfig(method="per_pair")
     with pytest.raises(ValueError, match=r"far\.npz.*per_pair"):
         check_model(model, per_pair)
     with pytest.raises(ValueError, match=r"far\.npz.*per_pair"):
         load_classifier(str(path), per_pair)
-    detector = RoverDetector([0.0] * 6 + [1.0], model, classify)
-    assert detector.describe_blobs
     # A per_pair model cannot classify far rocks: said by name.
     pp = tmp_path / "pp.npz"
     save_rover_model(pp, {n: BinaryClassifier(n, names, ClassifierConfig(k=3)).fit(x, y)
                           for n in ("rock_rover", "outcrop_rover")}, {})
     with pytest.raises(ValueError, match=r"pp\.npz.*far-rock"):
-        load_classifier(str(pp), classify)
-    assert load_classifier(str(pp), rules) is None  # far rocks by the rules alone
+        load_classifier(str(pp), RoverConfig())
+    assert load_classifier(str(pp), per_pair).per_pair
     # Not a rover model at all: named, with what it holds.
     other = tmp_path / "other.npz"
     save_rover_model(other, {"rock_orbital": BinaryClassifier(
@@ -431,13 +426,12 @@ def _two_rock_rovers(rng: np.random.Generator, outcrops: bool = True) -> dict:
 
 
 def test_the_map_rocks_rock_rover_is_loaded_and_given_to_the_map(tmp_path):
-    """A model holding both Rock Rovers (what ``roi_detector train`` writes): the map
-    gets the map rocks' and scores its rock regions' features with it; off, the map's
-    rules decide alone."""
-    from roi_detector.cli import load_classifier
+    """A model holding both Rock Rovers and the Outcrop Rover (what ``roi_detector
+    train`` writes): the map gets the map rocks' and scores its rock regions' features
+    with it, and the detector describes the far blobs for the far rocks'."""
     from roi_detector.elevation_map import MAP_ROCK_FEATURES
     from roi_detector.rover_classifier import RoverClassifier, save_rover_model
-    from roi_detector.rover_pipeline import DriveMapper, RoverConfig
+    from roi_detector.rover_pipeline import DriveMapper, RoverConfig, RoverDetector, load_classifier
 
     clfs = _two_rock_rovers(np.random.default_rng(5))
     path = tmp_path / "both.npz"
@@ -449,8 +443,7 @@ def test_the_map_rocks_rock_rover_is_loaded_and_given_to_the_map(tmp_path):
     assert p[0] > 0.9 and p[1] < 0.1
     mapper = DriveMapper(RoverConfig(), classifier=model)
     assert mapper.map.rock_classifier is not None
-    assert DriveMapper(RoverConfig(classify_map_rocks=False),
-                       classifier=model).map.rock_classifier is None
+    assert RoverDetector([0.0] * 6 + [1.0], model, RoverConfig()).describe_blobs
 
 
 def test_records_in_view_rotates_into_base_link():
@@ -477,12 +470,11 @@ def test_the_committed_rover_model_is_the_far_rocks_rock_rover_of_training_seeds
     """The committed model loads as the default, holds the far rocks' Rock Rover (and not
     the per_pair classifiers), was trained on training seeds only (never an evaluation
     bag's), and says how to re-train it."""
-    from roi_detector.cli import _installed_model, load_classifier
     from roi_detector.far_rocks import far_feature_names
     from roi_detector.rover_classifier import FAR_ROCK_CLASSIFIER
-    from roi_detector.rover_pipeline import RoverConfig
+    from roi_detector.rover_pipeline import RoverConfig, installed_model, load_classifier
 
-    path = _installed_model()
+    path = installed_model()
     assert path is not None and path.stat().st_size < 1_000_000
     model = load_classifier(None, RoverConfig())
     assert model.far_rocks and not model.per_pair
@@ -493,32 +485,18 @@ def test_the_committed_rover_model_is_the_far_rocks_rock_rover_of_training_seeds
     # Boosted trees, trained on every measured far track, as the command says.
     assert model.classifiers[FAR_ROCK_CLASSIFIER].config.kind == prov["kind"] == \
         "gradient_boosting"
-    assert prov["population"] == "measured" and "--kind gradient_boosting" in prov["command"]
-    # The map outcrops' Outcrop Rover: the paper's PCA + kNN, on the default rule's
+    assert prov["population"] == "measured"
+    # The map outcrops' Outcrop Rover: the paper's PCA + kNN, on the outcrop rule's
     # candidates, which the model records.
-    from roi_detector.elevation_map import (
-        complete_outcrop_rule,
-        outcrop_rule,
-        outcrop_rule_of,
-    )
+    from roi_detector.elevation_map import MAP_OUTCROP_RULE
     from roi_detector.rover_classifier import MAP_OUTCROP_CLASSIFIER
 
     assert model.map_outcrops and prov["map_outcrop_kind"] == "knn"
     assert model.classifiers[MAP_OUTCROP_CLASSIFIER].config.kind == "knn"
-    assert complete_outcrop_rule(prov["map_outcrop_rule"]) == \
-        outcrop_rule_of(RoverConfig().elevation_map) == \
-        outcrop_rule_of(outcrop_rule("averaged_wide"))
-    assert prov["map_outcrops"] > 20 and "--outcrops averaged_wide" in prov["command"]
-    # The default method without classify_far_rocks needs no model; per_pair has none here.
+    assert prov["map_outcrop_rule"] == MAP_OUTCROP_RULE
+    assert prov["map_outcrops"] > 20
+    # per_pair: the committed model holds none of its rovers, every candidate is kept.
     assert load_classifier(None, RoverConfig(method="per_pair")) is None
-
-
-def test_far_rock_training_refuses_an_unknown_kind(tmp_path):
-    from roi_detector.training import train_rock_rovers
-
-    with pytest.raises(ValueError, match=r"kind.*'svm'"):
-        train_rock_rovers(["no/such/bag"], str(tmp_path / "m.npz"), kind="svm")
-    assert not (tmp_path / "m.npz").exists()
 
 
 def test_both_rock_rovers_are_fitted_on_their_samples_and_refuse_one_class():
@@ -546,40 +524,18 @@ def test_both_rock_rovers_are_fitted_on_their_samples_and_refuse_one_class():
         fit_rock_rovers(far_x[20:], far_y[20:], map_x, map_y, where="s9")
 
 
-def test_classifying_far_rocks_without_a_model_is_an_error(monkeypatch):
-    """classify_far_rocks, classify_map_rocks and classify_map_outcrops ask for their
-    classifiers: no model is a clear error naming the setting, not ROIs silently left to
-    the rules."""
-    import roi_detector.rover_pipeline as cli
+def test_the_elevation_map_without_a_model_is_an_error(monkeypatch):
+    """The elevation_map method asks for its classifiers: no model is a clear error, not
+    ROIs silently left to the rules; 'none' runs the rules alone; per_pair without a
+    model keeps every candidate."""
+    import roi_detector.rover_pipeline as pipeline
     from roi_detector.rover_pipeline import RoverConfig
 
-    monkeypatch.setattr(cli, "installed_model", lambda: None)
-    with pytest.raises(ValueError, match="classify_far_rocks: no rover model"):
-        cli.load_classifier(None, RoverConfig())  # the default classifies far rocks
-    with pytest.raises(ValueError, match="classify_map_rocks: no rover model"):
-        cli.load_classifier(None, RoverConfig(classify_far_rocks=False))
-    with pytest.raises(ValueError, match="classify_map_outcrops: no rover model"):
-        cli.load_classifier(None, RoverConfig(classify_far_rocks=False,
-                                              classify_map_rocks=False))
-    assert cli.load_classifier(None, RoverConfig(classify_far_rocks=False,
-                                                 classify_map_rocks=False,
-                                                 classify_map_outcrops=False)) is None
-
-
-def test_far_rock_training_leaves_out_false_tracks_beside_a_rock():
-    """A far track labelled false within ignore_near_m of a truth rock is neither label:
-    it is left out of training; rocks, and false tracks farther off, are trained on."""
-    from roi_detector.training import IGNORE_NEAR_M, trained_on
-
-    y = np.array([1, 1, 0, 0, 0, 0])
-    near = np.array([0.3, 2.0, 1.2, 2.49, 2.5, np.inf])
-    assert trained_on(y, near, 2.5).tolist() == [True, True, False, False, True, True]
-    assert trained_on(y, near, 1.5).tolist() == [True, True, False, True, True, True]
-    assert IGNORE_NEAR_M == 0.0 and trained_on(y, near).all()  # the default: every track
-    with pytest.raises(ValueError, match="ignore_near_m"):
-        trained_on(y, near, -1.0)
-    with pytest.raises(ValueError, match="shape"):
-        trained_on(y, near[:3])
+    monkeypatch.setattr(pipeline, "installed_model", lambda: None)
+    with pytest.raises(ValueError, match="no rover model"):
+        pipeline.load_classifier(None, RoverConfig())
+    assert pipeline.load_classifier("none", RoverConfig()) is None
+    assert pipeline.load_classifier(None, RoverConfig(method="per_pair")) is None
 
 
 def test_near_rock_distance_measures_to_rocks_only():
@@ -662,10 +618,9 @@ def test_the_map_outcrops_outcrop_rover_is_fitted_loaded_and_checked_against_the
         tmp_path):
     """``roi_detector train`` fits the Outcrop Rover on the map's outcrop regions (none
     when they are one class) and records the outcrop rule of its candidates; the map gets
-    it with classify_map_outcrops, a model without one is refused by name, and a map
-    whose outcrop rule differs from the recorded one refuses the model, naming the
-    rule."""
-    from roi_detector.elevation_map import MAP_OUTCROP_FEATURES, outcrop_rule, outcrop_rule_of
+    it, a model without one is refused by name, and a model trained on another rule's
+    candidates is refused, naming the rule."""
+    from roi_detector.elevation_map import MAP_OUTCROP_FEATURES, MAP_OUTCROP_RULE
     from roi_detector.rover_classifier import (
         MAP_OUTCROP_CLASSIFIER,
         RoverClassifier,
@@ -682,31 +637,27 @@ def test_the_map_outcrops_outcrop_rover_is_fitted_loaded_and_checked_against_the
     assert rover.name == MAP_OUTCROP_CLASSIFIER
     assert (rover.predict_proba(x) > 0.5).tolist() == (y == 1).tolist()
     clfs = _two_rock_rovers(rng, outcrops=False)
-    wide = RoverConfig()  # the default: averaged_wide's candidates, classified
-    # Without it: refused by name when asked for, fine when not.
+    cfg = RoverConfig()
+    # Without it: refused by name.
     rocks_only = tmp_path / "rocks.npz"
     save_rover_model(rocks_only, clfs, {"method": "elevation_map"})
     with pytest.raises(ValueError, match=r"rocks\.npz: no map outcrops' Outcrop Rover"):
-        check_model(RoverClassifier.load(rocks_only), wide)
-    check_model(RoverClassifier.load(rocks_only), RoverConfig(classify_map_outcrops=False))
+        check_model(RoverClassifier.load(rocks_only), cfg)
     path = tmp_path / "all.npz"
     save_rover_model(path, {**clfs, MAP_OUTCROP_CLASSIFIER: rover}, {
-        "method": "elevation_map",
-        "map_outcrop_rule": outcrop_rule_of(outcrop_rule("averaged_wide"))})
+        "method": "elevation_map", "map_outcrop_rule": MAP_OUTCROP_RULE})
     model = RoverClassifier.load(path)
     assert model.map_outcrops
-    check_model(model, wide)
-    assert DriveMapper(wide, classifier=model).map.outcrop_classifier is not None
-    assert DriveMapper(RoverConfig(classify_map_outcrops=False),
-                       classifier=model).map.outcrop_classifier is None
-    per_cell = RoverConfig(elevation_map=outcrop_rule("per_cell"))
-    with pytest.raises(ValueError, match=r"all\.npz: its Outcrop Rover was trained on the "
-                       r"candidates of another outcrop rule \(averaged_wide\).*"
-                       r"--no-classify-map-outcrops"):
-        check_model(model, per_cell)
-    check_model(model, replace(per_cell, classify_map_outcrops=False))
-    # Outcrops off: nothing to classify, nothing to check.
-    check_model(model, replace(per_cell, outcrops=False))
+    check_model(model, cfg)
+    assert DriveMapper(cfg, classifier=model).map.outcrop_classifier is not None
+    for other in ({**MAP_OUTCROP_RULE, "outcrop_max_saturation": 0.5},
+                  {**MAP_OUTCROP_RULE, "outcrop_soil_ratio": 0.75}):
+        odd = tmp_path / "odd.npz"
+        save_rover_model(odd, {**clfs, MAP_OUTCROP_CLASSIFIER: rover}, {
+            "method": "elevation_map", "map_outcrop_rule": other})
+        with pytest.raises(ValueError, match=r"odd\.npz: its Outcrop Rover was trained on "
+                           r"the candidates of another outcrop rule"):
+            check_model(RoverClassifier.load(odd), cfg)
 
 
 def test_drive_samples_are_kept_per_bag_and_retaken_under_other_settings(tmp_path,
@@ -717,8 +668,8 @@ def test_drive_samples_are_kept_per_bag_and_retaken_under_other_settings(tmp_pat
 
     calls = []
 
-    def fake(bag, log, population, working_fx_px, outcrops):
-        calls.append((bag, outcrops))
+    def fake(bag, log, working_fx_px):
+        calls.append((bag, working_fx_px))
         return {"x": np.full((2, 3), len(calls), np.float32), "y": np.array([1, 0], np.uint8),
                 "outcrop_y": np.zeros(0, np.uint8)}
 
@@ -727,7 +678,7 @@ def test_drive_samples_are_kept_per_bag_and_retaken_under_other_settings(tmp_pat
     first = training.drive_samples("bags/s1", cache=cache)
     again = training.drive_samples("bags/s1", cache=cache)
     assert len(calls) == 1 and (again["x"] == first["x"]).all() and set(again) == set(first)
-    other = training.drive_samples("bags/s1", outcrops="per_cell", cache=cache)
+    other = training.drive_samples("bags/s1", working_fx_px=887.0, cache=cache)
     assert len(calls) == 2 and other["x"][0, 0] == 2.0
     (cache / "s1.npz").write_bytes(b"not a cache")
     logged = []
@@ -798,7 +749,7 @@ def test_a_monochrome_pair_gives_the_map_no_outcrop_colour():
     colour[..., 2] = np.clip(colour[..., 2].astype(int) + 30, 0, 255)
     assert is_monochrome(mono) and not is_monochrome(colour)
     seen = []
-    detector = RoverDetector(EXTRINSIC, None, RoverConfig(far_rocks=False),
+    detector = RoverDetector(EXTRINSIC, None, RoverConfig(),
                              lambda kind, detail: seen.append(kind))
     obs = detector.observe(StereoFrame(1, mono, mono.copy(), np.array(k), np.array(p)))
     # The value is kept (the rocks' dark seeds), the saturation is the soil's: no cell
