@@ -62,13 +62,6 @@ def _add_play(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--settle', type=_positive_float, default=0.3, metavar='SEC',
                    help='pause after the subscribers matched, before the first message '
                    '(default: %(default)s)')
-    p.add_argument('--ack-timeout', type=_positive_float, default=10.0, metavar='SEC',
-                   help='upper bound of the final wait for acknowledgements on reliable '
-                   'topics (default: %(default)s)')
-    p.add_argument('--clock-hz', type=float, default=100.0, metavar='HZ',
-                   help='/clock ticks per wall second between messages (default: %(default)s)')
-    p.add_argument('--progress', type=_positive_float, default=2.0, metavar='SEC',
-                   help='seconds between progress lines (default: %(default)s)')
 
 
 def _add_run(sub: argparse._SubParsersAction) -> None:
@@ -95,17 +88,11 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument('--drain', type=_positive_float, default=2.0, metavar='SEC',
                    help='seconds the graph keeps running after the bag ends '
                    '(default: %(default)s)')
-    p.add_argument('--startup-timeout', type=_positive_float, default=30.0, metavar='SEC',
-                   help='upper bound of the wait for the nodes to subscribe to /clock before '
-                   'playing (default: %(default)s)')
     p.add_argument('--settle', type=_positive_float, default=3.5, metavar='SEC',
                    help='pause between the last node subscribing and the first message, so '
                    'that every pair of processes has discovered each other; Fast DDS can miss '
                    'the initial announcements and recover only at its next periodic one, 3 s '
                    'later (default: %(default)s)')
-    p.add_argument('--stop-timeout', type=_positive_float, default=10.0, metavar='SEC',
-                   help='seconds a process gets after SIGTERM before SIGKILL '
-                   '(default: %(default)s)')
     p.add_argument('--strict', action='store_true',
                    help='fail when a node of the graph is not built, instead of skipping it')
     p.add_argument('--max-restarts', type=int, default=3, metavar='N',
@@ -116,14 +103,12 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
 def _add_record(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         'record',
-        help='record output topics to a rosbag2 MCAP bag (used by run)',
-        description='Record the pipeline output topics (raw CDR, offered QoS) into a new '
-        'rosbag2 directory with MCAP storage until SIGINT/SIGTERM. Arguments after '
+        help='record the output topics to a rosbag2 MCAP bag (used by run)',
+        description='Record every output topic of the pipeline (raw CDR, offered QoS) into a '
+        'new rosbag2 directory with MCAP storage until SIGINT/SIGTERM. Arguments after '
         '--ros-args go to rclpy (run passes -p use_sim_time:=true).',
     )
     p.add_argument('out', type=Path, metavar='OUT_BAG_DIR', help='bag directory to create')
-    p.add_argument('--topics', nargs='+', metavar='T',
-                   help='topics to record (default: every output topic of the design)')
 
 
 def _add_eval(sub: argparse._SubParsersAction) -> None:
@@ -208,16 +193,13 @@ def _dispatch(args: argparse.Namespace, ros: list[str]) -> int:
                 wait_for=args.wait_for,
                 wait_timeout_s=args.wait_subscribers,
                 settle_s=args.settle,
-                ack_timeout_s=args.ack_timeout,
-                clock_hz=args.clock_hz,
-                progress_s=args.progress,
                 ros_args=ros,
             )
         )
     if args.command == 'record':
         from rover_bringup.record import RecordOptions, record
 
-        return record(RecordOptions(out=args.out, topics=args.topics, ros_args=ros))
+        return record(RecordOptions(out=args.out, ros_args=ros))
     if args.command == 'salvage':
         from rover_bringup.salvage import salvage
 
@@ -240,10 +222,18 @@ def _dispatch(args: argparse.Namespace, ros: list[str]) -> int:
         print(f'{PROG}: wrote {path}', file=sys.stderr)
         return 0
     if args.command == 'eval':
-        from rover_bringup.report import EvalOptions, evaluate_run
+        from rover_bringup.evaluation import summary_lines
+        from rover_bringup.report import REPORT_MD, EvalOptions, evaluate_run, report_json
 
-        return evaluate_run(EvalOptions(run_dir=args.run_dir, bag=args.bag, json=args.json,
-                                        plots=not args.no_plots))
+        summary = evaluate_run(EvalOptions(run_dir=args.run_dir, bag=args.bag,
+                                           plots=not args.no_plots))
+        if args.json:
+            print(report_json(summary), end='')
+        else:
+            for line in summary_lines(summary):
+                print(line)
+            print(f'report: {args.run_dir / REPORT_MD}', file=sys.stderr)
+        return 0
     from rover_bringup.run import RunOptions, run
 
     return run(
@@ -255,12 +245,9 @@ def _dispatch(args: argparse.Namespace, ros: list[str]) -> int:
             out=args.out,
             run_id=args.run_id,
             drain_s=args.drain,
-            startup_timeout_s=args.startup_timeout,
             settle_s=args.settle,
-            stop_timeout_s=args.stop_timeout,
             strict=args.strict,
             max_restarts=max(args.max_restarts, 0),
-            argv=[PROG, *sys.argv[1:]],
         )
     )
 

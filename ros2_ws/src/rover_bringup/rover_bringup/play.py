@@ -26,8 +26,16 @@ if TYPE_CHECKING:
 #: Exit status when playback is interrupted (SIGINT/SIGTERM), as a shell reports SIGINT.
 EXIT_INTERRUPTED = 130
 
-#: Wall seconds the middleware gets to tear down (node, context) once playback has ended.
+#: Wall seconds the middleware gets to tear down (node, context) once playback has ended;
+#: then the process exits with playback's status anyway.
 TEARDOWN_TIMEOUT_S = 15.0
+#: Upper bound of the final wait for acknowledgements on reliable topics (wall seconds).
+ACK_TIMEOUT_S = 10.0
+#: Pause before exiting when best-effort topics have subscribers (no acknowledgements to
+#: wait for), wall seconds.
+LINGER_S = 0.5
+#: /clock ticks per wall second while waiting between messages.
+CLOCK_HZ = 100.0
 
 
 def _warn(message: str) -> None:
@@ -70,17 +78,10 @@ class PlayOptions:
         wait_topics: Topics that need a subscriber before the first message; None: every
             played topic; empty: none.
         wait_for: /clock subscribers to wait for (nodes started with use_sim_time).
-        wait_timeout_s: Upper bound of the wait for subscribers (0: do not wait).
+        wait_timeout_s: Upper bound of the wait for subscribers (s; 0: do not wait).
         settle_s: Pause after the subscribers matched, so that subscriptions a node creates
-            after its /clock one (a few ms later) are matched too.
-        ack_timeout_s: Upper bound of the final wait for acknowledgements.
-        linger_s: Pause before exiting when best-effort topics have subscribers (no acks).
-        clock_hz: /clock ticks per wall second while waiting between messages.
-        progress_s: Wall seconds between progress lines.
+            after its /clock one (a few ms later) are matched too (s).
         ros_args: Arguments for rclpy after ``--ros-args``.
-        teardown_timeout_s: Once playback has ended, wall seconds the node and rclpy get to
-            shut down before the process exits with playback's status anyway (the process
-            is ``globloc play``'s own); 0: wait for the teardown however long it takes.
     """
 
     bag: Path
@@ -91,12 +92,7 @@ class PlayOptions:
     wait_for: int = 0
     wait_timeout_s: float = 5.0
     settle_s: float = 0.3
-    ack_timeout_s: float = 10.0
-    linger_s: float = 0.5
-    clock_hz: float = 100.0
-    progress_s: float = 2.0
     ros_args: list[str] = field(default_factory=list)
-    teardown_timeout_s: float = TEARDOWN_TIMEOUT_S
 
 
 #: Environment variables naming a Fast DDS XML profile (the second is Fast DDS 3's name).
@@ -108,7 +104,7 @@ def use_player_profile() -> None:
     segment that holds raw images) unless the environment names a profile already.
     Called before the player's DDS participant exists."""
     if not any(os.environ.get(name) for name in PROFILE_VARIABLES):
-        from rover_bringup.run import config_file
+        from rover_bringup.share import config_file
 
         os.environ[PROFILE_VARIABLES[0]] = str(config_file('fastdds_player.xml'))
 
@@ -130,8 +126,6 @@ def play(options: PlayOptions) -> int:
         raise GloblocError(f'--rate must be >= 0, got {options.rate}')
     if options.start_s < 0:
         raise GloblocError(f'--start must be >= 0, got {options.start_s}')
-    if options.clock_hz <= 0:
-        raise GloblocError(f'--clock-hz must be > 0, got {options.clock_hz}')
     if options.wait_for < 0:
         raise GloblocError(f'--wait-for must be >= 0, got {options.wait_for}')
     with open_bag(options.bag) as bag:
@@ -166,8 +160,7 @@ def play(options: PlayOptions) -> int:
                     # Armed for the rest of the process: destroy_node, rclpy shutdown and
                     # the interpreter's exit handlers; a daemon thread, so a normal exit
                     # does not wait for it.
-                    if options.teardown_timeout_s > 0:
-                        _exit_if_teardown_hangs(status, options.teardown_timeout_s)
+                    _exit_if_teardown_hangs(status, TEARDOWN_TIMEOUT_S)
                     return status
                 except RuntimeError:
                     # A signal shuts the context down between two rcl calls (publish, the
@@ -204,15 +197,15 @@ def _play(
                 f'{", ".join(missing)}; playing anyway'
             )
         time.sleep(options.settle_s)
-    progress = Progress(start_ns, bag.end_ns, period_s=options.progress_s)
+    progress = Progress(start_ns, bag.end_ns)
     clock = PlaybackClock(start_ns, time.monotonic(), options.rate)
     t0 = time.monotonic()
-    player.play(bag.messages(names, start_ns), clock, progress, 1.0 / options.clock_hz)
-    unacked = player.wait_for_acks(options.ack_timeout_s)
+    player.play(bag.messages(names, start_ns), clock, progress, 1.0 / CLOCK_HZ)
+    unacked = player.wait_for_acks(ACK_TIMEOUT_S)
     if player.has_best_effort_subscribers():
         # Best effort has no acknowledgements: give the middleware a moment to hand the
         # last samples to the transport before the process (and its DDS participant) ends.
-        time.sleep(options.linger_s)
+        time.sleep(LINGER_S)
     logger.info(
         f'done: {progress.line(bag.end_ns)} in {time.monotonic() - t0:.2f} s '
         f'(rate {options.rate:g})'
@@ -224,7 +217,7 @@ def _play(
         )
     if unacked:
         logger.error(
-            f'not acknowledged within {options.ack_timeout_s:g} s on: {", ".join(unacked)}'
+            f'not acknowledged within {ACK_TIMEOUT_S:g} s on: {", ".join(unacked)}'
         )
         return 1
     return 0

@@ -1,4 +1,4 @@
-"""``globloc record``: record the pipeline's output topics into a rosbag2 MCAP bag."""
+"""``globloc record``: record every output topic of the design into a rosbag2 MCAP bag."""
 
 from __future__ import annotations
 
@@ -19,12 +19,10 @@ class RecordOptions:
 
     Attributes:
         out: Bag directory to create.
-        topics: Topics to record (must be output topics of the design); None: all of them.
         ros_args: Arguments for rclpy after ``--ros-args`` (e.g. ``-p use_sim_time:=true``).
     """
 
     out: Path
-    topics: list[str] | None = None
     ros_args: list[str] = field(default_factory=list)
 
 
@@ -35,14 +33,10 @@ def record(options: RecordOptions) -> int:
         Exit status: 0 after a clean stop.
 
     Raises:
-        GloblocError: Unknown topic, or the bag directory cannot be created.
+        GloblocError: A message type is not installed, or the bag directory cannot be
+            created.
     """
-    names = options.topics or list(OUTPUT_TOPICS)
-    if unknown := [t for t in names if t not in OUTPUT_TOPICS]:
-        raise GloblocError(
-            f'cannot record {unknown[0]}: not an output topic ({", ".join(OUTPUT_TOPICS)})'
-        )
-    topics = {t: OUTPUT_TOPICS[t] for t in names}
+    topics = dict(OUTPUT_TOPICS)
     message_classes({t: c.msgtype for t, c in topics.items()})
     if options.out.exists():
         raise GloblocError(f'output bag {options.out} exists already')

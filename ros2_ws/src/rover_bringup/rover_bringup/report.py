@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import json
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 from roi_network.files import write_atomic
-from rover_bringup.evaluation import evaluate, load_run, report_markdown, summary_lines
+from rover_bringup.evaluation import evaluate, load_run, report_markdown
 
 REPORT_JSON = 'report.json'
 REPORT_MD = 'report.md'
@@ -22,21 +21,20 @@ class EvalOptions:
     Attributes:
         run_dir: ``out/<bag>/<run>/``.
         bag: The bag directory (None: the one recorded in ``run.yaml``).
-        json: Print report.json to stdout instead of the summary lines.
         plots: Draw the plots.
     """
 
     run_dir: Path
     bag: Path | None = None
-    json: bool = False
     plots: bool = True
 
 
-def evaluate_run(options: EvalOptions) -> int:
-    """Evaluate a run; write its report files; print the summary (or the JSON).
+def evaluate_run(options: EvalOptions) -> dict:
+    """Evaluate a run and write its report files (report.json, report.md, the plots).
 
     Returns:
-        0 (also when nothing was localized: the report says so).
+        The report (report.json's content), also when nothing was localized: the report
+        says so.
 
     Raises:
         GloblocError: Bad run directory, missing truth, unreadable files (named).
@@ -51,13 +49,12 @@ def evaluate_run(options: EvalOptions) -> int:
         plot_error(ev, options.run_dir / PLOTS[1])
         plots = list(PLOTS)
     summary = ev.summary | {'plots': plots}
-    text = json.dumps(summary, indent=2, sort_keys=False)
-    write_atomic(options.run_dir / REPORT_JSON, text + '\n')
+    write_atomic(options.run_dir / REPORT_JSON, report_json(summary))
     write_atomic(options.run_dir / REPORT_MD, report_markdown(summary, plots))
-    if options.json:
-        print(text)
-    else:
-        for line in summary_lines(summary):
-            print(line)
-        print(f'report: {options.run_dir / REPORT_MD}', file=sys.stderr)
-    return 0
+    return summary
+
+
+def report_json(summary: dict) -> str:
+    """report.json's text."""
+    return json.dumps(summary, indent=2, sort_keys=False) + '\n'
+

@@ -18,7 +18,7 @@ import os
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -43,15 +43,19 @@ from rover_bringup.msgtypes import playable_classes
 from rover_bringup.recording import count_messages
 from rover_bringup.respawn import Respawner
 from rover_bringup.run_outputs import export_outputs
+from rover_bringup.share import config_file
 from rover_bringup.topics import OUTPUT_TOPICS, TF_STATIC, sensor_problems
 
 #: Packages whose nodes read the bag's stereo pairs, CameraInfo and IMU.
 SENSOR_READERS = ('rover_vo', 'roi_detector')
 
-PACKAGE = 'rover_bringup'
 PLAYER = 'globloc_player'
 RECORDER = 'globloc_recorder'
 OUTPUTS = 'outputs'
+#: Upper bound of the wait for the nodes to subscribe to /clock before playing (s).
+STARTUP_TIMEOUT_S = 30.0
+#: Seconds a process gets after SIGTERM before SIGKILL.
+STOP_TIMEOUT_S = 10.0
 #: Lines of a crashed node's log shown in the error.
 TAIL_LINES = 20
 _POLL_S = 0.1
@@ -68,17 +72,14 @@ class RunOptions:
         params: Params file (None: the package's config/globloc.yaml).
         graph: Graph file (None: the package's config/graph.yaml).
         rate: Playback rate factor (0: as fast as possible).
-        out: Output root.
+        out: Output root; the run goes to ``out/<bag>/<run_id>/``.
         run_id: Run directory name (None: local time stamp).
         drain_s: Seconds the graph keeps running after the bag ends.
-        startup_timeout_s: Upper bound of the wait for nodes to subscribe before playing.
-        settle_s: Pause between the last node subscribing and the first message (see
+        settle_s: Pause between the last node subscribing and the first message (s; see
             docs/bringup.md, "Discovery": Fast DDS sometimes misses the initial announcements
             between two processes and pairs them only at its next periodic one, 3 s later).
-        stop_timeout_s: Grace period between SIGTERM and SIGKILL.
         strict: Fail on nodes that are not built instead of skipping them.
         max_restarts: Times a node that exits mid-run is restarted (0: never).
-        argv: The command line, for run.yaml.
     """
 
     bag: Path
@@ -88,28 +89,9 @@ class RunOptions:
     out: Path = Path('out')
     run_id: str | None = None
     drain_s: float = 2.0
-    startup_timeout_s: float = 30.0
     settle_s: float = 3.5
-    stop_timeout_s: float = 10.0
     strict: bool = False
     max_restarts: int = 3
-    argv: list[str] = field(default_factory=list)
-
-
-def config_file(name: str) -> Path:
-    """A file of this package's ``config/``: the installed copy, else the source tree's."""
-    try:
-        from ament_index_python.packages import (
-            PackageNotFoundError,
-            get_package_share_directory,
-        )
-
-        installed = Path(get_package_share_directory(PACKAGE)) / 'config' / name
-        if installed.is_file():
-            return installed
-    except (ImportError, PackageNotFoundError, ValueError):
-        pass
-    return Path(__file__).resolve().parent.parent / 'config' / name
 
 
 def _warn(message: str) -> None:
@@ -292,7 +274,7 @@ def _supervise(
             # Graph nodes subscribe to what they need, not to every bag topic (nobody reads
             # the ground truth): wait for each node's /clock subscription instead.
             '--wait-topics', '--wait-for', str(len(watched)),
-            '--wait-subscribers', str(options.startup_timeout_s),
+            '--wait-subscribers', str(STARTUP_TIMEOUT_S),
             '--settle', str(options.settle_s),
         ],
         logs,
@@ -357,9 +339,8 @@ def run(options: RunOptions) -> int:
     finally:
         nodes = [processes[r.spec.name] for r in plan.ready if r.spec.name in processes]
         # Nodes first, so that the recorder still gets what they publish while stopping.
-        stop(nodes, options.stop_timeout_s)
-        stop([p for p in processes.values() if p.name in (PLAYER, RECORDER)],
-             options.stop_timeout_s)
+        stop(nodes, STOP_TIMEOUT_S)
+        stop([p for p in processes.values() if p.name in (PLAYER, RECORDER)], STOP_TIMEOUT_S)
 
     for proc in [*nodes, processes.get(RECORDER)]:
         if proc is not None and proc.crashed:
@@ -374,7 +355,7 @@ def run(options: RunOptions) -> int:
         counts = {}
         errors.append(str(exc))
     report = {
-        'command': options.argv,
+        'command': ['globloc', *sys.argv[1:]],  # this process's command line
         'bag': {'dir': str(plan.location.root), 'rosbag': str(plan.location.rosbag)},
         'run_dir': str(run_dir),
         'rate': options.rate,

@@ -27,11 +27,6 @@ SHM = Path('/dev/shm')
 _test_counter = itertools.count()
 
 
-def pytest_configure(config: pytest.Config) -> None:
-    """Register this directory's markers."""
-    config.addinivalue_line('markers', 'slow: takes more than 10 s (full bag played at rate 1)')
-
-
 def _load(name: str) -> ModuleType:
     # Tests run with --import-mode=importlib: helper modules next to them are not importable
     # by name, so load them by path under a name no other package uses.

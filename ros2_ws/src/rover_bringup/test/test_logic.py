@@ -31,7 +31,7 @@ from rover_bringup.qos import (
     to_bag_qos,
 )
 from rover_bringup.recording import OutputBag, count_messages
-from rover_bringup.run import config_file
+from rover_bringup.share import config_file
 from rover_bringup.topics import OUTPUT_TOPICS, design_qos
 
 # --- QoS -------------------------------------------------------------------------------------

@@ -162,10 +162,17 @@ def test_node_out_of_restarts_ends_the_run(
                       '--max-restarts', '2')
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 1
+    assert 'Traceback' not in err
     assert err.count('crasher exited (status 3) while running: restarting it') == 2
-    assert 'globloc: error: node crasher crashed (exit status 3)' in err
+    assert 'globloc: error: node crasher crashed (exit status 3); last lines of' in err
+    # The tail of its log (20 lines), not the whole log.
+    assert 'fake failure detail line 29' in err
+    assert 'fake failure detail line 10' in err
+    assert 'fake failure detail line 9\n' not in err
     report = yaml.safe_load((tmp_path / 'out' / 'tiny' / 'r1' / 'run.yaml').read_text())
-    assert report['nodes'][0]['restarts'] == 2 and report['nodes'][0]['crashed']
+    assert report['status'] == 'failed'
+    node = report['nodes'][0]
+    assert node['restarts'] == 2 and node['crashed'] and node['exit_code'] == 3
 
 
 def _check_outputs_readable(run_dir: Path) -> dict[str, int]:
