@@ -309,9 +309,8 @@ def _write_generality_md(report: dict[str, Any], path: Path) -> None:
         "EM's maximum-likelihood alignment when the hard refit falls short, control "
         "triplets over the candidate cap tried last and votes by alignment, the odds "
         "of the triangle hypothesis that found the alignment and a floor under the "
-        "Chernoff bound; `top3`: the odds leaving out the three largest node terms, no "
-        "floor; `hard`: the decision on the hard refit alone; `counts`: fixed "
-        "support/margin counts. "
+        "Chernoff bound; `original`: the paper's original DARCES (no orientation, no "
+        "classes, fixed support/margin counts). "
         "no fix | oracle: abstentions among the LNs the oracle fits within 2 m. "
         f"{report['timing']}.",
         "",
@@ -381,15 +380,13 @@ def first_fix(gn, options: SimOptions, config: MatchConfig, n_lns: int, seed: in
 
 
 def firstfix(names: list[str], n_lns: int, seed: int) -> dict[str, Any]:
-    """First fix on the family GNs, odds decision (Chernoff and Markov's bounds, Markov's
-    alone) beside fixed counts."""
+    """First fix on the family GNs, odds decision beside the original DARCES."""
     rows = []
     for name in names:
         gn = family_gn(name, seed=1)
         options = family_options(FAMILY[name].density_per_km2)
         for method, config in (("darces", MatchConfig()),
-                               ("darces_markov", MatchConfig(chernoff_orders=())),
-                               ("darces_counts", MatchConfig.counts())):
+                               ("darces_original", MatchConfig.original())):
             row = {"gn": name, "method": method, "rois": len(gn),
                    **first_fix(gn, options, config, n_lns, seed)}
             rows.append(row)
@@ -449,12 +446,11 @@ def tracknull(names: list[str], n_lns: int, seed: int, sigmas: list[float],
     on another GN of the same statistics (seed 2) from a prior placed at chance (the LN's
     centroid on a random GN ROI, a random heading) with x-y sigma S and 1 deg of heading.
     Every fix is a false match; the track decision as configured (0 spent nodes, quarter
-    sigma cells) beside its first pass (3 spent nodes, 1 sigma cells). With ``wide_share``
+    sigma cells). With ``wide_share``
     > 0 the LNs are of mixed precision: that share of their nodes (at random) has its
     covariance scaled by ``wide_scale`` (far-rock-like nodes beside precise ones); results
     go to ``darces_tracknull_mixed``."""
-    configs = {"darces": MatchConfig(),
-               "track_first_pass": MatchConfig(track_spent_nodes=3, track_cell_fraction=1.0)}
+    configs = {"darces": MatchConfig()}
     rows = []
     for name in names:
         other = family_gn(name, seed=2)
@@ -509,24 +505,20 @@ def tracknull(names: list[str], n_lns: int, seed: int, sigmas: list[float],
              f"Command: `{command}`. Stressed LNs (30 % outliers, 10 % flips) of each family "
              "GN (seed 1) tracked (`Matcher.track`) on another GN of the same statistics "
              "(seed 2) from a prior on a random GN ROI at a random heading (x-y sigma S, "
-             "1 deg heading): every fix would be false. *darces*: the track decision as "
-             "configured (no node spent, quarter-sigma cells); *first pass*: 3 nodes spent, "
-             "1-sigma cells. p_false < 0.01 outside the prior: fits the EM took outside the "
-             "prior's ellipsoid, refused (`outside_prior`)."
+             "1 deg heading): every fix would be false. *darces*: the track decision (no "
+             "node spent, quarter-sigma cells). p_false < 0.01 outside the prior: fits the "
+             "EM took outside the prior's ellipsoid, refused (`outside_prior`)."
              + (f" Mixed precision: {wide_share:.0%} of each LN's nodes, at random, with "
                 f"their covariance scaled {wide_scale:g}x." if wide_share > 0 else ""), "",
              "| GN | S m | LNs | darces: fixes | darces: min p_false inside | darces: < 0.01 "
-             "inside / outside | first pass: fixes | first pass: min p_false inside "
-             "| first pass: < 0.01 inside / outside |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "inside / outside |",
+             "|---|---|---|---|---|---|"]
     for r in rows:
-        a, b = r["darces"], r["track_first_pass"]
+        a = r["darces"]
         lines.append(
             f"| {r['gn']} | {r['prior_sigma_m']:g} | {r['lns']} | {a['fixes']} "
             f"| {a['min_false_match_probability_inside_prior']:.3g} "
-            f"| {a['below_0.01_inside_prior']} / {a['below_0.01_outside_prior']} "
-            f"| {b['fixes']} | {b['min_false_match_probability_inside_prior']:.3g} "
-            f"| {b['below_0.01_inside_prior']} / {b['below_0.01_outside_prior']} |")
+            f"| {a['below_0.01_inside_prior']} / {a['below_0.01_outside_prior']} |")
     (RESULTS / f"{name}.md").write_text("\n".join(lines) + "\n")
     return report
 
@@ -543,7 +535,8 @@ def quick(bag: Path, trials: int, radius_m: float, seed: int) -> dict[str, Any]:
     route = _route(bag / "truth" / "trajectory.tum")
     gn_pts, gn_labels = xy(gn.records), gn.records["label"]
     out = {}
-    for method, config in (("darces", MatchConfig()), ("darces_counts", MatchConfig.counts())):
+    for method, config in (("darces", MatchConfig()),
+                           ("darces_original", MatchConfig.original())):
         matcher = Matcher(gn, config)
         fixes, errors, reasons, n_nodes = 0, [], {}, 0
         for k in range(trials):

@@ -1,6 +1,6 @@
 """Replay a run's LN and odometry through the matcher and the map -> odom filter, offline.
 
-    python bench/replay_matcher.py RUN_DIR BAG_DIR [--variants base,notrack,marginal]
+    python bench/replay_matcher.py RUN_DIR BAG_DIR [--variants base,notrack,triplets48]
         [--gn GN.geojson] [--cov-scale S] [--events] [--json OUT]
 
 RUN_DIR is a ``globloc run`` directory (its ``outputs/`` bag holds every /local_network
@@ -46,26 +46,7 @@ from roi_network.transform import Rigid2D
 VARIANTS: dict[str, tuple[dict, bool]] = {
     "base": ({}, True),
     "notrack": ({}, False),
-    "marginal": ({"marginal_outliers": True}, True),
-    "markov": ({"chernoff_orders": ()}, True),
-    "track_first_pass": ({"track_spent_nodes": 3, "track_cell_fraction": 1.0}, True),
     "triplets48": ({"n_triplets": 48}, True),
-    "marginal_triplets48": ({"marginal_outliers": True, "n_triplets": 48}, True),
-    "absolute": ({"ln_sigma_relative": False}, True),
-    "anchor_least": ({"localized_anchor_newest": False}, True),
-    "first_at_all": ({"first_fix_judged_at_newest": False}, True),
-    "hard": ({"decide_on_ml": False}, True),
-    "search_first": ({"localized_keep_likelier": False}, True),
-    "analytic_cov": ({"jackknife_covariance": False}, True),
-    "nodrift": ({"drift_fit": False}, True),
-    "drift_p1e-2": ({"drift_outlier_p": 1e-2}, True),
-    "drift_p1e-4": ({"drift_outlier_p": 1e-4}, True),
-    "drift_nojk": ({"jackknife_covariance": False}, True),
-    "drift_first": ({"drift_fit_first": True}, True),
-    "drift_screen": ({"drift_fit_mode": "screen"}, True),
-    "top3": ({"spent_by_triangle": False, "min_chance_count": 0.0}, True),
-    "nofloor": ({"min_chance_count": 0.0}, True),
-    "complete_cov": ({"association_covariance": False}, True),
 }
 #: variants that do not read the odometry covariance each node was observed with
 #: (darces_matcher.ln_drift): the records' covariance alone

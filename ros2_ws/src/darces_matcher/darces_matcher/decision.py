@@ -20,22 +20,20 @@ fixed node count.
 
 "Around there" is measured at the node's own scale: lambda_j is the count of the other GN
 nodes within R = max(r_k, c s_i) of GN node j over pi R^2, r_k the distance to its k-th
-(8th) neighbour and c ``scale_sigmas`` (3), so that it is the k-nearest-neighbour
+(8th) neighbour and c :data:`SCALE_SIGMAS` (3), so that it is the k-nearest-neighbour
 estimate for a precise node and, for a node whose sigma exceeds the spacing inside a
 rock cluster, the density of the cluster's surroundings at the node's precision. Measured
-at r_k alone (``scale_sigmas`` 0, before 2026-11-27), a drifted node (sigma ~4 m) landing
-on its own rock in a 5 m boulder field scored log LR -0.8..0 (its peak spread over the
-cluster against the density of the cluster's core, and only the 6 nearest GN nodes
-summed): a right alignment of 20 such nodes had odds of ~1 nat. The chance model follows
-the same density (each GN node owns 1 / lambda_j of its variance's area), so the bounds
-below hold unchanged.
+at r_k alone, a drifted node (sigma ~4 m) landing on its own rock in a 5 m boulder field
+scores log LR -0.8..0 (its peak spread over the cluster against the density of the
+cluster's core): a right alignment of 20 such nodes has odds of ~1 nat. The chance model
+follows the same density (each GN node owns 1 / lambda_j of its variance's area), so the
+bounds below hold unchanged.
 
 The log-odds of the alignment is the sum over the LN of log LR_i, less the three
 largest terms: T was fitted to the nodes, three of them (a triangle) fix it, and their
 agreement is no evidence (astrometry.net leaves the quad's own stars out likewise).
 
-Which three (spent triangles, ``MatchConfig.spent_by_triangle``, since 2026-11-28,
-twelfth session): a hypothesis of the global search is a control triangle's three LN
+Which three (spent triangles): a hypothesis of the global search is a control triangle's three LN
 nodes put on a congruent GN triangle, and under chance the other nodes land where chance
 puts them whatever those three did. So a hypothesis' evidence is the sum, at its own
 transform, over the nodes outside its own triangle (:meth:`ChanceModel.triangle_odds`),
@@ -43,24 +41,11 @@ and the union over the ``n_tested`` hypotheses (below) bounds the best of them, 
 it is. An alignment's odds are the best of those of the hypotheses that are it (made of
 three of its pairs, or every node within its gate of where it maps them:
 :func:`~darces_matcher.vote.agreeing`; the 8 best supported), and at least the sum at
-the refined alignment less its three largest terms, the rule before (which also covers an
-alignment the refit moved away from every triangle); each alternative's likewise. The
-rule before charged a right alignment found by a triangle of weak nodes for the LN's
-three strongest (in a boulder field, the few isolated rocks). The Chernoff moments leave
-out the three smallest, which bounds any three.
-
-The outlier share w is not known in advance: a clean simulated LN has few nodes without
-a counterpart, a rover's LN on a detected GN most of them (false rover detections times
-orbital misses: on atacama_1km seed 3's final LN the best fit pairs 3 of 17 nodes). A
-fixed w = 0.3 charges each of those log(0.3) = -1.2 nats. With ``marginal`` the odds
-integrate w out under a uniform prior instead::
-
-    LR = int_0^1 prod_i (w + (1 - w) E_i) dw
-
-(E_i the node's evidence, the sum above; a 64-point midpoint rule). Under chance each
-factor has expectation 1 for every w, so the integral does too and the bound below holds
-unchanged; the odds adapt to the LN's own outlier share, at the price of about half a nat
-per decade of plausible w against knowing it.
+the refined alignment less its three largest terms (which also covers an alignment the
+refit moved away from every triangle); each alternative's likewise. Leaving out the three
+largest terms alone would charge a right alignment found by a triangle of weak nodes for
+the LN's three strongest (in a boulder field, the few isolated rocks). The Chernoff
+moments leave out the three smallest, which bounds any three.
 
 Under the chance hypothesis the likelihood ratio has expectation 1, so a chance alignment
 reaches odds e^K with probability at most e^-K (Markov), and among the ``n_tested``
@@ -86,33 +71,30 @@ of their sum, s < 1: the bound stays conservative)::
     J_s(b) = int_0^inf ((w + b e^-u)^s - w^s) du
 
 (a_ij = P(c_i | c_j) / (f(c_i) lambda_j), the ratio above), the three smallest moments
-left out with the spent nodes. With ``chernoff_orders`` S the expected count of chance
-alignments as good as the winner is the smallest of the bounds::
+left out with the spent nodes. With the orders S of :data:`CHERNOFF_ORDERS` the expected
+count of chance alignments as good as the winner is the smallest of the bounds::
 
     n_tested min(1, min_s E[LR^s] e^((1 - s) K))   in place of n_tested
 
 No union over the orders: at a given K every order's bound holds, so their minimum
 does (it is Chernoff's bound itself, inf_s, over a grid of s); the moments are the GN's
 and the LN's, fixed before any alignment is seen, so the minimum is a fixed function of
-K that lies above the chance tail at every K, which is all the decision needs. (Until
-2026-11-28 the bound was multiplied by 1 + |S|, as if each order were another test of
-the data: log 3 = 1.1 nats charged for nothing.)
+K that lies above the chance tail at every K, which is all the decision needs.
 
 It helps where many precise nodes each carry E[LR_i^s] well below 1 and the winner's
 odds are weak, which is where Markov's bound withheld fixes the oracle makes
 (docs/matcher.md); on short, drifted LNs Markov's stays the smaller and nothing changes.
 
-The floor (``MatchConfig.min_chance_count``, since 2026-11-28, twelfth session): the
-Chernoff bound may lower the count of chance alignments to 1 and no further, so that a
-fix needs odds of at least 1 / ``false_match_rate`` against a chance alignment, whatever
-the bound. The moments assume that a chance alignment drops each node independently and
-uniformly over the GN. On a clustered GN it does not: a triangle put on a boulder field
-brings the LN's own nearby nodes into the field too, and each of them then scores about
-what it would on its own rock (the density is local). A 27-node LN of one strongly
-clustered GN placed so on another scored odds of e^0.1, an alignment the moments call an
-e^-11 event (the null test, docs/matcher.md). The odds themselves hold on clustered GNs,
-the far tail of the moments does not: below odds of 1 / ``false_match_rate`` the bound
-is not trusted.
+The floor (:data:`MIN_CHANCE_COUNT`): the Chernoff bound may lower the count of chance
+alignments to 1 and no further, so that a fix needs odds of at least 1 /
+``false_match_rate`` against a chance alignment, whatever the bound. The moments assume
+that a chance alignment drops each node independently and uniformly over the GN. On a
+clustered GN it does not: a triangle put on a boulder field brings the LN's own nearby
+nodes into the field too, and each of them then scores about what it would on its own
+rock (the density is local). A 27-node LN of one strongly clustered GN placed so on
+another scored odds of e^0.1, an alignment the moments call an e^-11 event (the null
+test, docs/matcher.md). The odds themselves hold on clustered GNs, the far tail of the
+moments does not: below odds of 1 / ``false_match_rate`` the bound is not trusted.
 """
 
 from __future__ import annotations
@@ -143,8 +125,18 @@ _BINS_PER_E = 8.0
 #: Grid of log y of the tabulated peak integral F_s (:func:`_peak_table`): lowest,
 #: highest, points.
 _PEAK_LOG_Y = (-30.0, 60.0, 4001)
-#: Midpoints of 64 equal cells of (0, 1): the outlier shares of the marginal odds.
-_W_GRID = (np.arange(64) + 0.5) / 64
+#: A node's density is measured within at least this many of its sigmas of where it
+#: lands (module docstring): a drifted node on its rock in a boulder field is then
+#: evidence against the field's surroundings, not against the field's core.
+SCALE_SIGMAS = 3.0
+#: Orders s of the Chernoff bounds beside Markov's (module docstring): a grid over which
+#: the bound is minimised, not a union of tests (more orders only tighten it, at one
+#: cached moment per order, GN class and variance bin).
+CHERNOFF_ORDERS = (0.2, 0.3, 0.4, 0.5, 0.6, 0.75, 0.9)
+#: The least count of chance alignments as good as the winner that Chernoff's bound may
+#: claim (module docstring, "the floor"): a fix needs odds of at least
+#: 1 / false_match_rate against a chance alignment whatever the bound says.
+MIN_CHANCE_COUNT = 1.0
 
 
 def local_density(pts: np.ndarray, tree: cKDTree | None = None,
@@ -201,13 +193,10 @@ class ChanceModel:
         outlier_prior: w, share of LN nodes with no GN counterpart.
         label_confusion: probability that an LN node's class differs from its GN
             counterpart's.
-        marginal: integrate w out under a uniform prior (module docstring) instead of
-            fixing it at ``outlier_prior``.
     """
 
     def __init__(self, tree: cKDTree, gn_labels: np.ndarray, *, use_labels: bool,
-                 outlier_prior: float, label_confusion: float,
-                 marginal: bool = False, scale_sigmas: float = 3.0) -> None:
+                 outlier_prior: float, label_confusion: float) -> None:
         self.tree = tree
         self.gn_labels = np.asarray(gn_labels, dtype=np.int64)
         pts = np.asarray(tree.data)
@@ -218,8 +207,6 @@ class ChanceModel:
         self.use_labels = use_labels
         self.outlier_prior = outlier_prior
         self.label_confusion = label_confusion
-        self.marginal = marginal
-        self.scale_sigmas = scale_sigmas
         self.frequency = class_frequencies(self.gn_labels)
         #: The area the GN covers by its own density estimate, m^2 (E[LR_i] = 1 on it).
         self.area = float(np.sum(1.0 / self.density))
@@ -240,11 +227,9 @@ class ChanceModel:
     def density_at(self, vbin: int) -> tuple[np.ndarray, float]:
         """Each GN node's density at the scale of a node of variance bin ``vbin``
         (module docstring), ROIs/m^2, and the area they cover, sum 1 / lambda_j, m^2."""
-        if self.scale_sigmas <= 0.0:
-            return self.density, self.area
         if vbin not in self._scaled:
             sigma = math.sqrt(self.bin_variance(vbin))
-            r = np.maximum(self.radius, self.scale_sigmas * sigma)
+            r = np.maximum(self.radius, SCALE_SIGMAS * sigma)
             if np.all(r <= self.radius):
                 self._scaled[vbin] = (self.density, self.area)
             else:
@@ -290,6 +275,11 @@ class ChanceModel:
             logs.append(self._moments[key])
         logs = np.sort(np.array(logs))
         return float(logs[SPENT_NODES:].sum()) if len(logs) > SPENT_NODES else 0.0
+
+    def log_moments(self, labels: np.ndarray, var: np.ndarray) -> dict[float, float]:
+        """log E[LR^s] of an LN under chance at each order s of :data:`CHERNOFF_ORDERS`
+        (:meth:`log_moment`), for the Chernoff bounds of :func:`decide`."""
+        return {s: self.log_moment(labels, var, s) for s in CHERNOFF_ORDERS}
 
     def _evidence(self, mapped: np.ndarray, labels: np.ndarray, var: np.ndarray
                   ) -> np.ndarray:
@@ -344,21 +334,11 @@ class ChanceModel:
         """
         mapped = transform_points(yaw, np.asarray(t, dtype=float), pts)
         evidence = self._evidence(mapped, labels, var)
-        if not self.marginal:
-            w = self.outlier_prior
-            node = np.log(w + (1.0 - w) * evidence)
-            left_out = (np.sort(node)[len(node) - spent:].sum() if len(node) > spent
-                        else node.sum())
-            return Odds(float(node.sum() - left_out), node)
-        # LR_i grows with E_i whatever w: the spent nodes are the largest E_i.
-        rest = np.sort(evidence)[:len(evidence) - spent] if len(evidence) > spent \
-            else evidence[:0]
-        w = _W_GRID[:, None]
-        per_w = np.log(w + (1.0 - w) * rest[None, :]).sum(axis=1)
-        log_odds = float(np.logaddexp.reduce(per_w) - math.log(len(_W_GRID)))
-        # Per node: its log LR at the most likely w (diagnostics).
-        best = float(_W_GRID[int(np.argmax(per_w))])
-        return Odds(log_odds, np.log(best + (1.0 - best) * evidence))
+        w = self.outlier_prior
+        node = np.log(w + (1.0 - w) * evidence)
+        left_out = (np.sort(node)[len(node) - spent:].sum() if len(node) > spent
+                    else node.sum())
+        return Odds(float(node.sum() - left_out), node)
 
 
 def _peak_integral(b: np.ndarray, w: float, s: float) -> np.ndarray:
@@ -368,7 +348,7 @@ def _peak_integral(b: np.ndarray, w: float, s: float) -> np.ndarray:
     With x = (b / w) e^-u it is w^s F_s(b / w), F_s(y) = int_0^y ((1 + x)^s - 1) / x dx,
     a function of one variable: tabulated once per order s (:func:`_peak_table`) and
     interpolated, ~50x cheaper than integrating every GN node's peak at every cache miss
-    of :meth:`ChanceModel.log_moment` (its cost had been a sixth of the matcher's time on
+    of :meth:`ChanceModel.log_moment` (integrating costs a sixth of the matcher's time on
     a 400 ROIs/km^2 GN). Outside the table F_s is its series: s y below, and
     F_s(Y) + (y^s - Y^s) / s above (the integrand is x^(s-1) there, to 1e-15).
     """

@@ -116,7 +116,7 @@ class FamilySpec:
     description: str = field(default="", compare=False)
 
 
-#: The evaluation family (issue 13): what orbital catalogues look like, from complete
+#: The evaluation family: what orbital catalogues look like, from complete
 #: spatial randomness to strongly clustered boulder fields, sparse to dense, one class
 #: dominant, and a dune field with no ROI. ``darces_eval --synthetic NAME`` generates
 #: each (areas 2 km x 1 km: 100..2,000 ROIs).

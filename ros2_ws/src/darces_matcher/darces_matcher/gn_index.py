@@ -168,8 +168,7 @@ def enumerate_triangles(
     return tri
 
 
-def auto_max_side(pts: np.ndarray, tree: cKDTree, neighbours: int,
-                  mean_density: bool = True) -> float:
+def auto_max_side(pts: np.ndarray, tree: cKDTree, neighbours: int) -> float:
     """Triangle side limit for a large GN: the radius holding k neighbours on average.
 
     The larger of the median distance to the k-th neighbour and the radius of a disc
@@ -178,14 +177,12 @@ def auto_max_side(pts: np.ndarray, tree: cKDTree, neighbours: int,
     the density. On a clustered GN the median is the spacing inside a cluster (a few
     metres in a dense boulder field), which would index only triangles smaller than any
     route's, so the mean-density radius holds: the LN's triangles span the gaps between
-    clusters. ``mean_density`` False: the median alone (before issue 13).
+    clusters.
     """
     k = min(neighbours + 1, len(pts))
     sample = pts[:: max(1, len(pts) // 20000)]
     dist, _ = tree.query(sample, k=k)
     median = float(np.median(dist[:, -1]))
-    if not mean_density:
-        return median
     try:
         area = float(ConvexHull(pts).volume)
     except (QhullError, ValueError):
@@ -216,7 +213,6 @@ class GnIndex:
             binary searches per query (small cells) against candidates to filter (large);
             None: 4 m for an exhaustive index, 1 m for a local one.
         min_height_m: drop GN triangles flatter than this, metres.
-        mean_density_side: :func:`auto_max_side` also considers the mean density.
 
     Raises:
         ValueError: if the GN has fewer than 3 nodes.
@@ -232,7 +228,6 @@ class GnIndex:
         neighbours: int = 14,
         quant_m: float | None = None,
         min_height_m: float = 1.0,
-        mean_density_side: bool = True,
     ) -> None:
         t0 = time.perf_counter()
         if len(gn) < 3:
@@ -262,7 +257,7 @@ class GnIndex:
         # nodes of its own class (one query per LN instead of one per class present).
         self.lifted_tree = cKDTree(np.column_stack([self.pts, _lift(self.labels)]))
         if max_side_m is None:
-            max_side_m = auto_max_side(self.pts, self.tree, neighbours, mean_density_side)
+            max_side_m = auto_max_side(self.pts, self.tree, neighbours)
         self.max_side_m = float(max_side_m)
         #: Whether every triangle is indexed (small GN) rather than local ones only.
         self.exhaustive = not np.isfinite(self.max_side_m)

@@ -1,6 +1,6 @@
 """DARCES matching of a Local Network onto the Global Network (paper Sec. 6).
 
-:class:`Matcher` holds the GN index (built once) and fits LNs onto it::
+:class:`Matcher` holds the GN models (built once) and fits LNs onto them::
 
     matcher = Matcher(gn, MatchConfig())
     result = matcher.match(ln_records)          # LN in odom, GN in map
@@ -8,48 +8,71 @@
         map_T_odom = result.map_T_odom          # roi_network.transform.Rigid2D
 
 ``MatchConfig.original()`` gives the paper's baseline, the original DARCES (no triangle
-orientation, no class labels). The settings live in :mod:`~darces_matcher.config`, the
-outcome in :mod:`~darces_matcher.result`; both are importable from here too.
+orientation, no class labels, the paper's voting). The settings live in
+:mod:`~darces_matcher.config`, the outcome in :mod:`~darces_matcher.result`; both are
+importable from here too.
 
-:meth:`Matcher.match` reads as the method's steps in order. Each step's part of
-:class:`Matcher` lives in its own module, as a class that :class:`Matcher` inherits:
+:meth:`Matcher.match` runs the method's steps in order, each a function over explicit
+values in the module named:
 
-* :mod:`~darces_matcher.tolerances` (step 1): the LN's nodes, their error model,
-  tolerances d_D, gates and weights;
-* :mod:`~darces_matcher.search` (steps 2-3): control triplets, then rounds of triangle
-  hypotheses, votes, refit of the distinct best and the decision;
-* :mod:`~darces_matcher.semantics` (step 4): soft semantics, the label-blind polish and
-  search;
-* :mod:`~darces_matcher.refit` (step 5): the probabilistic (EM) refit of a fix, decided
-  again;
-* :mod:`~darces_matcher.tracking`: tracking near a prior once localized
-  (:meth:`Matcher.track`, :meth:`Matcher.match_or_track`).
+1. the LN's nodes and their error model: the finite nodes, each node's 1-sigma error
+   relative to an anchor node, and where a fit is judged precise (the newest node)
+   (:func:`~darces_matcher.tolerances.ln_nodes`);
+2. tolerances d_D, gates and weights from that error model and the GN's
+   (:func:`~darces_matcher.tolerances.tolerances`);
+3. control triplets: precise, well conditioned, spread over the nodes, from close nodes
+   when no wide triangle exists (:func:`~darces_matcher.search.select_triplets`);
+4. per round of triplets: triangle hypotheses, votes of the whole LN, refit of the
+   distinct best and the decision on the odds of a chance alignment, until a fix
+   (:func:`~darces_matcher.search.search`); failing that, the decision once more on the
+   EM's alignment of the winner (:func:`~darces_matcher.refit.decide_on_ml`);
+5. the probabilistic (EM) refit of a fix and the decision again on its alignment
+   (:func:`~darces_matcher.refit.refit_fix`);
+6. soft semantics: when the labelled search gives no fix, steps 2-5 again blind to
+   classes, the fix kept if its inliers mostly agree on class
+   (:func:`~darces_matcher.semantics.label_blind_outcome`).
+
+The original DARCES runs steps 1-4 label-blind, decided by the paper's fixed counts.
+
+:meth:`Matcher.match_or_track` is the darces_matcher node's decision for each LN, once
+the rover is localized (given a prior alignment):
+
+1. the global search (:meth:`Matcher.match`), node sigmas relative to the newest node;
+2. tracking near the prior (:func:`~darces_matcher.tracking.track`);
+3. the fix less likely to be a chance alignment of the two;
+4. that fix refitted under the LN's correlated drift, or its covariance widened to its
+   jackknife's (:func:`~darces_matcher.tracking.localized_fix`).
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 
 import numpy as np
 
 from darces_matcher.config import MatchConfig
-from darces_matcher.decision import ChanceModel
-from darces_matcher.em_refit import gn_density
 from darces_matcher.gn_index import GnIndex
-from darces_matcher.refit import Refit
+from darces_matcher.gn_model import GnModel, blind_search_ok, gn_model
+from darces_matcher.refit import decide_on_ml, refit_fix
 from darces_matcher.result import MatchResult, Status
-from darces_matcher.search import Hypotheses, Search
-from darces_matcher.semantics import SoftSemantics
+from darces_matcher.search import Search, search, select_triplets
+from darces_matcher.semantics import FINAL_REASONS, label_blind_outcome
 from darces_matcher.timings import add_stage, elapsed_ms, with_total
-from darces_matcher.tolerances import LnTolerances
-from darces_matcher.tracking import PRIOR_CHI2, Tracking
+from darces_matcher.tolerances import LnNodes, ln_nodes, node_sigma, tolerances
+from darces_matcher.tracking import (
+    PRIOR_CHI2,
+    check_prior_covariance,
+    localized_fix,
+    prior_search_size,
+    track,
+)
 from roi_network.network import RoiNetwork
+from roi_network.transform import Rigid2D
 
 __all__ = ["PRIOR_CHI2", "MatchConfig", "MatchResult", "Matcher", "Status"]
 
 
-class Matcher(LnTolerances, Search, SoftSemantics, Refit, Tracking):
+class Matcher:
     """DARCES matcher of LNs (``odom``) against one GN (``map``).
 
     Args:
@@ -57,76 +80,31 @@ class Matcher(LnTolerances, Search, SoftSemantics, Refit, Tracking):
         config: matcher settings; defaults to the improved DARCES.
 
     Raises:
-        ValueError: if the GN has fewer than 3 ROIs or non-finite positions, or an EM
-            prior (outlier_prior, label_confusion) is out of range.
+        ValueError: if the GN has fewer than 3 ROIs or non-finite positions.
     """
 
     def __init__(self, gn: RoiNetwork, config: MatchConfig | None = None) -> None:
         self.config = config or MatchConfig()
-        if not 0.0 <= self.config.outlier_prior < 1.0:
-            raise ValueError(f"MatchConfig.outlier_prior must be in [0, 1), got "
-                             f"{self.config.outlier_prior}")
-        if not 0.0 < self.config.false_match_rate < 1.0:
-            raise ValueError(f"MatchConfig.false_match_rate must be in (0, 1), got "
-                             f"{self.config.false_match_rate}")
-        if not 0.0 <= self.config.label_confusion <= 0.5:
-            raise ValueError(f"MatchConfig.label_confusion must be in [0, 0.5], got "
-                             f"{self.config.label_confusion}")
-        self.index = GnIndex(
-            gn,
-            use_labels=self.config.use_labels,
-            max_side_m=self.config.index_max_side_m,
-            exhaustive_max_nodes=self.config.index_exhaustive_max_nodes,
-            neighbours=self.config.index_neighbours or (
-                40 if len(gn) <= 20000 else 14),
-            quant_m=self.config.index_quant_m,
-            mean_density_side=self.config.index_mean_density_side,
-        )
-        self._gn_labels = gn.records["label"].astype(np.int64)
-        self._gn = gn
-        self._blind: Matcher | None = None
-        #: (alignments examined, odds of the distinct alternatives, its hypotheses when
-        #: the odds are by spent triangles) of the last search.
-        self._last_search: tuple[float, list[float], Hypotheses | None] = (1.0, [], None)
-        #: Where the last LN's fit is judged precise (``max_position_sigma_m``), as
-        #: indices into its finite nodes: None, every node; with ``anchor_newest``, the
-        #: newest node (where the rover is).
-        self._judged: np.ndarray | None = None
-        #: GN ROIs per square metre: the EM's outlier density (a node with no
-        #: counterpart is as likely anywhere).
-        self.gn_density = gn_density(self.index.pts)
-        self._fallback_ok = self.index.exhaustive or (
-            len(gn) <= self.config.label_fallback_max_nodes)
-        #: What a chance alignment looks like on this GN (the odds decision).
-        self.chance = ChanceModel(self.index.tree, self._gn_labels,
-                                  use_labels=self.config.use_labels,
-                                  outlier_prior=self.config.outlier_prior,
-                                  label_confusion=self.config.label_confusion,
-                                  marginal=self.config.marginal_outliers,
-                                  scale_sigmas=self.config.chance_scale_sigmas)
-        if self.config.use_labels and self.config.label_fallback and self._fallback_ok:
-            # The label-blind fallback's index, built now rather than at the first
-            # fallback: a running matcher never stalls for it.
-            self._blind_matcher()
+        original = self.config.original_darces
+        #: The GN as the search takes it: labelled (label-blind for the original DARCES).
+        self.model: GnModel = gn_model(gn, self.config, use_labels=not original)
+        #: The label-blind GN of soft semantics (step 6), built now rather than at the
+        #: first fallback so that a running matcher never stalls for it; None for the
+        #: original DARCES or a GN too large for a second index.
+        self.blind_model: GnModel | None = (
+            gn_model(gn, self.config, use_labels=False)
+            if not original and blind_search_ok(gn, self.model.index) else None)
 
     @property
-    def max_candidates(self) -> int:
-        """The effective ``MatchConfig.max_candidates``."""
-        if self.config.max_candidates is not None:
-            return self.config.max_candidates
-        if self.config.index_neighbours is None and len(self.index.pts) <= 20000:
-            # The 40-neighbour index holds ~8x the triangles of the 14-neighbour one: a
-            # triplet with more than 3,000 candidates is unselective and costly (on a
-            # 95 %-rock GN under stress, 30,000 gave a p95 of 8.7 s and 5 of 40 LNs no
-            # fix; 3,000 gave 0.56 s and 4).
-            return 3000
-        return max(30000, int(0.3 * len(self.index.pts)))
+    def index(self) -> GnIndex:
+        """The GN index of the search."""
+        return self.model.index
 
     def match(
         self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None = None,
         anchor_newest: bool = False, odom_cov: np.ndarray | None = None,
     ) -> MatchResult:
-        """Fit an LN onto the GN.
+        """Fit an LN onto the GN: steps 1-6 of the module docstring.
 
         Args:
             ln: LN records (:data:`~roi_network.records.ROI_DTYPE`) or network, ``odom``.
@@ -134,7 +112,8 @@ class Matcher(LnTolerances, Search, SoftSemantics, Refit, Tracking):
                 metres (the LN error model: VO drift grows with distance travelled);
                 default: from the records' covariance.
             anchor_newest: the records' covariance is taken relative to the newest node
-                (see ``MatchConfig.localized_anchor_newest``).
+                (the rover localized: each node's sigma is then its drift relative to
+                where the rover is now).
             odom_cov: optional (N, 3, 3) odometry (x, y, yaw) covariance each node was
                 observed with (:class:`~darces_matcher.ln_drift.NodeOdometry`): the
                 records' covariance is then taken relative to the anchor node with its
@@ -142,95 +121,136 @@ class Matcher(LnTolerances, Search, SoftSemantics, Refit, Tracking):
 
         Returns:
             The :class:`MatchResult`; never raises on a degenerate LN.
-
-        The method's steps, in order (docs/matcher.md details them in its own numbering):
-
-        1. tolerances d_D, gates and weights from the LN error model (:meth:`_tolerances`,
-           :mod:`~darces_matcher.tolerances`);
-        2. control triplets (:func:`~darces_matcher.triplets.control_triplets`), from
-           close nodes when no wide triangle exists (:meth:`_control_triplets`);
-        3. then, per round of triplets: triangle hypotheses
-           (:func:`~darces_matcher.hypotheses.triangle_hypotheses`), votes of the whole
-           LN (:func:`~darces_matcher.vote.vote`), refit of the distinct best
-           (:func:`~darces_matcher.vote.refine`) and the decision on the odds of a
-           chance alignment (:func:`~darces_matcher.decision.decide`), until a fix
-           (:meth:`_search`, :mod:`~darces_matcher.search`); failing that, the decision
-           once more on the EM's alignment of the winner (:meth:`_decide_on_ml`);
-        4. soft semantics: the label-blind search when the labelled one gives no fix
-           (:meth:`_label_blind`, :mod:`~darces_matcher.semantics`);
-        5. the probabilistic refit of a fix (:func:`~darces_matcher.em_refit.em_refit`)
-           and the decision again on its alignment (:meth:`_em_refit`,
-           :mod:`~darces_matcher.refit`).
-
-        Steps 1-3 are one search (:meth:`_match`), labelled as configured; after it, the
-        label-blind polish of its fix (without the EM refit), the EM refit, and the
-        label-blind search when it gives no fix (or its fix's EM alignment is withheld).
         """
-        cfg = self.config
-        # 1-3. The search, labelled as configured.
-        result = self._match(ln, ln_sigma, anchor_newest, odom_cov)
-        if (result.is_fix and cfg.use_labels and cfg.label_fallback
-                and cfg.polish_label_blind and not cfg.probabilistic_refit):
-            # 4. Soft semantics without the EM: the label-blind polish of a labelled fix.
-            # (The EM refit's class prior lets misclassified nodes join the fix: with it
-            # the polish is redundant.)
-            return self._polish(result)
-        if result.is_fix and cfg.probabilistic_refit:
-            # 5. The probabilistic refit of a fix and the decision on its alignment.
-            result = self._em_refit(result)
-            if not cfg.fallback_after_withheld:
-                return result
-            # A labelled fix whose EM alignment is withheld falls back to the
-            # label-blind search as a labelled no-fix does.
-        if result.is_fix or not (cfg.use_labels and cfg.label_fallback) or result.reason in (
-            "too_few_nodes", "no_control_triplet"
-        ) or not self._fallback_ok:
-            return result
-        # 4. Soft semantics: the label-blind search (then 5., the EM refit of its fix).
-        return self._label_blind(result, ln, ln_sigma, anchor_newest, odom_cov)
-
-    def _match(self, ln: np.ndarray | RoiNetwork, ln_sigma: np.ndarray | None,
-               anchor_newest: bool = False,
-               odom_cov: np.ndarray | None = None) -> MatchResult:
-        """One search (labelled or not, as configured): steps 1-3 of :meth:`match`."""
-        cfg = self.config
         t_start = time.perf_counter()
-        timings: dict[str, float] = {}
-        kept, sigma, pts, labels = self._finite_nodes(ln, ln_sigma, anchor_newest, odom_cov)
-        if len(kept) < 3:
-            return MatchResult("no_fix", "too_few_nodes",
-                               timings_ms=with_total(t_start, timings))
+        # 1. The LN's nodes and their error model.
+        nodes = ln_nodes(ln, ln_sigma, self.config, anchor_newest, odom_cov)
+        return self._match(nodes, t_start)
 
-        # 1. Tolerances d_D, gates and weights from the LN error model.
-        tol = self._tolerances(sigma, labels)
-        # Kept for the label-blind polish of a fix (:meth:`_polish`) and the EM refit
-        # (:meth:`_em_refit`); a Matcher serves one match at a time.
-        self._last = (kept, pts, labels, tol.gate, tol.weights)
-
-        # 2. Control triplets: precise, well conditioned, spread over nodes.
-        t0 = time.perf_counter()
-        triplets, n_selective = self._control_triplets(pts, labels, tol.node_tol,
-                                                       tol.edge_tol)
-        timings["triplets"] = elapsed_ms(t0)
-        if len(triplets) == 0:
-            return MatchResult("no_fix", "no_control_triplet",
-                               timings_ms=with_total(t_start, timings))
-
-        # 3. Hypotheses, votes, refit of the distinct best and the decision, one round of
-        # control triplets at a time, until a fix.
-        result = self._search(pts, labels, kept, tol, triplets, n_selective, timings)
-        if (result.reason == "insufficient_support" and result.map_T_odom is not None
-                and cfg.decide_on_ml and cfg.probabilistic_refit and cfg.decision == "odds"):
-            # No fix: the decision once more, on the EM's alignment of the winner.
-            t0 = time.perf_counter()
-            result = self._decide_on_ml(result, kept, pts, labels, tol.weights)
-            add_stage(timings, "ml_decision", t0)
-        result.timings_ms = with_total(t_start, timings)
+    def _match(self, nodes: LnNodes, t_start: float) -> MatchResult:
+        """Steps 2-6 of :meth:`match` on the LN's nodes (step 1)."""
+        # 2-4. The search: tolerances, control triplets, rounds of hypotheses and votes.
+        found = self._search(self.model, nodes, t_start)
+        result = found.result
+        if self.config.original_darces:
+            return result
+        # 5. The probabilistic refit of a fix, decided again on its alignment.
+        if result.is_fix:
+            result = refit_fix(result, self.model, nodes, found, self.config)
+        if result.is_fix or self.blind_model is None or result.reason in FINAL_REASONS:
+            return result
+        # 6. Soft semantics: no fix, so steps 2-4 again blind to classes, then 5.
+        blind = self._search(self.blind_model, nodes, time.perf_counter())
+        result = label_blind_outcome(result, blind.result, nodes, self.model.labels)
+        if result.is_fix:
+            result = refit_fix(result, self.model, nodes, blind, self.config)
         return result
 
-    def _blind_matcher(self) -> Matcher:
-        """The label-blind matcher of the fallback, its index built at first use."""
-        if self._blind is None:
-            self._blind = Matcher(self._gn, replace(self.config, use_labels=False,
-                                                    label_fallback=False))
-        return self._blind
+    def _search(self, model: GnModel, nodes: LnNodes, t_start: float) -> Search:
+        """Steps 2-4 of :meth:`match` on one GN model (labelled or label-blind)."""
+        cfg = self.config
+        timings: dict[str, float] = {}
+        if len(nodes) < 3:
+            return Search(MatchResult("no_fix", "too_few_nodes",
+                                      timings_ms=with_total(t_start, timings)))
+        # 2. Tolerances d_D, gates and weights from the LN error model.
+        tol = tolerances(nodes, model.index, cfg)
+        # 3. Control triplets: precise, well conditioned, spread over nodes.
+        t0 = time.perf_counter()
+        triplets, n_selective = select_triplets(model, nodes, tol, cfg)
+        timings["triplets"] = elapsed_ms(t0)
+        if len(triplets) == 0:
+            return Search(MatchResult("no_fix", "no_control_triplet",
+                                      timings_ms=with_total(t_start, timings)), tol)
+        # 4. Hypotheses, votes, refit of the distinct best and the decision, one round of
+        # control triplets at a time, until a fix.
+        found = search(model, nodes, tol, triplets, n_selective, cfg, timings)
+        result = found.result
+        if (result.reason == "insufficient_support" and result.map_T_odom is not None
+                and found.examined is not None):
+            # No fix: the decision once more, on the EM's alignment of the winner.
+            t0 = time.perf_counter()
+            result = decide_on_ml(result, model, nodes, tol.weights, found.examined, cfg)
+            add_stage(timings, "ml_decision", t0)
+        result.timings_ms = with_total(t_start, timings)
+        return Search(result, tol, found.examined)
+
+    def track(
+        self,
+        ln: np.ndarray | RoiNetwork,
+        prior: Rigid2D,
+        prior_covariance: np.ndarray,
+        ln_sigma: np.ndarray | None = None,
+        anchor_newest: bool = False,
+        odom_cov: np.ndarray | None = None,
+    ) -> MatchResult:
+        """Fit an LN near a known alignment (:func:`~darces_matcher.tracking.track`).
+
+        Args:
+            ln: LN records (:data:`~roi_network.records.ROI_DTYPE`) or network, ``odom``.
+            prior: the current estimate of ``map_T_odom``.
+            prior_covariance: (3, 3) covariance of its (x, y, yaw), m^2 and rad^2.
+            ln_sigma, anchor_newest, odom_cov: as in :meth:`match`.
+
+        Returns:
+            A :class:`MatchResult` with reason ``"ok_tracked"`` on a fix.
+
+        Raises:
+            ValueError: if ``prior_covariance`` is not a finite, positive definite
+                (3, 3) matrix.
+        """
+        p = check_prior_covariance(prior_covariance)
+        nodes = ln_nodes(ln, ln_sigma, self.config, anchor_newest, odom_cov)
+        return track(self.model, nodes, prior, p, self.config)
+
+    def match_or_track(
+        self,
+        ln: np.ndarray | RoiNetwork,
+        prior: Rigid2D | None = None,
+        prior_covariance: np.ndarray | None = None,
+        ln_sigma: np.ndarray | None = None,
+        odom_cov: np.ndarray | None = None,
+    ) -> MatchResult:
+        """The darces_matcher node's decision for each LN: the global search and, when a
+        prior alignment is given (the rover is localized), steps 1-4 of the module
+        docstring. ``timings_ms["total"]`` covers both; ``"search"`` is the global
+        search's share when tracking ran.
+
+        Raises:
+            ValueError: if a prior is given with a ``prior_covariance`` that is not a
+                finite, positive definite (3, 3) matrix.
+        """
+        t_start = time.perf_counter()
+        localized = prior is not None
+        nodes = ln_nodes(ln, ln_sigma, self.config, localized, odom_cov)
+        # 1. The global search; once localized, node sigmas relative to the newest node.
+        result = self._match(nodes, t_start)
+        if not localized:
+            return result
+        # 2. Tracking near the prior.
+        tracked = track(self.model, nodes, prior, check_prior_covariance(prior_covariance),
+                        self.config)
+        # 3. The fix less likely to be a chance alignment.
+        likelier = tracked.is_fix and \
+            tracked.false_match_probability < result.false_match_probability
+        kept = result if result.is_fix and not likelier else tracked
+        searched_ms = result.timings_ms.get("total", 0.0)
+        kept.timings_ms["total"] = searched_ms + tracked.timings_ms.get("total", 0.0)
+        kept.timings_ms["search"] = searched_ms
+        # 4. The fix refitted under the LN's drift, or its covariance widened.
+        return localized_fix(kept, nodes, self.index, self.config)
+
+    def node_sigma(self, records: np.ndarray, ln_sigma: np.ndarray | None,
+                   anchor_newest: bool = False,
+                   odom_cov: np.ndarray | None = None) -> np.ndarray:
+        """1-sigma position error per axis of each LN node, metres
+        (:func:`~darces_matcher.tolerances.node_sigma`)."""
+        return node_sigma(records, ln_sigma, self.config.ln_sigma_floor_m, anchor_newest,
+                          odom_cov)
+
+    @staticmethod
+    def prior_search_size(pts: np.ndarray, var: np.ndarray, prior_covariance: np.ndarray,
+                          cell_fraction: float = 1.0) -> float:
+        """Distinct alignments of an LN inside a prior's 3-sigma ellipsoid
+        (:func:`~darces_matcher.tracking.prior_search_size`)."""
+        return prior_search_size(pts, var, prior_covariance, cell_fraction)

@@ -42,11 +42,6 @@ RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 ODOMETRY = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
 
-def _config_field_default(f: dataclasses.Field) -> bool | int | float:
-    # None (automatic) is not a ROS parameter value: 0.0 stands for it.
-    return 0.0 if f.default is None else f.default
-
-
 class MatcherNode(Node):
     """Subscribes /local_network and /vo/odometry; publishes /global_alignment,
     /global_pose and /matcher/status."""
@@ -81,16 +76,13 @@ class MatcherNode(Node):
             ).value
             for f in dataclasses.fields(FilterConfig)
         }
-        overrides = {}
-        for f in dataclasses.fields(MatchConfig):
-            # Fields whose default is None (automatic) take 0.0 for it; dynamic typing lets
-            # a YAML file set them to an int or a float.
-            value = self.declare_parameter(
-                f"match.{f.name}", _config_field_default(f),
-                ParameterDescriptor(description=f"MatchConfig.{f.name} (docs/matcher.md)",
-                                    dynamic_typing=f.default is None),
+        overrides = {
+            f.name: self.declare_parameter(
+                f"match.{f.name}", f.default,
+                ParameterDescriptor(description=f"MatchConfig.{f.name} (docs/matcher.md)"),
             ).value
-            overrides[f.name] = None if f.default is None and value == 0.0 else value
+            for f in dataclasses.fields(MatchConfig)
+        }
         if not gn_path:
             raise ValueError("parameter 'gn_path' is not set (the GN GeoJSON file)")
         gn = read_geojson(gn_path)

@@ -1,13 +1,15 @@
-"""Steps 2-3 of :meth:`~darces_matcher.matcher.Matcher.match`: the hypothesise-and-vote
+"""Steps 3-4 of :meth:`~darces_matcher.matcher.Matcher.match`: the hypothesise-and-vote
 search of one LN on the GN.
 
-Control triplets (:func:`~darces_matcher.triplets.control_triplets`), from close nodes
-when no wide triangle exists; then, per round of triplets: triangle hypotheses
+Control triplets (:func:`select_triplets`, :func:`~darces_matcher.triplets.control_triplets`),
+from close nodes when no wide triangle exists; then, per round of triplets
+(:func:`search`): triangle hypotheses
 (:func:`~darces_matcher.hypotheses.triangle_hypotheses`), each a rigid transform, first
 confirmed by a precise node on a huge GN, then voted by the whole LN
 (:func:`~darces_matcher.vote.vote`); the refit of the distinct best
 (:func:`~darces_matcher.vote.refine`) and the decision on them (the odds of a chance
-alignment, :func:`~darces_matcher.decision.decide`, or fixed counts), until a fix.
+alignment, :func:`~darces_matcher.decision.decide`; the paper's fixed counts for the
+original DARCES), until a fix.
 """
 
 from __future__ import annotations
@@ -18,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from darces_matcher.config import MatchConfig
-from darces_matcher.decision import ChanceModel, decide
-from darces_matcher.gn_index import GnIndex
+from darces_matcher.decision import MIN_CHANCE_COUNT, ChanceModel, decide
+from darces_matcher.gn_model import GnModel
 from darces_matcher.hypotheses import (
     apply_batch,
     fit_rigid_batch,
@@ -28,7 +30,7 @@ from darces_matcher.hypotheses import (
 )
 from darces_matcher.result import MatchResult, Status
 from darces_matcher.timings import add_stage
-from darces_matcher.tolerances import Tolerances
+from darces_matcher.tolerances import MAX_TOL_M, LnNodes, Tolerances, fit_spread
 from darces_matcher.triplets import control_triplets
 from darces_matcher.vote import (
     agreeing,
@@ -41,287 +43,347 @@ from darces_matcher.vote import (
 )
 from roi_network.transform import Rigid2D
 
+#: Shortest side of a control triangle, metres.
+MIN_SIDE_M = 10.0
+#: When no control triangle has sides of ``MIN_SIDE_M``, the triplets are chosen again
+#: with this shortest side (a rock cluster's close nodes; their orientation is still
+#: checked against their tolerances by ``MIN_HEIGHT_RATIO``), metres.
+MIN_SIDE_FLOOR_M = 3.0
+#: Smallest control-triangle height over the sum of its vertex tolerances (orientation
+#: must survive the noise).
+MIN_HEIGHT_RATIO = 0.5
+#: Control triplets that may share one LN node.
+MAX_USES_PER_NODE = 3
+#: Control triplets dropped by the candidate cap but with at most this many times as
+#: many candidates are tried after the others, fewest candidates first, when those gave
+#: no fix (in a dense rock field under 30 % false detections the only triangles of three
+#: true nodes may have 4,000-60,000 candidates).
+DENSE_CANDIDATES_FACTOR = 30.0
+#: Control triplets per round; matching stops after the first round that gives a fix,
+#: so clean LNs cost one round.
+TRIPLET_BATCH = 2
+#: Hypotheses kept per control triplet, those whose sides agree best (bounds the cost
+#: on huge GNs; at 10^6 ROIs 4000 cut the true triangle of some LNs).
+MAX_HYPOTHESES = 16000
+#: With more hypotheses than this in a round, only those confirmed by a precise LN node
+#: other than their own vertices are fully verified.
+PREFILTER_ABOVE = 200
+#: Distinct transforms refined per round (the best and its alternatives).
+N_REFINE = 4
+#: Alternatives with less raw support are not refined (their raw support is taken as
+#: is); 3 is a triangle's own vertices.
+MIN_REFINE_SUPPORT = 5
+#: Association/refit rounds of the final least squares.
+REFINE_ITERATIONS = 6
+#: After refining a candidate, hypotheses that map every LN node within this many
+#: tolerances of it are suppressed before refining the next.
+DISTINCT_RATIO = 2.0
+#: Least control triplets whose hypothesis agrees with the refined fix.
+MIN_VOTES = 1
+#: The paper's voting (the original DARCES): least support for a fix (LN nodes matched),
+#: least support as a share of the LN, and least lead over the best distinct alternative.
+PAPER_MIN_INLIERS = 9
+#: See ``PAPER_MIN_INLIERS``.
+PAPER_MIN_INLIER_FRACTION = 0.5
+#: See ``PAPER_MIN_INLIERS``.
+PAPER_MIN_MARGIN = 4
 
+
+@dataclass(frozen=True)
+class Examined:
+    """What a search examined, which the decisions on its refits are charged for.
+
+    Attributes:
+        n_tested: alignments the whole search examines (the union bound of the odds).
+        alternatives: log-odds of the distinct alternatives to the winner.
+        hypotheses: the triangle hypotheses it verified ("spent triangles").
+    """
+
+    n_tested: float
+    alternatives: list[float]
+    hypotheses: Hypotheses
+
+
+@dataclass(frozen=True)
 class Search:
-    """The search of :class:`~darces_matcher.matcher.Matcher` (a mixin: it uses the
-    matcher's settings, GN index, chance model, candidate cap and ``_spread``, and keeps
-    the last search's size and alternatives for the decisions on refits)."""
+    """The outcome of steps 2-4 on one GN model.
 
-    config: MatchConfig
-    index: GnIndex
-    chance: ChanceModel
-    _last_search: tuple[float, list[float], Hypotheses | None]
+    Attributes:
+        result: the fix, or no fix and why.
+        tol: the LN's tolerances on that model (None when the LN had too few nodes).
+        examined: what the odds decision examined (None without a decision on odds).
+    """
 
-    def _control_triplets(self, pts: np.ndarray, labels: np.ndarray, node_tol: np.ndarray,
-                          edge_tol: np.ndarray) -> tuple[np.ndarray, int]:
-        """Control triplets: precise, well conditioned, spread over nodes; the selective
-        ones first, then those of a dense rock field. Returns them and the number of
-        selective ones."""
-        cfg = self.config
-        sides = [cfg.min_side_m]
-        if cfg.min_side_floor_m is not None and cfg.min_side_floor_m < cfg.min_side_m:
-            # No wide triangle (a short LN, or one inside a rock cluster): close nodes
-            # still make a triangle whose orientation survives their tolerances.
-            sides.append(cfg.min_side_floor_m)
-        for min_side in sides:
-            dense: list[np.ndarray] = []
-            triplets = control_triplets(
-                pts, node_tol, cfg.n_triplets,
-                min_side_m=min_side, max_side_m=self.index.max_side_m,
-                min_height_ratio=cfg.min_height_ratio,
-                max_uses_per_node=cfg.max_uses_per_node,
-                # Counting candidates pays off only where random congruent triangles
-                # abound.
-                cost=None if self.index.exhaustive else (
-                    lambda trips: self._candidates(pts, labels, edge_tol, trips)),
-                max_cost=self.max_candidates,
-                max_dense_cost=cfg.dense_candidates_factor * self.max_candidates,
-                dense_out=dense,
-            )
-            # The selective triplets first; those of a dense rock field, whose many
-            # congruent GN triangles only the precise nodes' confirmation thins out,
-            # only after every selective round has ended without a fix.
-            n_selective = len(triplets)
-            triplets = np.vstack([triplets, dense[0]])
-            if len(triplets):
-                break
-        return triplets, n_selective
+    result: MatchResult
+    tol: Tolerances | None = None
+    examined: Examined | None = None
 
-    def _search(
-        self,
-        pts: np.ndarray,
-        labels: np.ndarray,
-        kept: np.ndarray,
-        tol: Tolerances,
-        triplets: np.ndarray,
-        n_selective: int,
-        timings: dict[str, float],
-    ) -> MatchResult:
-        """Hypotheses and votes, one batch of control triplets at a time, best triplets
-        first; stop as soon as the decision is a clear fix. ``kept``: the finite nodes'
-        indices into the LN; ``timings``: the stages' times, added to."""
-        cfg = self.config
-        edge_tol, gate, groups, weights = tol.edge_tol, tol.gate, tol.groups, tol.weights
-        pool = _Pool()
-        # Refined hypotheses by pool row: a later round refines the same best rows again.
-        refined_cache: dict[int, _Refined] = {}
-        result = MatchResult("no_fix", "no_hypothesis", n_triplets=len(triplets))
-        tested = 0
-        for first in range(0, len(triplets), cfg.triplet_batch):
-            batch = triplets[first : first + cfg.triplet_batch]
-            t0 = time.perf_counter()
-            # Hypotheses: congruent GN triangles (edges within d_D, orientation, labels).
-            ln_idx, gn_idx, source = triangle_hypotheses(
-                self.index, pts, labels, edge_tol, batch,
-                use_orientation=cfg.use_orientation, max_hypotheses=cfg.max_hypotheses,
-            )
-            source += first
-            tested += len(source)
-            add_stage(timings, "hypotheses", t0)
-            t0 = time.perf_counter()
-            # Each hypothesis gives a proper rigid transform (never a reflection).
-            yaw, trans = fit_rigid_batch(pts[ln_idx], self.index.pts[gn_idx])
-            # Cheap first look on the most precise nodes (huge GNs: many random triangles).
-            if len(yaw) > cfg.prefilter_above:
-                keep = self._confirmed(pts, gate, tol.precise, yaw, trans, ln_idx)
-                yaw, trans, source = yaw[keep], trans[keep], source[keep]
-                ln_idx, gn_idx = ln_idx[keep], gn_idx[keep]
-            # Verification: every hypothesis votes with the whole LN.
-            mapped = apply_batch(yaw, trans, pts)
-            support = vote(self.index, groups, gate, mapped)
-            pool.add(yaw, trans, mapped, support, source, ln_idx, gn_idx)
-            add_stage(timings, "vote", t0)
-            if not len(pool.yaw):
-                continue
-            t0 = time.perf_counter()
-            # Refit the best distinct transforms on all their inliers.
-            candidates, leftover = self._refine_distinct(pts, groups, gate, weights, pool,
-                                                         refined_cache)
-            # Decision: enough support AND a clear margin over the best distinct alternative.
-            done = min(first + cfg.triplet_batch, len(triplets))
-            # The alignments the whole search examines (the union bound of the odds),
-            # extrapolated from the rounds so far (over the selective triplets while
-            # only those have been tried).
-            n_tested = tested * (n_selective if done <= n_selective else len(triplets)) / done
-            result = self._decide(candidates, leftover, pool, pts, labels, weights, kept,
-                                  n_tested, gate)
-            result.n_triplets = done
-            add_stage(timings, "refine", t0)
-            if result.is_fix:
-                break
-        result.n_hypotheses = len(pool.yaw)
-        return result
 
-    def _confirmed(
-        self,
-        pts: np.ndarray,
-        gate: np.ndarray,
-        precise: tuple[np.ndarray, list],
-        yaw: np.ndarray,
-        trans: np.ndarray,
-        ln_idx: np.ndarray,
-    ) -> np.ndarray:
-        """Hypotheses confirmed by at least one precise LN node besides their own vertices.
-
-        A random congruent GN triangle seldom also has a GN node of the right class where
-        a fourth, precise LN node lands, the true one almost always does: a star
-        tracker's fourth star. Only the survivors get the full vote.
-        """
-        nodes, groups = precise
-        mapped = apply_batch(yaw, trans, pts[nodes])
-        dist, _ = self.index.nearest_same_label(mapped, groups, float(gate[nodes].max()))
-        hit = dist <= gate[nodes][None, :]
-        own = (ln_idx[:, :, None] == nodes[None, None, :]).any(axis=1)
-        return np.flatnonzero((hit & ~own).any(axis=1))
-
-    def _candidates(
-        self, pts: np.ndarray, labels: np.ndarray, edge_tol: np.ndarray, triplets: np.ndarray
-    ) -> np.ndarray:
-        """GN candidate count of each triplet, from the triangle index (selectivity)."""
-        _, owner, sides, tol, codes = query_triangles(
-            pts, labels, edge_tol, triplets,
-            use_orientation=self.config.use_orientation, use_labels=self.index.use_labels,
+def select_triplets(model: GnModel, nodes: LnNodes, tol: Tolerances, cfg: MatchConfig,
+                    ) -> tuple[np.ndarray, int]:
+    """Step 3: control triplets, precise, well conditioned, spread over nodes; the
+    selective ones first, then those of a dense rock field. Returns them and the number
+    of selective ones."""
+    index, pts, labels = model.index, nodes.pts, nodes.labels
+    sides = [MIN_SIDE_M]
+    if not cfg.original_darces:
+        # No wide triangle (a short LN, or one inside a rock cluster): close nodes
+        # still make a triangle whose orientation survives their tolerances.
+        sides.append(MIN_SIDE_FLOOR_M)
+    for min_side in sides:
+        dense: list[np.ndarray] = []
+        triplets = control_triplets(
+            pts, tol.node_tol, cfg.n_triplets,
+            min_side_m=min_side, max_side_m=index.max_side_m,
+            min_height_ratio=MIN_HEIGHT_RATIO,
+            max_uses_per_node=MAX_USES_PER_NODE,
+            # Counting candidates pays off only where random congruent triangles
+            # abound.
+            cost=None if index.exhaustive else (
+                lambda trips: candidate_counts(model, pts, labels, tol.edge_tol, trips)),
+            max_cost=model.max_candidates,
+            max_dense_cost=DENSE_CANDIDATES_FACTOR * model.max_candidates,
+            dense_out=dense,
         )
-        per_query = self.index.count_candidates(sides, tol, codes)
-        return np.bincount(owner, weights=per_query, minlength=len(triplets))
+        # The selective triplets first; those of a dense rock field, whose many
+        # congruent GN triangles only the precise nodes' confirmation thins out,
+        # only after every selective round has ended without a fix.
+        n_selective = len(triplets)
+        triplets = np.vstack([triplets, dense[0]])
+        if len(triplets):
+            break
+    return triplets, n_selective
 
-    def _log_moments(self, labels: np.ndarray, var: np.ndarray) -> dict[float, float] | None:
-        """log E[LR^s] of the LN under chance for the Chernoff bounds of the decision, by
-        order s (``MatchConfig.chernoff_orders``; not with the marginal odds), else None."""
-        cfg = self.config
-        if not cfg.chernoff_orders or cfg.marginal_outliers:
-            return None
-        return {s: self.chance.log_moment(labels, var, s) for s in cfg.chernoff_orders}
 
-    def _decide(
-        self,
-        candidates: list[_Refined],
-        leftover: int,
-        pool: _Pool,
-        pts: np.ndarray,
-        labels: np.ndarray,
-        weights: np.ndarray,
-        kept: np.ndarray,
-        n_tested: float,
-        gate: np.ndarray,
-    ) -> MatchResult:
-        """Fix or no fix from the refined candidates (best first); ``gate``: the nodes'
-        verification gates, metres."""
-        cfg = self.config
-        best = candidates[0]
-        best_T = Rigid2D(best.yaw, best.t[0], best.t[1])
-        # The runner-up is the best candidate that is a different fix: it shares less than
-        # half of its correspondences with the winner.
-        runner_up = max((len(c.ln) for c in candidates[1:] if not _same_fix(best, c)),
-                        default=0)
-        runner_up = max(runner_up, leftover)
-        support = len(best.ln)
-        # The triplets whose hypotheses are this fix: its pairs, or its alignment, every
-        # node within its own gate of where the fix maps it. (Within ``distinct_ratio``
-        # gates, the refinement's suppression radius, it also voted for a refit that had
-        # moved 2 gates from its triangle: on thomas_strong, GN seed 3, a fix 75 m off.)
-        votes = triplet_votes(pool.ln_idx, pool.gn_idx, pool.source, pool.mapped, best.ln,
-                              best.gn, transform_points(best.yaw, best.t, pts), gate, 1.0)
-        covariance = pose_covariance(pts[best.ln], best.yaw, weights[best.ln])
-        spread = self._spread(pts, best.yaw, covariance)
-        status: Status = "fix"
-        reason = "ok"
-        log_odds = p_false = float("nan")
-        if cfg.decision == "odds":
-            # The odds of the winner and of every distinct alternative against chance.
-            var = 1.0 / weights
-            hypotheses = (Hypotheses(pool.ln_idx, pool.gn_idx, pool.mapped, pool.support,
-                                     gate)
-                          if cfg.spent_by_triangle and not cfg.marginal_outliers else None)
+def search(
+    model: GnModel,
+    nodes: LnNodes,
+    tol: Tolerances,
+    triplets: np.ndarray,
+    n_selective: int,
+    cfg: MatchConfig,
+    timings: dict[str, float],
+) -> Search:
+    """Step 4: hypotheses and votes, one batch of control triplets at a time, best
+    triplets first; stop as soon as the decision is a clear fix. ``timings``: the
+    stages' times, added to."""
+    index, pts, labels = model.index, nodes.pts, nodes.labels
+    gate, groups, weights = tol.gate, tol.groups, tol.weights
+    pool = _Pool()
+    # Refined hypotheses by pool row: a later round refines the same best rows again.
+    refined_cache: dict[int, _Refined] = {}
+    result = MatchResult("no_fix", "no_hypothesis", n_triplets=len(triplets))
+    examined = None
+    tested = 0
+    for first in range(0, len(triplets), TRIPLET_BATCH):
+        batch = triplets[first : first + TRIPLET_BATCH]
+        t0 = time.perf_counter()
+        # Hypotheses: congruent GN triangles (edges within d_D, orientation, labels).
+        ln_idx, gn_idx, source = triangle_hypotheses(
+            index, pts, labels, tol.edge_tol, batch,
+            use_orientation=model.use_orientation, max_hypotheses=MAX_HYPOTHESES,
+        )
+        source += first
+        tested += len(source)
+        add_stage(timings, "hypotheses", t0)
+        t0 = time.perf_counter()
+        # Each hypothesis gives a proper rigid transform (never a reflection).
+        yaw, trans = fit_rigid_batch(pts[ln_idx], index.pts[gn_idx])
+        # Cheap first look on the most precise nodes (huge GNs: many random triangles).
+        if len(yaw) > PREFILTER_ABOVE:
+            keep = _confirmed(model, pts, gate, tol.precise, yaw, trans, ln_idx)
+            yaw, trans, source = yaw[keep], trans[keep], source[keep]
+            ln_idx, gn_idx = ln_idx[keep], gn_idx[keep]
+        # Verification: every hypothesis votes with the whole LN.
+        mapped = apply_batch(yaw, trans, pts)
+        support = vote(index, groups, gate, mapped)
+        pool.add(yaw, trans, mapped, support, source, ln_idx, gn_idx)
+        add_stage(timings, "vote", t0)
+        if not len(pool.yaw):
+            continue
+        t0 = time.perf_counter()
+        # Refit the best distinct transforms on all their inliers.
+        candidates, leftover = _refine_distinct(model, pts, groups, gate, weights, pool,
+                                                cfg, refined_cache)
+        # Decision: enough support AND a clear margin over the best distinct alternative.
+        done = min(first + TRIPLET_BATCH, len(triplets))
+        # The alignments the whole search examines (the union bound of the odds),
+        # extrapolated from the rounds so far (over the selective triplets while
+        # only those have been tried).
+        n_tested = tested * (n_selective if done <= n_selective else len(triplets)) / done
+        result, examined = _decide(model, candidates, leftover, pool, nodes, weights,
+                                   n_tested, gate, cfg)
+        result.n_triplets = done
+        add_stage(timings, "refine", t0)
+        if result.is_fix:
+            break
+    result.n_hypotheses = len(pool.yaw)
+    return Search(result, tol, examined)
 
-            scored = [best, *(c for c in candidates[1:] if not _same_fix(best, c))]
-            odds = np.array([self.chance.odds(c.yaw, c.t, pts, labels, var).log_odds
-                             for c in scored])
-            moments = self._log_moments(labels, var)
+
+def _confirmed(
+    model: GnModel,
+    pts: np.ndarray,
+    gate: np.ndarray,
+    precise: tuple[np.ndarray, list],
+    yaw: np.ndarray,
+    trans: np.ndarray,
+    ln_idx: np.ndarray,
+) -> np.ndarray:
+    """Hypotheses confirmed by at least one precise LN node besides their own vertices.
+
+    A random congruent GN triangle seldom also has a GN node of the right class where
+    a fourth, precise LN node lands, the true one almost always does: a star
+    tracker's fourth star. Only the survivors get the full vote.
+    """
+    nodes, groups = precise
+    mapped = apply_batch(yaw, trans, pts[nodes])
+    dist, _ = model.index.nearest_same_label(mapped, groups, float(gate[nodes].max()))
+    hit = dist <= gate[nodes][None, :]
+    own = (ln_idx[:, :, None] == nodes[None, None, :]).any(axis=1)
+    return np.flatnonzero((hit & ~own).any(axis=1))
+
+
+def candidate_counts(
+    model: GnModel, pts: np.ndarray, labels: np.ndarray, edge_tol: np.ndarray,
+    triplets: np.ndarray,
+) -> np.ndarray:
+    """GN candidate count of each triplet, from the triangle index (selectivity)."""
+    _, owner, sides, tol, codes = query_triangles(
+        pts, labels, edge_tol, triplets,
+        use_orientation=model.use_orientation, use_labels=model.index.use_labels,
+    )
+    per_query = model.index.count_candidates(sides, tol, codes)
+    return np.bincount(owner, weights=per_query, minlength=len(triplets))
+
+
+def _decide(
+    model: GnModel,
+    candidates: list[_Refined],
+    leftover: int,
+    pool: _Pool,
+    nodes: LnNodes,
+    weights: np.ndarray,
+    n_tested: float,
+    gate: np.ndarray,
+    cfg: MatchConfig,
+) -> tuple[MatchResult, Examined | None]:
+    """Fix or no fix from the refined candidates (best first); ``gate``: the nodes'
+    verification gates, metres. Also returns what the odds decision examined."""
+    pts, labels, kept = nodes.pts, nodes.labels, nodes.kept
+    best = candidates[0]
+    best_T = Rigid2D(best.yaw, best.t[0], best.t[1])
+    # The runner-up is the best candidate that is a different fix: it shares less than
+    # half of its correspondences with the winner.
+    runner_up = max((len(c.ln) for c in candidates[1:] if not _same_fix(best, c)),
+                    default=0)
+    runner_up = max(runner_up, leftover)
+    support = len(best.ln)
+    # The triplets whose hypotheses are this fix: its pairs, or its alignment, every
+    # node within its own gate of where the fix maps it (within ``DISTINCT_RATIO`` gates
+    # a triplet would also vote for a refit that moved 2 gates from its triangle).
+    votes = triplet_votes(pool.ln_idx, pool.gn_idx, pool.source, pool.mapped, best.ln,
+                          best.gn, transform_points(best.yaw, best.t, pts), gate, 1.0)
+    covariance = pose_covariance(pts[best.ln], best.yaw, weights[best.ln])
+    spread = fit_spread(nodes, best.yaw, covariance)
+    status: Status = "fix"
+    reason = "ok"
+    log_odds = p_false = float("nan")
+    examined = None
+    if not cfg.original_darces:
+        # The odds of the winner and of every distinct alternative against chance.
+        var = 1.0 / weights
+        hypotheses = Hypotheses(pool.ln_idx, pool.gn_idx, pool.mapped, pool.support, gate)
+        chance = model.chance
+        scored = [best, *(c for c in candidates[1:] if not _same_fix(best, c))]
+        odds = np.array([chance.odds(c.yaw, c.t, pts, labels, var).log_odds
+                         for c in scored])
+        moments = chance.log_moments(labels, var)
+        verdict = decide(float(odds[0]), n_tested, odds[1:].tolist(),
+                         cfg.false_match_rate, moments, MIN_CHANCE_COUNT)
+        # The hypotheses' odds only raise an alignment's: a lone winner that passes
+        # on the refit's odds passes on them too (the decision is the same; the odds
+        # reported are then the refit's, a lower bound).
+        if not (verdict.accept and len(scored) == 1):
+            odds = np.maximum(odds, hypotheses.log_odds(
+                chance, [(c.yaw, c.t, c.ln, c.gn) for c in scored], pts, labels, var))
             verdict = decide(float(odds[0]), n_tested, odds[1:].tolist(),
-                             cfg.false_match_rate, moments, cfg.min_chance_count)
-            # The hypotheses' odds only raise an alignment's: a lone winner that passes
-            # on the refit's odds passes on them too (the decision is the same; the odds
-            # reported are then the refit's, a lower bound).
-            if hypotheses is not None and not (verdict.accept and len(scored) == 1):
-                odds = np.maximum(odds, hypotheses.log_odds(
-                    self.chance, [(c.yaw, c.t, c.ln, c.gn) for c in scored], pts, labels,
-                    var))
-                verdict = decide(float(odds[0]), n_tested, odds[1:].tolist(),
-                                 cfg.false_match_rate, moments, cfg.min_chance_count)
-            alternatives = odds[1:].tolist()
-            self._last_search = (n_tested, alternatives, hypotheses)
-            log_odds, p_false = verdict.log_odds, verdict.p_false
-            unsupported = not verdict.accept and not verdict.ambiguous
-            ambiguous = not verdict.accept and verdict.ambiguous
+                             cfg.false_match_rate, moments, MIN_CHANCE_COUNT)
+        examined = Examined(n_tested, odds[1:].tolist(), hypotheses)
+        log_odds, p_false = verdict.log_odds, verdict.p_false
+        unsupported = not verdict.accept and not verdict.ambiguous
+        ambiguous = not verdict.accept and verdict.ambiguous
+    else:
+        # The paper's voting: fixed counts of support and margin.
+        unsupported = support < max(PAPER_MIN_INLIERS, PAPER_MIN_INLIER_FRACTION * len(pts))
+        ambiguous = support - runner_up < PAPER_MIN_MARGIN
+    if unsupported:
+        status, reason = "no_fix", "insufficient_support"
+    elif votes < MIN_VOTES:
+        # The refit drifted away from every triangle hypothesis: not trustworthy.
+        status, reason = "no_fix", "unsupported_refit"
+    elif spread > cfg.max_position_sigma_m:
+        # Right or wrong, a fit this loose cannot place the LN within metres.
+        status, reason = "no_fix", "imprecise"
+    elif ambiguous:
+        status, reason = "no_fix", "ambiguous"
+    return MatchResult(
+        status=status, reason=reason, map_T_odom=best_T,
+        covariance=covariance, position_sigma_m=spread,
+        inliers=np.column_stack([kept[best.ln], best.gn]).astype(np.int64),
+        votes=votes, support=support,
+        runner_up=runner_up, margin=support - runner_up,
+        log_odds=log_odds, false_match_probability=p_false,
+    ), examined
+
+
+def _refine_distinct(
+    model: GnModel,
+    pts: np.ndarray,
+    groups: list,
+    node_tol: np.ndarray,
+    weights: np.ndarray,
+    pool: _Pool,
+    cfg: MatchConfig,
+    cache: dict[int, _Refined] | None = None,
+) -> tuple[list[_Refined], int]:
+    """Refine the ``N_REFINE`` best mutually distinct hypotheses, best first.
+
+    Non-maximum suppression: after refining the best remaining hypothesis, every
+    hypothesis within ``DISTINCT_RATIO`` tolerances of it is set aside.
+
+    Returns:
+        The refined transforms, by decreasing support, then increasing residual, and
+        the best raw support of the hypotheses left unrefined.
+    """
+    index = model.index
+    alive = np.ones(len(pool.yaw), dtype=bool)
+    refined = []
+    for _ in range(N_REFINE):
+        if not alive.any():
+            break
+        pick = int(np.flatnonzero(alive)[np.argmax(pool.support[alive])])
+        # An alternative supported by little more than its own triangle is not worth
+        # refining: its raw support stands for it.
+        if refined and pool.support[pick] < MIN_REFINE_SUPPORT:
+            break
+        if cache is not None and pick in cache:
+            # Refined in an earlier round (the pool only grows): same input, same fit.
+            refined.append(cache[pick])
         else:
-            unsupported = support < max(cfg.min_inliers, cfg.min_inlier_fraction * len(pts))
-            ambiguous = support - runner_up < cfg.min_margin
-        if unsupported:
-            status, reason = "no_fix", "insufficient_support"
-        elif votes < cfg.min_votes:
-            # The refit drifted away from every triangle hypothesis: not trustworthy.
-            status, reason = "no_fix", "unsupported_refit"
-        elif spread > cfg.max_position_sigma_m:
-            # Right or wrong, a fit this loose cannot place the LN within metres.
-            status, reason = "no_fix", "imprecise"
-        elif ambiguous:
-            status, reason = "no_fix", "ambiguous"
-        return MatchResult(
-            status=status, reason=reason, map_T_odom=best_T,
-            covariance=covariance, position_sigma_m=spread,
-            inliers=np.column_stack([kept[best.ln], best.gn]).astype(np.int64),
-            votes=votes, support=support,
-            runner_up=runner_up, margin=support - runner_up,
-            log_odds=log_odds, false_match_probability=p_false,
-        )
-
-    def _refine_distinct(
-        self,
-        pts: np.ndarray,
-        groups: list,
-        node_tol: np.ndarray,
-        weights: np.ndarray,
-        pool: _Pool,
-        cache: dict[int, _Refined] | None = None,
-    ) -> tuple[list[_Refined], int]:
-        """Refine the ``n_refine`` best mutually distinct hypotheses, best first.
-
-        Non-maximum suppression: after refining the best remaining hypothesis, every
-        hypothesis within ``distinct_ratio`` tolerances of it is set aside.
-
-        Returns:
-            The refined transforms, by decreasing support, then increasing residual, and
-            the best raw support of the hypotheses left unrefined.
-        """
-        cfg = self.config
-        alive = np.ones(len(pool.yaw), dtype=bool)
-        refined = []
-        for _ in range(cfg.n_refine):
-            if not alive.any():
-                break
-            pick = int(np.flatnonzero(alive)[np.argmax(pool.support[alive])])
-            # An alternative supported by little more than its own triangle is not worth
-            # refining: its raw support stands for it.
-            if refined and pool.support[pick] < cfg.min_refine_support:
-                break
-            if cache is not None and pick in cache:
-                # Refined in an earlier round (the pool only grows): same input, same fit.
-                refined.append(cache[pick])
-            else:
-                yaw, t, ln, gn = refine(
-                    self.index, pts, groups, node_tol, weights, float(pool.yaw[pick]),
-                    pool.t[pick], iterations=cfg.refine_iterations, n_sigma=cfg.n_sigma,
-                    max_gate=cfg.max_tol_m,
-                )
-                residual = transform_points(yaw, t, pts[ln]) - self.index.pts[gn]
-                cost = float(np.sum(weights[ln] * np.sum(residual**2, axis=1)))
-                refined.append(_Refined(yaw, t, ln, gn, cost))
-                if cache is not None:
-                    cache[pick] = refined[-1]
-            alive &= displacement(pool.mapped, pool.mapped[pick], node_tol) > cfg.distinct_ratio
-        leftover = int(pool.support[alive].max(initial=0))
-        return sorted(refined, key=lambda r: (-len(r.ln), r.cost)), leftover
+            yaw, t, ln, gn = refine(
+                index, pts, groups, node_tol, weights, float(pool.yaw[pick]),
+                pool.t[pick], iterations=REFINE_ITERATIONS, n_sigma=cfg.n_sigma,
+                max_gate=MAX_TOL_M,
+            )
+            residual = transform_points(yaw, t, pts[ln]) - index.pts[gn]
+            cost = float(np.sum(weights[ln] * np.sum(residual**2, axis=1)))
+            refined.append(_Refined(yaw, t, ln, gn, cost))
+            if cache is not None:
+                cache[pick] = refined[-1]
+        alive &= displacement(pool.mapped, pool.mapped[pick], node_tol) > DISTINCT_RATIO
+    leftover = int(pool.support[alive].max(initial=0))
+    return sorted(refined, key=lambda r: (-len(r.ln), r.cost)), leftover
 
 
 @dataclass

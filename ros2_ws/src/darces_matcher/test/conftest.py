@@ -1,4 +1,4 @@
-"""Fixtures shared by the matcher tests: the issue-4 test GN and its matcher."""
+"""Fixtures shared by the matcher tests: a clustered 120-ROI test GN and its matcher."""
 
 from __future__ import annotations
 

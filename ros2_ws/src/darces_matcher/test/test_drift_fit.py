@@ -152,15 +152,15 @@ def test_the_leave_one_out_alignments_are_the_refits_without_the_pair() -> None:
         assert loo[i, 2] == pytest.approx(refit.yaw, abs=1e-4)
 
 
-def test_a_localized_fix_drops_an_old_pair_its_drift_cannot_explain() -> None:
+def test_a_localized_fix_drops_an_old_pair_its_drift_cannot_explain(monkeypatch) -> None:
     """Matcher.match_or_track with the nodes' odometry covariance, localized: an old
     node's GN rock is missing and a decoy lies 5 m from it. Each old node's drift to the
     newest is metres on its own, so the search and the EM pair the decoy; relative to its
     neighbours the pair is off by far more than their drift, and the drift fit drops it
-    (MatchConfig.drift_fit), whether the fix then becomes the drift fit's (``"gls"``) or
-    is fitted again without the pair (``"screen"``), and places the rover as well as the
-    other pairs allow."""
-    from darces_matcher.matcher import MatchConfig, Matcher
+    (tracking.drift_fit), and the fix, now the drift fit's, places the rover as well as
+    the other pairs allow."""
+    from darces_matcher import tracking
+    from darces_matcher.matcher import Matcher
     from roi_network.network import RoiNetwork
     from roi_network.records import ROCK, empty_records
     from roi_network.transform import Rigid2D
@@ -189,9 +189,12 @@ def test_a_localized_fix_drops_an_old_pair_its_drift_cannot_explain() -> None:
         lever = prior.apply(ln[-1:])[0] - np.array([prior.tx, prior.ty])
         G = np.array([[1.0, 0.0, -lever[1]], [0.0, 1.0, lever[0]], [0.0, 0.0, 1.0]])
         prior_cov = np.linalg.inv(G) @ prior_cov @ np.linalg.inv(G).T
-        for drift in (False, "gls", "screen"):
-            m = Matcher(gn, MatchConfig(drift_fit=bool(drift), drift_fit_mode=drift or "gls"))
-            r = m.match_or_track(rec, prior, prior_cov, odom_cov=P)
+        m = Matcher(gn)
+        for drift in (False, True):
+            with monkeypatch.context() as patch:
+                if not drift:
+                    patch.setattr(tracking, "drift_fit", lambda result, *_: result)
+                r = m.match_or_track(rec, prior, prior_cov, odom_cov=P)
             assert r.is_fix, (seed, drift, r.reason)
             paired_decoy = bool(np.any((r.inliers[:, 0] == bad)
                                        & (r.inliers[:, 1] == k - 1)))
@@ -199,7 +202,6 @@ def test_a_localized_fix_drops_an_old_pair_its_drift_cannot_explain() -> None:
             outcome.setdefault(drift, []).append((paired_decoy, r.drift_dropped, err))
     # Without the drift fit the decoy is among the pairs of most fixes; with it, of none.
     assert sum(p for p, _, _ in outcome[False]) >= 4, outcome
-    for mode in ("gls", "screen"):
-        assert not any(p for p, _, _ in outcome[mode]), outcome
-        assert all(n >= 1 for _, n, _ in outcome[mode]), outcome
-        assert np.median([e for _, _, e in outcome[mode]]) < 1.5, outcome
+    assert not any(p for p, _, _ in outcome[True]), outcome
+    assert all(n >= 1 for _, n, _ in outcome[True]), outcome
+    assert np.median([e for _, _, e in outcome[True]]) < 1.5, outcome

@@ -2,19 +2,26 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
+from darces_matcher import matcher as matcher_module
+from darces_matcher import search
 from darces_matcher.gn_generator import GnSpec, generate_gn, repeated_pattern_gn
 from darces_matcher.matcher import MatchConfig, Matcher
+from darces_matcher.refit import refit_fix
 from darces_matcher.simulate import SimOptions, iter_lns, transform_error
+from darces_matcher.tolerances import ln_nodes
 from roi_network.network import RoiNetwork
 from roi_network.records import OUTCROP, ROCK, empty_records, xy
 from roi_network.transform import Rigid2D
 
-#: Exact recovery of a noiseless LN: by the hard least-squares refit, to rounding; by
-#: the default EM refit (the mixture's maximum likelihood, where nearby GN nodes of the
-#: wide-sigma far nodes keep a little weight), to a fraction of a millimetre.
+#: Exact recovery of a noiseless LN: by the hard least-squares refit (the original
+#: DARCES), to rounding; by the default EM refit (the mixture's maximum likelihood,
+#: where nearby GN nodes of the wide-sigma far nodes keep a little weight), to a
+#: fraction of a millimetre.
 _EXACT_M = 1e-6
 _EXACT_EM_M = 1e-3
 
@@ -25,7 +32,7 @@ def _lns(gn: RoiNetwork, n: int, **options: float) -> list:
 
 @pytest.mark.parametrize("em", [True, False])
 def test_exact_recovery_on_noiseless_lns(gn: RoiNetwork, em: bool) -> None:
-    matcher = Matcher(gn, MatchConfig(probabilistic_refit=em))
+    matcher = Matcher(gn, MatchConfig() if em else MatchConfig.original())
     gn_pts = xy(gn.records)
     lns = _lns(gn, 12, noise_fraction=0.0)
     assert len(lns) == 12
@@ -59,7 +66,8 @@ def test_mirrored_ln_is_rejected(gn: RoiNetwork, matcher: Matcher) -> None:
 
 def test_original_darces_ignores_orientation_and_labels(gn: RoiNetwork) -> None:
     original = Matcher(gn, MatchConfig.original())
-    assert not original.config.use_orientation and not original.config.use_labels
+    assert not original.model.use_orientation and not original.model.use_labels
+    assert original.blind_model is None
     sim = _lns(gn, 1, noise_fraction=0.0)[0]
     result = original.match(sim.records)
     assert result.status == "fix"
@@ -83,7 +91,6 @@ def _flip_fifth(records: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def test_misclassified_nodes_join_the_fix(gn: RoiNetwork, matcher: Matcher) -> None:
     # The EM refit's class prior lets the misclassified nodes join the labelled fix.
-    strict = Matcher(gn, MatchConfig(label_fallback=False, probabilistic_refit=False))
     for sim in _lns(gn, 6, noise_fraction=0.0):
         flipped, nodes = _flip_fifth(sim.records)
         result = matcher.match(flipped)
@@ -91,35 +98,6 @@ def test_misclassified_nodes_join_the_fix(gn: RoiNetwork, matcher: Matcher) -> N
         assert result.support == len(flipped) - len(nodes)
         assert len(result.inliers) == len(flipped)
         assert np.array_equal(sim.truth_gn[result.inliers[:, 0]], result.inliers[:, 1])
-        assert len(strict.match(flipped).inliers) == len(flipped) - len(nodes)
-
-
-def test_label_blind_polish_without_em(gn: RoiNetwork) -> None:
-    # Without the EM, the label-blind polish refits the labelled fix with the
-    # misclassified nodes, and they count as support.
-    polish = Matcher(gn, MatchConfig(probabilistic_refit=False))
-    for sim in _lns(gn, 6, noise_fraction=0.0):
-        flipped, _ = _flip_fifth(sim.records)
-        result = polish.match(flipped)
-        assert result.status == "fix", result.reason
-        assert result.support == len(flipped)
-        assert np.array_equal(sim.truth_gn[result.inliers[:, 0]], result.inliers[:, 1])
-
-
-def test_label_blind_fallback(gn: RoiNetwork) -> None:
-    # Labelled support (80 %) below the needed 90 % (the count decision, which can be
-    # made to fail that way; the odds decision fixes such an LN in the labelled search):
-    # only the label-blind search fixes, and its inliers agree on class at 80 %
-    # >= min_label_agreement.
-    matcher = Matcher(gn, MatchConfig.counts(min_inlier_fraction=0.9))
-    strict = Matcher(gn, MatchConfig.counts(min_inlier_fraction=0.9, label_fallback=False))
-    gn_pts = xy(gn.records)
-    for sim in _lns(gn, 4, noise_fraction=0.0):
-        flipped, _ = _flip_fifth(sim.records)
-        assert strict.match(flipped).status == "no_fix"
-        result = matcher.match(flipped)
-        assert result.status == "fix" and result.reason == "ok_label_blind"
-        assert transform_error(result.map_T_odom, sim, gn_pts) < _EXACT_EM_M
 
 
 def test_repeated_pattern_gives_no_fix() -> None:
@@ -198,25 +176,27 @@ def test_relative_node_sigma_drops_the_common_odometry_error(gn: RoiNetwork) -> 
         rec = sim.records.copy()
         rec["cov_xx"] = rec["cov_yy"] = sim.sigma**2 + 36.0
         late.append(rec)
-    absolute = Matcher(gn, MatchConfig(ln_sigma_relative=False))
     relative = Matcher(gn)
     for sim, rec in zip(sims, late, strict=True):
         # Relative to the least uncertain node: each node's own drift, floored.
         expected = np.maximum(np.sqrt(np.clip(sim.sigma**2 - sim.sigma.min() ** 2
                                               + 0.2**2, 0, None)), 0.2)
         assert np.allclose(relative.node_sigma(rec, None), expected, atol=1e-3)
-        assert np.all(absolute.node_sigma(rec, None) >= 5.99)
         # The late LN is placed as well as the same LN seen from its own start.
         result = relative.match(rec)
         assert result.status == "fix", result.reason
         assert transform_error(result.map_T_odom, sim, xy(gn.records)) < 6.0
-    # With the absolute covariance the late LNs' gates are too wide to place them.
-    assert sum(absolute.match(rec).is_fix for rec in late) < len(late)
+    # With the absolute covariance as the error model the late LNs' gates are too wide
+    # to place them.
+    absolute = [np.sqrt(rec["cov_xx"]) for rec in late]
+    assert np.all(np.concatenate(absolute) >= 5.99)
+    assert sum(relative.match(rec, ln_sigma=sigma).is_fix
+               for rec, sigma in zip(late, absolute, strict=True)) < len(late)
     # A node without a position is ignored, also as the least uncertain node.
     rec = late[0].copy()
     rec["x"][0], rec["cov_xx"][0], rec["cov_yy"][0] = np.nan, 0.0, 0.0
     kept = np.arange(1, len(rec))
-    assert np.allclose(relative._finite_nodes(rec, None)[1],
+    assert np.allclose(ln_nodes(rec, None, relative.config).sigma,
                        relative.node_sigma(rec[kept], None))
 
 
@@ -244,42 +224,39 @@ def test_large_gn_uses_local_triangles() -> None:
         assert transform_error(result.map_T_odom, sim, xy(gn.records)) < _EXACT_EM_M
 
 
-def test_dense_triplets_are_tried_after_the_selective_ones() -> None:
+def test_dense_triplets_are_tried_after_the_selective_ones(monkeypatch) -> None:
     # A local-index GN with a candidate cap so low that every control triplet is
     # "dense": only the second tier of triplets can fix.
     gn = generate_gn(GnSpec(n_rois=800), seed=4)
     sims = list(iter_lns(gn, SimOptions(), seed=2, max_lns=3))
-    capped = Matcher(gn, MatchConfig(max_candidates=1, dense_candidates_factor=0.0))
-    tiered = Matcher(gn, MatchConfig(max_candidates=1, dense_candidates_factor=1e9))
-    assert not capped.index.exhaustive
+    matcher = Matcher(gn)
+    matcher.model = dataclasses.replace(matcher.model, max_candidates=1)
+    assert not matcher.index.exhaustive
     for sim in sims:
-        assert capped.match(sim.records).reason == "no_control_triplet"
-        result = tiered.match(sim.records)
+        monkeypatch.setattr(search, "DENSE_CANDIDATES_FACTOR", 0.0)
+        assert matcher.match(sim.records).reason == "no_control_triplet"
+        monkeypatch.setattr(search, "DENSE_CANDIDATES_FACTOR", 1e9)
+        result = matcher.match(sim.records)
         assert result.status == "fix"
         assert transform_error(result.map_T_odom, sim, xy(gn.records)) < 2.0
 
 
-class _WithholdLabelled(Matcher):
-    """A matcher whose EM refit withholds every labelled fix (as the odds may withhold
-    the EM's alignment of a right labelled fix)."""
-
-    def _em_refit(self, result):
-        result = super()._em_refit(result)
+def test_a_withheld_labelled_fix_falls_back_to_the_label_blind_search(
+        gn: RoiNetwork, monkeypatch) -> None:
+    # The EM refit withholds every labelled fix (as the odds may withhold the EM's
+    # alignment of a right labelled fix): the label-blind search places the LN, and its
+    # inliers agree on class at 80 % (every fifth node flipped).
+    def withhold_labelled(result, *args):
+        result = refit_fix(result, *args)
         if result.reason == "ok":
             result.status, result.reason = "no_fix", "insufficient_support"
         return result
 
-
-@pytest.mark.parametrize("fallback", [True, False])
-def test_a_withheld_labelled_fix_falls_back_to_the_label_blind_search(
-        gn: RoiNetwork, fallback: bool) -> None:
-    matcher = _WithholdLabelled(gn, MatchConfig(fallback_after_withheld=fallback))
+    monkeypatch.setattr(matcher_module, "refit_fix", withhold_labelled)
+    matcher = Matcher(gn)
     gn_pts = xy(gn.records)
     for sim in _lns(gn, 3, noise_fraction=0.0):
         flipped, _ = _flip_fifth(sim.records)
         result = matcher.match(flipped)
-        if fallback:
-            assert result.status == "fix" and result.reason == "ok_label_blind"
-            assert transform_error(result.map_T_odom, sim, gn_pts) < _EXACT_EM_M
-        else:
-            assert result.status == "no_fix" and result.reason == "insufficient_support"
+        assert result.status == "fix" and result.reason == "ok_label_blind"
+        assert transform_error(result.map_T_odom, sim, gn_pts) < _EXACT_EM_M

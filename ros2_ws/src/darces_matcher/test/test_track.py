@@ -113,25 +113,12 @@ def test_track_bad_input(gn, matcher, lns) -> None:
     assert few.status == "no_fix" and few.reason == "too_few_nodes"
 
 
-def test_search_first_tracks_only_when_the_search_fails_and_a_prior_is_given(gn, lns) -> None:
-    # The control flow on a fixture where one five-node prefix is left unfixed by the
-    # search and placed by the prior. That prefix (nodes 0.7-1.9 m, 1 sigma) is placed at
-    # odds 0.005 with its covariance as it is, and just misses the 0.01 threshold (0.012)
-    # with the node sigmas relative to its first node, whose smaller cells count more
-    # distinct alignments inside the prior: the records' covariance as it is, here. The
-    # search's odds leave out the three largest node terms (the rule before the spent
-    # triangles, under which the search fixes that prefix itself).
-    matcher = Matcher(gn, MatchConfig(ln_sigma_relative=False, localized_keep_likelier=False,
-                                      spent_by_triangle=False))
+def test_without_a_prior_only_the_search_runs_and_with_one_tracking_too(gn, lns) -> None:
+    # Five-node prefixes: without a prior match_or_track is the search; with one, the
+    # search (node sigmas relative to the newest node) and tracking both run, and where
+    # the search gives no fix the prior decides.
+    matcher = Matcher(gn)
     gn_pts = xy(gn.records)
-    # A whole LN: the global search fixes it, the prior is not used.
-    sim = lns[0]
-    prior, cov = _prior(sim.map_T_odom, xy(sim.records).mean(axis=0), np.zeros(3), 0.5,
-                        np.radians(0.2))
-    result = matcher.match_or_track(sim.records, prior, cov)
-    assert result.is_fix and result.reason != "ok_tracked" and "search" not in result.timings_ms
-    # Five-node prefixes: where the search gives no fix, the prior decides (on these 12
-    # LNs the search leaves one prefix unfixed, which the 0.5 m prior fixes).
     tracked = 0
     for sim in lns:
         short = ln_prefix(sim, 5)
@@ -140,14 +127,15 @@ def test_search_first_tracks_only_when_the_search_fails_and_a_prior_is_given(gn,
         alone = matcher.match(short.records)
         without = matcher.match_or_track(short.records)
         assert without.status == alone.status and without.reason == alone.reason
+        assert "search" not in without.timings_ms
         # The search as match_or_track runs it once localized (anchor_newest).
         searched = matcher.match(short.records, None, True)
         result = matcher.match_or_track(short.records, prior, cov)
-        if searched.is_fix:
-            assert result.reason == searched.reason
-            continue
         assert "search" in result.timings_ms
         assert result.timings_ms["total"] >= result.timings_ms["search"]
+        if searched.is_fix:
+            assert result.is_fix
+            continue
         if result.is_fix:
             tracked += 1
             assert result.reason == "ok_tracked"
@@ -214,18 +202,17 @@ def test_once_localized_the_fit_places_the_rover_not_the_ln_start(gn: RoiNetwork
     the node sigmas at the newest node and judges the fit's precision there."""
     from darces_matcher.simulate import SimOptions, iter_lns
 
-    least = Matcher(gn, MatchConfig(localized_anchor_newest=False))
     newest = Matcher(gn)
-    assert newest.config.localized_anchor_newest
     prior_cov = np.diag([15.0**2, 15.0**2, np.radians(2.0) ** 2])
     placed = 0
     sims = list(iter_lns(gn, SimOptions(noise_fraction=0.0), seed=7, max_lns=8))
     for sim in sims:
         rec, odom, route = _bent_ln(gn, sim, 3.0)
-        first = least.match(rec)  # the first fix: no prior, the least uncertain anchor
+        first = newest.match(rec)  # the first fix: no prior, the least uncertain anchor
         assert first.is_fix, first.reason
         assert np.linalg.norm(first.map_T_odom.apply(odom[-1:]) - route[-1]) > 8.0
-        same = least.match_or_track(rec, first.map_T_odom, prior_cov)
+        # Tracking with the node sigmas relative to the start fits the start too.
+        same = newest.track(rec, first.map_T_odom, prior_cov)
         assert np.linalg.norm(same.map_T_odom.apply(odom[-1:]) - route[-1]) > 8.0
         result = newest.match_or_track(rec, first.map_T_odom, prior_cov)
         if result.is_fix:
@@ -241,41 +228,28 @@ def test_once_localized_the_fit_places_the_rover_not_the_ln_start(gn: RoiNetwork
                                      rel=1e-5)
 
 
-def test_first_fix_judged_at_newest_judges_precision_where_the_rover_is(gn: RoiNetwork) -> None:
-    """``first_fix_judged_at_newest`` (on by default): the global search's fit is judged
-    precise by its predicted error at the LN's newest node, not the largest over the LN
-    (as before, and as the baselines do); the search itself is the same."""
+def test_the_first_fix_is_judged_precise_where_the_rover_is(gn: RoiNetwork) -> None:
+    """The global search's fit is judged precise by its predicted error at the LN's
+    newest node (``position_sigma_m``), not the largest over the LN; the covariance
+    reported covers the complete-data one that this test judges."""
     from darces_matcher.simulate import SimOptions, iter_lns
     from darces_matcher.vote import predicted_variance
 
-    # The complete-data covariance reported (the one the precision test judges), so
-    # that the sigma at the rover can be checked against it.
-    every = Matcher(gn, MatchConfig(first_fix_judged_at_newest=False,
-                                    association_covariance=False))
-    newest = Matcher(gn, MatchConfig(association_covariance=False))
-    assert MatchConfig().first_fix_judged_at_newest
-    assert not MatchConfig.counts().first_fix_judged_at_newest
-    assert not MatchConfig.original().first_fix_judged_at_newest
-    reporting = Matcher(gn)
+    matcher = Matcher(gn)
     lower = 0
     for sim in iter_lns(gn, SimOptions(noise_fraction=0.0), seed=7, max_lns=4):
         rec, odom, _ = _bent_ln(gn, sim, 1.0)
-        a, b = every.match(rec), newest.match(rec)
-        assert a.is_fix and b.is_fix, (a.reason, b.reason)
-        # By default the same fix and precision test, its covariance covering the
-        # complete-data one (the association's uncertainty added).
-        c = reporting.match(rec)
-        assert c.is_fix and c.position_sigma_m == pytest.approx(b.position_sigma_m)
-        assert np.linalg.eigvalsh(c.covariance - b.covariance).min() >= -1e-9
-        assert b.map_T_odom.yaw == pytest.approx(a.map_T_odom.yaw)
-        at_rover = np.sqrt(predicted_variance(odom[-1:], b.map_T_odom.yaw, b.covariance).max())
-        assert b.position_sigma_m == pytest.approx(at_rover, rel=1e-6)
-        assert b.position_sigma_m <= a.position_sigma_m + 1e-9
-        lower += b.position_sigma_m < a.position_sigma_m - 1e-6
+        c = matcher.match(rec)
+        assert c.is_fix, c.reason
+        yaw = c.map_T_odom.yaw
+        at_rover = np.sqrt(predicted_variance(odom[-1:], yaw, c.covariance).max())
+        over_ln = np.sqrt(predicted_variance(odom, yaw, c.covariance).max())
+        assert c.position_sigma_m <= at_rover + 1e-9
+        lower += c.position_sigma_m < over_ln - 1e-6
     assert lower >= 1
 
 
-def _lone_newest_case(jackknife: bool) -> tuple:
+def _lone_newest_case() -> tuple:
     """An LN like the held-out train_1km_s113's at 822 m: twelve rocks seen early (a
     100 m cluster), then, 400 m on, one newest rock with no GN counterpart (a false
     detection) 12 m from a GN rock. Relative to the newest node (``anchor_newest``) the
@@ -299,20 +273,27 @@ def _lone_newest_case(jackknife: bool) -> tuple:
     ln_xy = odom.apply(ln_map)
     ln["x"], ln["y"], ln["label"], ln["id"] = ln_xy[:, 0], ln_xy[:, 1], ROCK, np.arange(13)
     ln["cov_xx"] = ln["cov_yy"] = np.r_[np.full(12, 0.05), 11.6]
-    matcher = Matcher(gn, MatchConfig(jackknife_covariance=jackknife))
+    matcher = Matcher(gn)
     prior, cov = _prior(truth, xy(ln)[:12].mean(axis=0), np.zeros(3), 3.0, np.radians(2.0))
     result = matcher.match_or_track(ln, prior, cov)
     return result, truth, xy(ln)[12]
 
 
-def test_a_localized_fix_that_rests_on_one_pair_is_no_more_precise_than_that_pair() -> None:
-    """The jackknife covariance (MatchConfig.jackknife_covariance): a lone precise node
-    paired with a decoy pulls the tracked fit 12 m off at the rover. The analytic
-    covariance claims that position to a few tenths of a metre; the covariance handed to
-    the filter covers the error. The decision itself is the same."""
+def test_a_localized_fix_that_rests_on_one_pair_is_no_more_precise_than_that_pair(
+        monkeypatch) -> None:
+    """The jackknife covariance (tracking.localized_fix): a lone precise node paired with
+    a decoy pulls the tracked fit 12 m off at the rover. The analytic covariance claims
+    that position to a few tenths of a metre; the covariance handed to the filter covers
+    the error. The decision itself is the same."""
+    from darces_matcher import tracking
+
     outcome = {}
     for jackknife in (False, True):
-        result, truth, newest = _lone_newest_case(jackknife)
+        with monkeypatch.context() as patch:
+            if not jackknife:
+                # The analytic covariance alone.
+                patch.setattr(tracking, "covering_covariance", lambda cov, _: cov)
+            result, truth, newest = _lone_newest_case()
         assert result.reason == "ok_tracked"
         error = np.linalg.norm(result.map_T_odom.apply(newest) - truth.apply(newest))
         var = predicted_variance(newest[None], result.map_T_odom.yaw, result.covariance)
