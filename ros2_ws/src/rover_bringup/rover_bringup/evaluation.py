@@ -11,10 +11,10 @@ associated with the truth pose of the nearest stamp (evo's ``associate_trajector
 - ``rmse_after_first_fix_m``: RMSE over every /global_pose (they start at the first fix);
 - ``false_fixes``: fixes (first fix, refinement, switch on /matcher/status) after which the
   published pose is more than 10 m off, "after" counted from when the fix reached the
-  graph (the status's receive time; its LN's stamp in runs recorded before that was
-  kept, which charged a detector's lag behind a fast replay to the fix); without matcher
-  events, the number of episodes of /global_pose more than 10 m off. ``fix_lag_s``: how
-  long after their LN's stamp the fixes arrived (median, max; bag seconds);
+  graph (the status's receive time; its LN's stamp when the run did not record it);
+  without matcher events, the number of episodes of /global_pose more than 10 m off.
+  ``fix_lag_s``: how long after their LN's stamp the fixes arrived (median, max; bag
+  seconds);
 - ``consistency_3sigma``: fraction of poses whose truth lies inside the published 3-sigma
   ellipse (horizontal covariance, squared Mahalanobis distance <= 9). A Gaussian that is
   exactly right gives 98.9 % (chi-square, 2 degrees of freedom); the target >= 99 % asks
@@ -56,7 +56,7 @@ THREE_SIGMA_CHI2 = 9.0
 MAX_STAMP_DIFF_S = 0.06
 #: Matcher events after which the published alignment changed.
 FIX_EVENTS = ('first_fix', 'refined', 'switched')
-#: Issue 14's targets.
+#: The targets a run is judged against (report.json's ``meets_targets``).
 TARGETS = {
     'final_error_m': 1.0,
     'rmse_after_first_fix_m': 1.0,
@@ -89,7 +89,7 @@ def _read_table(path: Path, columns: int, row: str) -> np.ndarray:
 def read_events(path: Path) -> list[tuple[float, str, float | None]]:
     """``matcher_events.tsv`` as (stamp s, event, received s or None) rows; [] when the
     file is absent. ``received`` is when the recorder got the status; files without the
-    column (runs before 2026-11-27, ninth session) give None."""
+    column give None."""
     if not path.is_file():
         return []
     rows = []

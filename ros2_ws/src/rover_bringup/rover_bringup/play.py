@@ -46,9 +46,9 @@ def _exit_if_teardown_hangs(status: int, timeout_s: float) -> threading.Timer:
     """Arm a watchdog: exit the process with ``status`` if teardown takes > ``timeout_s``.
 
     Playback's outcome is decided (every message sent, acknowledgements counted) before the
-    node and the rclpy context are destroyed. A DDS participant's teardown has been seen to
-    block indefinitely (once in CI: Fast DDS, after the subscriber's process had ended); the
-    bag was played, so the caller must get its exit status, not a hang.
+    node and the rclpy context are destroyed. A DDS participant's teardown can block
+    indefinitely (Fast DDS, after the subscriber's process has ended); the bag was played,
+    so the caller must get its exit status, not a hang.
     """
 
     def fire() -> None:
