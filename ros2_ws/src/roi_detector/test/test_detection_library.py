@@ -353,12 +353,12 @@ def test_tree_ensemble_evaluates_as_scikit_learn_does():
     from roi_detector.classifier import TreeEnsemble
 
     rng = np.random.default_rng(7)
-    x = rng.normal(0, 3, (3000, 5)).astype(np.float32)
+    x = rng.normal(0, 3, (1000, 5)).astype(np.float32)
     x[rng.random(x.shape) < 0.05] = np.nan
-    y = ((np.nan_to_num(x[:, 0]) + x[:, 1] ** 2 / 4 + rng.normal(0, 1, 3000)) > 1).astype(int)
+    y = ((np.nan_to_num(x[:, 0]) + x[:, 1] ** 2 / 4 + rng.normal(0, 1, 1000)) > 1).astype(int)
     pipe = Pipeline([("scale", StandardScaler()),
                      ("gbt", HistGradientBoostingClassifier(
-                         max_iter=60, class_weight="balanced", early_stopping=False,
+                         max_iter=30, class_weight="balanced", early_stopping=False,
                          random_state=0))]).fit(x, y)
     trees = TreeEnsemble.from_pipeline(pipe)
     xt = rng.normal(0, 3, (2000, 5)).astype(np.float32)

@@ -100,12 +100,28 @@ def _stop(proc: subprocess.Popen) -> None:
             proc.wait()
 
 
-def test_cli_ln_and_eval_on_tiny(tiny_bag, tmp_path):
+def _in_process(capsys):
+    """``roi_detector ARGS`` run in this process (the console script's ``main``, without
+    a new interpreter's start per call): ``run(*args)`` -> returncode, stdout, stderr."""
+    from types import SimpleNamespace
+
+    from roi_detector import cli
+
+    def run(*args):
+        capsys.readouterr()
+        rc = cli.main([str(a) for a in args])
+        out = capsys.readouterr()
+        return SimpleNamespace(returncode=rc, stdout=out.out, stderr=out.err)
+    return run
+
+
+def test_cli_ln_and_eval_on_tiny(tiny_bag, tmp_path, capsys):
     odom = tmp_path / "truth_odom.tum"
-    run = lambda *a: subprocess.run([shutil.which("roi_detector"), *a], capture_output=True,  # noqa: E731
-                                    text=True, timeout=240)
-    r = run("truth-odometry", str(tiny_bag), "--out", str(odom))
+    # The installed console script once; the other commands in this process.
+    r = subprocess.run([shutil.which("roi_detector"), "truth-odometry", str(tiny_bag),
+                        "--out", str(odom)], capture_output=True, text=True, timeout=240)
     assert r.returncode == 0, r.stderr
+    run = _in_process(capsys)
     ln_path = tmp_path / "ln.geojson"
     # A 16 m drive: its rocks are in view in a few pairs only (min_obs 1).
     r = run("ln", str(tiny_bag), "--odometry", str(odom), "--out", str(ln_path), "--model",
@@ -353,14 +369,13 @@ def test_roi_detector_refuses_an_unknown_method(tiny_bag, tmp_path):
     assert "parameter 'method'" in log and "per_pair" in log and "Traceback" not in log
 
 
-def test_cli_ln_reads_raw_images_alike(tiny_bag, tmp_path):
+def test_cli_ln_reads_raw_images_alike(tiny_bag, tmp_path, capsys):
     """A bag with raw sensor_msgs/Image stereo pairs (a field bag's usual transport) gives
     the LN its compressed twin gives: the same pixels, the same nodes."""
     from roi_network.testing import write_raw_image_copy, write_stamp_offset_copy
 
     raw_bag = write_raw_image_copy(tiny_bag, tmp_path / "raw")
-    run = lambda *a: subprocess.run([shutil.which("roi_detector"), *a], capture_output=True,  # noqa: E731
-                                    text=True, timeout=240)
+    run = _in_process(capsys)
     odom = tmp_path / "truth_odom.tum"
     assert run("truth-odometry", str(tiny_bag), "--out", str(odom)).returncode == 0
     lns = []
