@@ -160,6 +160,8 @@ def main(argv: list[str] | None = None) -> int:
                    "regions; per_pair: Rock Rover and Outcrop Rover on every pair's "
                    "candidates")
     p.add_argument("--every", type=int, default=2, help="per_pair: use one stereo pair in N")
+    p.add_argument("--jobs", type=int, default=1,
+                   help="elevation_map: bags run at a time, one process each")
     p.add_argument("--k", type=int, default=5,
                    help="kNN neighbours (per_pair's rovers, the map outcrops' Outcrop Rover)")
     p.add_argument("--working-fx", type=float, default=RoverConfig().working_fx_px,
