@@ -57,7 +57,7 @@ lint: setup
 demo: setup
 	@if [ ! -d "$(BAG)/rosbag" ]; then \
 	  $(RUN_ENV) command -v atacama_sim >/dev/null || { \
-	    echo "demo: cannot generate $(BAG): the atacama_sim generator is not built yet (issue 3)"; exit 2; }; \
+	    echo "demo: cannot generate $(BAG): the atacama_sim generator is not built"; exit 2; }; \
 	  $(RUN_ENV) atacama_sim generate --preset quick --seed 1 --out $(BAG); fi
 	@# The GN of the bag's orbital image (once per bag), for gn_server and the matcher.
 	@if [ ! -f "$(BAG)/gn.geojson" ] && [ -f "$(BAG)/orbital.tif" ]; then \
