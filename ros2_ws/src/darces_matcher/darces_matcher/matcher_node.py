@@ -72,7 +72,7 @@ class MatcherNode(Node):
         filter_overrides = {
             f.name: self.declare_parameter(
                 f"localization.{f.name}", f.default,
-                ParameterDescriptor(description=f"FilterConfig.{f.name} (docs/e2e.md)"),
+                ParameterDescriptor(description=f"FilterConfig.{f.name} (docs/matcher.md)"),
             ).value
             for f in dataclasses.fields(FilterConfig)
         }

@@ -1,6 +1,6 @@
 """``globloc eval``: a run's /global_pose judged against the bag's ground truth. No rclpy.
 
-Metrics (DESIGN.md, "Global pose"; docs/e2e.md says how to read them), all on the
+Metrics (DESIGN.md, "Global pose"; docs/evaluation.md says how to read them), all on the
 *unaligned* horizontal error ``|p_est - p_true|`` in the ``map`` frame, each /global_pose
 associated with the truth pose of the nearest stamp (evo's ``associate_trajectories``):
 
