@@ -1,9 +1,9 @@
 """Make one bag directory (DESIGN.md, Files) from a configuration.
 
-Steps: build the world; plan the route and drive it; synthesise the IMU; render the
-orbital image; stream the traverse into the bag in time order (IMU, ground truth, stereo
-pairs rendered on demand, so memory stays bounded); write truth, rover.yaml, world.yaml
-and the contact sheet.
+Steps (docs/simulator.md, Method): 1 build the world; 2 plan the route and drive it;
+3 synthesise the IMU; 4 render the orbital image; 5 stream the traverse into the bag in time
+order (IMU, ground truth, stereo pairs rendered on demand, so memory stays bounded); 6 write
+truth, rover.yaml, world.yaml and the contact sheet.
 """
 
 from __future__ import annotations
@@ -135,11 +135,14 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
+    # 1. Build the world.
     world = World.build(cfg)
     cat = world.rocks.catalogue
+    # 2. Plan the route and drive it.
     route = plan_route(cfg.route, cat, world.terrain.extent, cfg.seed)
     rate = cfg.imu.rate_hz
     traj = drive(route, cfg.route, world.terrain, rate, cfg.seed)
+    # 3. Synthesise the IMU.
     imu = synthesize_imu(traj, cfg.imu, cfg.seed)
     cam_idx = camera_indices(traj, cfg.route.frame_spacing_m, cfg.route.stop_frame_period_s,
                              rate)
@@ -153,6 +156,7 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
     n_traverse = 0 if orbital_only else len(cam_idx)
     bar = tqdm(total=orbital_tiles(world) + n_traverse, unit="step", disable=not progress,
                desc=f"atacama_sim {cfg.preset}")
+    # 4. Render the orbital image.
     t0 = time.perf_counter()
     bar.set_postfix_str("orbital")
     orb = render_orbital(world, renderer, out / "orbital.tif", out / "truth/orbital_labels.tif",
@@ -163,12 +167,14 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
     frames_contact: list = []
     aux: list = []
     counts: dict[str, int] = {}
+    # 5. Stream the traverse into the bag (_traverse).
     if not orbital_only:
         counts = _traverse(cfg, rig, renderer, traj, imu, cam_idx, gt_idx, cat, out, bar,
                            keep_aux, seen_px, frames_contact, aux, timings)
     bar.close()
     renderer.release()
 
+    # 6. Write the files.
     write_truth_rois(cat, cfg, world.origin, out / "truth/rois.geojson")
     # TUM stamps are bag time in seconds (= header stamps), like the pipeline's outputs
     t_abs = BAG_EPOCH_NS * 1e-9 + traj.t[gt_idx]

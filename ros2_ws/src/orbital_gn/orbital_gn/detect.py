@@ -189,7 +189,9 @@ def window_candidates(win: OrthoWindow, core: tuple[int, int, int, int], info: O
     out = []
     all_regions: list[tuple[int, list[Region]]] = []
     for rule in recipe.rules.rules:
+        # 2. Metric maps.
         m = class_metrics(win.gray, recipe, rule.label, gsd, win.rgb01)
+        # 4. Candidates.
         mask = candidate_mask(rule, m, stats[rule.label], win.valid)
         excess = threshold_excess(rule, m, stats[rule.label])
         regions = candidate_regions(mask, rule, info.pixel_area_m2, excess, gsd)
@@ -198,13 +200,14 @@ def window_candidates(win: OrthoWindow, core: tuple[int, int, int, int], info: O
     entropy = _sparse_entropy(win.gray, [r for _, rs in all_regions for r in rs],
                               entropy_size_px(gsd))
     for label, regions in all_regions:
+        # 5. Features.
         feats = candidate_features(regions, win.rgb01, win.gray, entropy, recipe.feature_groups,
                                    sun_dir)
         rec = np.zeros(len(regions), ROI_DTYPE)
         rows = np.array([r.row + win.row0 for r in regions], np.float64)
         cols = np.array([r.col + win.col0 for r in regions], np.float64)
         if label == ROCK and sun_dir is not None and recipe.shadow_kappa:
-            # The dark region is the rock's shaded face plus its cast shadow: its centroid
+            # 6. Sun shift. The dark region is the rock's shaded face plus its cast shadow: its centroid
             # lies down-sun of the rock; move it back (ownership above used the region's
             # own centroid, so tiling still decides the same way).
             for i, reg in enumerate(regions):

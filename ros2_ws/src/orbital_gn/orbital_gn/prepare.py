@@ -4,6 +4,9 @@
 in overlapping windows, classifies them with the model's binary classifiers, removes
 rocks lying on an accepted outcrop, and returns the GN as a ``map``-frame
 :class:`~roi_network.RoiNetwork` with its provenance. Nothing here reads ground truth.
+
+Steps (docs/orbital_gn.md, Method): 1 read and validate, 2 metric maps, 3 distributions,
+4 candidates, 5 features, 6 sun shift, 7 classification, 8 merge.
 """
 
 from __future__ import annotations
@@ -167,6 +170,7 @@ def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None =
         orbital_gn.raster.OrthoImageError: an unusable raster, or no sun direction for a
             ``sun_aware`` recipe (names the file).
     """
+    # 1. Read and validate the raster.
     info = open_ortho(path)
     warnings: list[str] = []
     notes: list[str] = []  # warnings that do not mean the GN is empty
@@ -191,6 +195,7 @@ def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None =
                         f"({min_side_m:.2f} m across): smaller than the smallest ROI "
                         f"({smallest} m^2); the GN is empty")
     else:
+        # 2. Metric maps and 3. distributions (tiling pass 1; maps: detect.class_metrics).
         stats, n_valid = raster_stats(info, recipe, scheduler, workers, progress)
         if n_valid == 0:
             warnings.append(f"{info.path}: no valid pixel (all nodata); the GN is empty")
@@ -199,10 +204,14 @@ def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None =
                 warnings.append(f"{info.path}: the image has no texture (constant values); "
                                 "the GN is empty")
             else:
+                # 4.-6. Candidates, features and sun shift (tiling pass 2,
+                # detect.window_candidates).
                 cands = detect_candidates(info, recipe, stats, origin, tile_px, scheduler,
                                           workers, progress, sun)
+                # 7. Classification.
                 kept = [classify(c, model.classifiers, recipe) for c in cands]
                 records = np.concatenate(kept) if kept else empty_records(0)
+                # 8. Merge: rocks on an accepted outcrop dropped, ids assigned.
                 records = assign_ids(suppress_rocks_on_outcrops(records))
                 metadata["candidates"] = {LABEL_NAMES[c.label]: int(c.records.size)
                                           for c in cands}

@@ -3,10 +3,11 @@
 Two passes over overlapping windows, each task reading its own window from the file (so
 memory is bounded by a window per worker, whatever the raster size):
 
-1. statistics: the metric distributions' moments over a fixed grid of 512 x 512 blocks
-   (at most :data:`STATS_BLOCKS` of them, spread evenly), combined exactly, so the
-   sigma thresholds do not depend on the processing tile size;
-2. detection: candidates of every window whose centroid lies in its core, with features.
+1. statistics (docs/orbital_gn.md, Method step 3): the metric distributions' moments
+   over a fixed grid of 512 x 512 blocks (at most :data:`STATS_BLOCKS` of them, spread
+   evenly), combined exactly, so the sigma thresholds do not depend on the processing tile size;
+2. detection (steps 4-6): candidates of every window whose centroid lies in its core, with
+   features.
 
 Local by default (dask's multiprocessing scheduler); ``scheduler="ADDRESS"`` runs the same
 task graph on a dask.distributed cluster (its workers must be able to read the raster's

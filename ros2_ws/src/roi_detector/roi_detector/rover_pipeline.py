@@ -17,6 +17,12 @@ Either way ``DriveMapper`` keeps the Local Network up to date. The offline build
 (:mod:`roi_detector.local_network_build`) and the two nodes call exactly these (the nodes
 split them: roi_detector runs observe + add_pair, ln_builder the LN). The rover model
 they run is loaded and checked against the configuration here (:func:`load_classifier`).
+
+Steps (docs/roi_detector.md, Method): 1 pair spacing (inputs.PairSpacing, before
+``observe``), 2 stereo points, 3 integration, 4-9 ground, rock regions, map rocks' Rock
+Rover, outcrop regions, map outcrops' Outcrop Rover, persistence (ElevationMap.detect),
+10 dark blobs, 11-14 tracks, triangulation, measurement and geometry, far rocks' Rock
+Rover (FarRocks.add, FarRocks.rocks), 15 LN nodes.
 """
 
 from __future__ import annotations
@@ -205,11 +211,13 @@ class RoverDetector:
         left = cv2.cvtColor(frame.left, cv2.COLOR_BGR2GRAY)
         right = cv2.cvtColor(frame.right, cv2.COLOR_BGR2GRAY)
         st = self.cfg.stereo
+        # 2. Stereo points.
         raw = self._disparity(left, right)
         disp = mask_depth_edges(raw, EDGE_WINDOW_PX, EDGE_MAX_RELATIVE_RANGE)
         points = points_base(disp, camera, self._rays[::2, ::2], st.max_range_m)
         h, w = points.shape[:2]
         small = cv2.resize(frame.left, (w, h), interpolation=cv2.INTER_AREA)
+        # 10. Dark blobs (tracked in add_pair).
         blobs = dark_blobs(frame.left, raw, camera, self.cfg.far, describe=self.describe_blobs)
         colour = appearance(small, np.isfinite(points[..., 2]))
         if is_monochrome(small):
@@ -507,10 +515,13 @@ class DriveMapper:
         if obs.records is not None:
             return self.add_detections(obs.records, t, pose, camera)
         r_ob, t_ob, cov = pose
+        # 3. Integration.
         self.map.integrate(obs.points, obs.appearance, r_ob, np.asarray(t_ob, float),
                            camera.t_base_cam, camera.fxb)
+        # 11.-14. Tracks, triangulation, measurement, far rocks' Rock Rover (FarRocks).
         if obs.blobs is not None:
             self.far.add(obs.blobs, t, r_ob, t_ob, camera, cov)
+        # 4.-9. Ground, rock and outcrop regions, their Rovers, persistence (ElevationMap.detect).
         if self.map.due():
             self.map.detect(t, cov)
             self._tracks = self._map_and_far_records()
@@ -571,4 +582,5 @@ class DriveMapper:
 
     def update_ln(self) -> bool:
         """Feed the current tracks to the LN; True if the LN changed."""
+        # 15. LN nodes.
         return self.ln.update(self.current_tracks())

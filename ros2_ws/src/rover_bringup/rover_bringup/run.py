@@ -2,7 +2,9 @@
 
 Sequence: check the bag and the graph; start the recorder and every node (one process each,
 ``use_sim_time``); play the bag once all of them subscribed to /clock; let the graph drain;
-stop nodes, then the recorder, with SIGTERM; write ``run.yaml``. Output layout::
+stop nodes, then the recorder, with SIGTERM; write ``run.yaml``.
+Steps (docs/bringup.md, Method): 1 check, 2 write, 3 start, 4 play, 5 drain and stop,
+6 export. Output layout::
 
     <out>/<bag>/<run>/
         outputs/metadata.yaml, outputs/outputs.mcap   rosbag2 bag of every output topic
@@ -258,6 +260,7 @@ def _supervise(
     """
     logs = run_dir / 'logs'
     python = [sys.executable, '-m', 'rover_bringup.cli']
+    # 3. Start the recorder, then every node.
     processes[RECORDER] = start(
         RECORDER,
         [*python, 'record', str(run_dir / OUTPUTS), '--ros-args', '-p', 'use_sim_time:=true'],
@@ -267,6 +270,7 @@ def _supervise(
         argv = [substitute(a, variables) for a in node_command(r, params_files)]
         processes[r.spec.name] = start(r.spec.name, argv, logs)
     watched = list(processes.values())
+    # 4. Play the bag once every process subscribed to /clock.
     player = processes[PLAYER] = start(
         PLAYER,
         [
@@ -286,6 +290,7 @@ def _supervise(
         if player.returncode != 0:
             errors.append(f'player exited with status {player.returncode} '
                           f'(log: {player.log_path})')
+        # 5. Drain (stopping: run).
         end = time.monotonic() + options.drain_s
         crash = _watch(watched, reported, lambda: time.monotonic() >= end, respawn)
     if crash is not None:
@@ -304,6 +309,7 @@ def run(options: RunOptions) -> int:
         GloblocError: Bad bag, graph or params file, or a missing executable (before anything
             is started).
     """
+    # 1. Check everything that needs no process.
     bag_root = locate_bag(options.bag).root
     prepare_gn_if_missing(bag_root)
     check_gn(bag_root, _warn)
@@ -314,6 +320,7 @@ def run(options: RunOptions) -> int:
         'RUN_DIR': str(run_dir.resolve()),
         'PYTHON': sys.executable,
     }
+    # 2. Write <run>/params.yaml.
     params_files = _write_params(plan, run_dir, variables)
     started = datetime.now().isoformat(timespec='seconds')
     _info(f'run {run_dir}: {len(plan.ready)} of {len(plan.nodes)} nodes, '
@@ -325,6 +332,7 @@ def run(options: RunOptions) -> int:
     respawn = Respawner(options.max_restarts, run_dir / 'logs', processes,
                         {r.spec.name for r in plan.ready})
     try:
+        # 3.-5. Start, play and drain (_supervise).
         _supervise(options, plan, run_dir, params_files, variables, processes, errors,
                    respawn)
     except KeyboardInterrupt:
@@ -337,6 +345,7 @@ def run(options: RunOptions) -> int:
         for proc in processes.values():
             proc.stop_requested = True
     finally:
+        # 5. Stop.
         nodes = [processes[r.spec.name] for r in plan.ready if r.spec.name in processes]
         # Nodes first, so that the recorder still gets what they publish while stopping.
         stop(nodes, STOP_TIMEOUT_S)
@@ -349,6 +358,7 @@ def run(options: RunOptions) -> int:
                 f'{what} crashed (exit status {proc.returncode}); last lines of '
                 f'{proc.log_path}:\n{tail(proc.log_path, TAIL_LINES).rstrip()}'
             )
+    # 6. Export the outputs bag and write run.yaml.
     try:
         counts = count_messages(run_dir / OUTPUTS)
     except GloblocError as exc:

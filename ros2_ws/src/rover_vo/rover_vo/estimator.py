@@ -6,6 +6,10 @@ IMU-propagated with a growing covariance.
 
 The node (``vo_node.py``) and the offline CLI (``cli.py``) both call :meth:`VoEstimator.feed`
 with the same messages.
+
+Steps (docs/rover_vo.md, Method): 1 pair and order, 2 IMU propagation, 3 zero velocity,
+4 tracking, 5 stereo and reconstruction, 6 outlier rejection and motion, 7 covariance,
+8 gravity.
 """
 
 from __future__ import annotations
@@ -225,6 +229,8 @@ class VoEstimator:
 
     def feed(self, topic: str, msg: Any) -> list[VoOutput]:
         """Take one message of an input topic; returns the odometry outputs it completes."""
+        # 1. Pair and order: halves paired here, filed by _file_pairs, released in time
+        # order by _drain, rectified by _decode.
         if topic == m.TOPIC_IMU:
             self._feed_imu(msg)
             return self._drain(force=False)
@@ -389,11 +395,12 @@ class VoEstimator:
             if images is None:
                 return None
             return self._initialize(t, *images)
+        # 2. IMU propagation: the gyro over the interval (rotation prior: _vision, _predict).
         iv = self._imu_interval(self.state.t, t)
         if images is None:
             return self._propagate(t, iv)
         left = images[0]
-        # Zero-velocity detection: standing still, nothing moves (no drift at stops).
+        # 3. Zero velocity. Detection: standing still, nothing moves (no drift at stops).
         flow = image_motion_px(self.last_image, left, self.kf.tracked[self.kf.alive])
         if is_stationary(flow, iv, self.cfg.imu):
             return self._zero_velocity(t, iv, left)
@@ -584,7 +591,7 @@ class VoEstimator:
         idx = np.flatnonzero(kf.alive)
         X = kf.points[idx]
         need = cfg.motion.min_inliers
-        # Tracking: LK from the keyframe's own image (no tracking drift accumulates over
+        # 4. Tracking: LK from the keyframe's own image (no tracking drift accumulates over
         # its span), starting where the predicted motion puts each keyframe point.
         R_guess, t_guess, Xp, predicted = self._predict_pixels(X, idx, dR, dp)
         uv, ok = track(kf.image, left, kf.corners[idx], predicted)
@@ -608,6 +615,7 @@ class VoEstimator:
         self.stats.tracked = int(ok.sum())
         est = None
         if ok.sum() >= cfg.motion.min_inliers:
+            # 5. Stereo and reconstruction (points triangulated in make_keyframe).
             # Right image: each tracked corner is searched where its predicted depth puts it.
             disp_guess = np.where(in_front, rig.fx * rig.baseline_m / np.maximum(Xp[:, 2], 0.5),
                                   3.0)[ok]
@@ -618,6 +626,7 @@ class VoEstimator:
             prior = prior_cov = None
             if iv is not None:
                 prior, prior_cov = self._gyro_prior(kf.state.t, t)
+            # 6. Outlier rejection and motion: PnP RANSAC, refinement, then the gyro prior.
             K = rig.camera_matrix
             est_vo = estimate_motion(X[ok], uv[ok], uv_r, K, rig.baseline_m, cfg.motion,
                                      R_guess, t_guess)
@@ -643,6 +652,7 @@ class VoEstimator:
         kf_R_cur_c, kf_p_cur_c = est.R.T, -est.R.T @ est.t
         kf_R_b = R_bc @ kf_R_cur_c @ R_bc.T
         kf_p_b = R_bc @ kf_p_cur_c + p_bc - kf_R_b @ p_bc
+        # 7. Covariance: the refinement's covariance against the distance model, composed.
         cov_cam = est.cov
         rot = np.zeros((6, 6))
         rot[:3, :3] = rot[3:, 3:] = R_bc
@@ -673,7 +683,7 @@ class VoEstimator:
                 R_vo_b = R_bc @ est_vo.R.T @ R_bc.T
                 rot3 = R_bc @ est_vo.cov[:3, :3] @ R_bc.T
                 self.propagator.update_bias_from_rotation(kf.state.t, t, R_vo_b, rot3)
-                # Gravity from the accelerometer just before the frame (the body tilts as
+                # 8. Gravity from the accelerometer just before the frame (the body tilts as
                 # it drives over relief: a mean over the whole span would lag).
                 recent = self.propagator.interval(t - TILT_WINDOW_S, t)
                 if recent is not None:
