@@ -207,7 +207,8 @@ def window_candidates(win: OrthoWindow, core: tuple[int, int, int, int], info: O
         rows = np.array([r.row + win.row0 for r in regions], np.float64)
         cols = np.array([r.col + win.col0 for r in regions], np.float64)
         if label == ROCK and sun_dir is not None and recipe.shadow_kappa:
-            # 6. Sun shift. The dark region is the rock's shaded face plus its cast shadow: its centroid
+            # 6. Sun shift.
+            # The dark region is the rock's shaded face plus its cast shadow: its centroid
             # lies down-sun of the rock; move it back (ownership above used the region's
             # own centroid, so tiling still decides the same way).
             for i, reg in enumerate(regions):
