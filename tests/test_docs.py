@@ -21,7 +21,8 @@ SRC = ROOT / "ros2_ws" / "src"
 
 
 def _param_tables():
-    spec = importlib.util.spec_from_file_location("param_tables", ROOT / "scripts" / "param_tables.py")
+    script = ROOT / "scripts" / "param_tables.py"
+    spec = importlib.util.spec_from_file_location("param_tables", script)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -35,8 +36,10 @@ def _config_classes() -> dict[str, int]:
             continue
         tree = ast.parse(path.read_text())
         for node in tree.body:
-            if not (isinstance(node, ast.ClassDef) and (node.name.endswith(("Config", "Options", "Thresholds"))
-                                                       or node.name == "Recipe")):
+            if not isinstance(node, ast.ClassDef):
+                continue
+            named = node.name.endswith(("Config", "Options", "Thresholds"))
+            if not (named or node.name == "Recipe"):
                 continue
             decorated = any("dataclass" in ast.unparse(d) for d in node.decorator_list)
             if not decorated:
@@ -69,7 +72,8 @@ def test_configuration_fits_in_a_head():
 def test_param_table_generator_reads_attributes(tmp_path):
     tables = _param_tables()
     page = tmp_path / "page.md"
-    page.write_text("# x\n<!-- params: darces_matcher.config.MatchConfig -->\nstale\n<!-- /params -->\n")
+    page.write_text("# x\n<!-- params: darces_matcher.config.MatchConfig -->\nstale\n"
+                    "<!-- /params -->\n")
     assert tables.main(["--check", str(page)]) == 1
     assert tables.main(["--write", str(page)]) == 0
     text = page.read_text()
@@ -100,7 +104,8 @@ HISTORY = re.compile(
 def _project_text() -> list[Path]:
     paths = [ROOT / "README.md", ROOT / "Makefile"]
     paths += sorted((ROOT / "docs").rglob("*.md"))
-    paths += sorted(SRC.rglob("*.py")) + sorted(SRC.rglob("*.yaml")) + sorted(SRC.rglob("README.md"))
+    paths += sorted(SRC.rglob("*.py")) + sorted(SRC.rglob("*.yaml"))
+    paths += sorted(SRC.rglob("README.md"))
     paths += sorted((ROOT / "bench").glob("*.py")) + sorted((ROOT / "scripts").glob("*"))
     return [p for p in paths if p.is_file()]
 
@@ -109,4 +114,5 @@ def _project_text() -> list[Path]:
 def test_no_work_history_labels(path):
     hits = [f"{i}: {line.strip()}" for i, line in enumerate(path.read_text().splitlines(), 1)
             if HISTORY.search(line)]
-    assert not hits, f"{path.relative_to(ROOT)} names rounds of work or issues:\n" + "\n".join(hits[:10])
+    where = path.relative_to(ROOT)
+    assert not hits, f"{where} names rounds of work or issues:\n" + "\n".join(hits[:10])
