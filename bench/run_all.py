@@ -35,6 +35,7 @@ import os
 import platform
 import subprocess
 import sys
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -206,11 +207,14 @@ def _provenance_line(prov: dict[str, Any]) -> str:
             f"{m['cpus']} CPUs, Python {m['python']}; {prov['date']}.")
 
 
-def stamp(results: Path, prov: dict[str, Any]) -> list[Path]:
-    """Record ``prov`` in every result file: a ``provenance`` key in a JSON object, a line
-    under the title of a Markdown file. Returns the files stamped."""
+def stamp(results: Path, prov: dict[str, Any], since: float = 0.0) -> list[Path]:
+    """Record ``prov`` in every result file written at or after ``since`` (a time stamp,
+    s): a ``provenance`` key in a JSON object, a line under the title of a Markdown file.
+    Files of an earlier ``--only`` run keep their own. Returns the files stamped."""
     done = []
     for path in sorted(results.iterdir()):
+        if path.stat().st_mtime < since:
+            continue
         if path.suffix == ".json":
             doc = json.loads(path.read_text())
             if not isinstance(doc, dict):
@@ -343,6 +347,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"[{c.step}] {shown(c.resolve())}{note}")
         return 0
     started = datetime.now(UTC).isoformat(timespec="seconds")
+    t_start = time.time()
     state = git_state()
     if not args.only:
         clear(results)
@@ -361,7 +366,7 @@ def main(argv: list[str] | None = None) -> int:
         failed.append(f"HEAD moved during the run ({state['commit'][:12]} -> "
                       f"{prov['commit'][:12]}): results are not from one commit")
     prov["dirty"] = prov["dirty"] or state["dirty"]
-    stamp(results, prov)
+    stamp(results, prov, since=t_start)
     (results / "summary.md").write_text(summary(results, prov, failed))
     for f in failed:
         print(f"[run_all] FAILED: {f}", file=sys.stderr)

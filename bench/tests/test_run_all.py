@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
+import time
 
 import pytest
 
@@ -76,3 +78,20 @@ def test_a_run_stamps_every_result_and_summarises_it(run_all, tmp_path, monkeypa
     summary = (results / "summary.md").read_text()
     assert "| quick | 400 | 154.0 | 0.38 | 0.39 | 0 | 100.0 % | 1.50 / 2.25 |" in summary
     assert "| quick | paper |" in summary and "Failed: `python -c raise SystemExit(3)`" in summary
+
+
+def test_an_only_run_stamps_only_what_it_wrote(run_all, tmp_path, monkeypatch):
+    results = tmp_path / "current"
+    results.mkdir()
+    earlier = {"bags": [], "provenance": {"command": "python bench/run_all.py --only e2e"}}
+    (results / "e2e_evaluation.json").write_text(json.dumps(earlier))
+    old = time.time() - 60
+    os.utime(results / "e2e_evaluation.json", (old, old))
+    write = ("import os, pathlib; r = pathlib.Path(os.environ['BENCH_RESULTS']); "
+             "r.joinpath('vo_bench.md').write_text('# rover_vo benchmark\\n')")
+    monkeypatch.setattr(run_all, "plan", lambda *a, **k: [
+        run_all.Command("vo", [sys.executable, "-c", write])])
+    assert run_all.main(["--only", "vo", "--results", str(results)]) == 0
+    kept = json.loads((results / "e2e_evaluation.json").read_text())["provenance"]
+    assert kept["command"] == "python bench/run_all.py --only e2e"
+    assert "Provenance: Commit" in (results / "vo_bench.md").read_text()
