@@ -371,6 +371,7 @@ class ElevationMap:
         i1, j1 = np.minimum(box[:, 2:].max(axis=0) + margin + 1, self.n)
         found = self._regions(slice(i0, i1), slice(j0, j1))
         cov = np.zeros((2, 2)) if odom_cov is None else np.asarray(odom_cov, float)
+        # 9. Persistence: each region joins the ROI it matches (``_associate``).
         matched = set()
         for r in found:
             r.odom_cov, r.last_t = cov, t
@@ -387,6 +388,7 @@ class ElevationMap:
         z, seen, sd = self.heights(si, sj, with_sd=True)
         if seen.sum() < 50:
             return []
+        # 4. Ground.
         ground = ground_surface(z, seen, GROUND_WINDOW_M / CELL_M,
                                 max(1, round(GROUND_CELL_M / CELL_M)),
                                 GROUND_PERCENTILE)
@@ -400,10 +402,12 @@ class ElevationMap:
             nb = np.maximum(self.nb[si, sj], 1)
             colour = (self.bv[si, sj] / nb, self.bs[si, sj] / nb)
         val = colour[0] if colour is not None else None
-        # Rock seeds stand high in every view: the mean less one spread across views (a
-        # stereo mismatch of one view is a high spread, not a rock).
+        # 5.-6. Rock regions and the map rocks' Rock Rover (``_rocks``). Rock seeds stand
+        # high in every view: the mean less one spread across views (a stereo mismatch of
+        # one view is a high spread, not a rock).
         out += self._rocks(rel, np.where(seen, rel - sd, 0.0), z, seen, off, val, colour)
         if colour is not None:
+            # 7.-8. Outcrop regions and the Outcrop Rover (``_outcrops``).
             out += self._outcrops(rel, ground, seen, si, sj, off, colour)
         return out
 

@@ -196,6 +196,7 @@ def blob_appearance(rgb_u8: np.ndarray, gray_u8: np.ndarray, footprint: np.ndarr
                            PAPER_GROUPS)
 
 
+# 10. Dark blobs (docs/roi_detector.md, Method).
 def dark_blobs(bgr: np.ndarray, disp: np.ndarray, camera: StereoCamera,
                cfg: FarRockConfig = FarRockConfig(), describe: bool = False) -> list[Blob]:
     """Dark blobs of a left image between ``min_depth_m`` and ``max_depth_m`` deep, not
@@ -281,6 +282,7 @@ class FarTrack:
     missed: int = 0
     odom_cov: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
 
+    # 12. Triangulation (and ``refine``: re-weighted by the track's own errors).
     def triangulate(self, sigma_rad: float, range_scale: float = 1.0) -> np.ndarray:
         """Least-squares intersection of the views' bearings on the ground plane (across
         each bearing: the bearing error ``sigma_rad`` at the range; along it: the stereo
@@ -411,6 +413,7 @@ class FarRockTracker:
         self._last_xy: np.ndarray | None = None
         self._fx = 1.0
 
+    # 11. Tracks: each blob joins the open track whose rock projects nearest.
     def add(self, blobs: list[Blob], t: float, r_odom_base: np.ndarray,
             t_odom_base: np.ndarray, camera: StereoCamera,
             odom_cov: np.ndarray | None = None) -> None:
@@ -498,6 +501,7 @@ class FarRockTracker:
                      rng, sigma,
                      blob.appearance)
 
+    # 14. The far rocks' Rock Rover decides every measured track.
     def rocks(self, classified: bool = True) -> list[FarRock]:
         """The closed tracks that pass every rock test, one per rock: a rock whose blob
         was followed by several tracks (lost and found again) is the best-viewed of them,
@@ -510,6 +514,7 @@ class FarRockTracker:
                 kept.append(r)
         return kept
 
+    # 13. Measurement and geometry of a closed track.
     def _measure(self, tr: FarTrack) -> FarRock:
         cfg = self.cfg
         sigma = BEARING_SIGMA_PX / self._fx
