@@ -7,18 +7,9 @@ import rclpy
 import yaml
 
 from roi_network.geojson import write_geojson
+from roi_network.params import node_parameters
 
 CONFIG = Path(__file__).resolve().parents[1] / "config" / "darces_matcher.yaml"
-
-
-def _flat(d, prefix=""):
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, dict):
-            out.update(_flat(v, f"{prefix}{k}."))
-        else:
-            out[f"{prefix}{k}"] = v
-    return out
 
 
 def test_params_file_holds_the_declared_defaults(tmp_path, gn):
@@ -35,7 +26,7 @@ def test_params_file_holds_the_declared_defaults(tmp_path, gn):
             node.destroy_node()
     finally:
         rclpy.shutdown()
-    listed = _flat(yaml.safe_load(CONFIG.read_text())["darces_matcher"]["ros__parameters"])
+    listed = node_parameters(yaml.safe_load(CONFIG.read_text()), "darces_matcher")
     listed.pop("gn_path")
     for key, value in listed.items():
         assert key in declared, f"{CONFIG.name}: the node declares no parameter '{key}'"

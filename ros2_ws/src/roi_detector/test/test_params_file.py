@@ -6,6 +6,8 @@ import pytest
 import rclpy
 import yaml
 
+from roi_network.params import node_parameters
+
 CONFIG = Path(__file__).resolve().parents[1] / "config" / "roi_detector.yaml"
 
 
@@ -31,7 +33,8 @@ def test_params_file_holds_the_declared_defaults(name):
     args = ["-p", "base_to_left_camera:=[0.0, 0.0, 1.0, 0.5, -0.5, 0.5, -0.5]"] \
         if name == "roi_detector" else []
     declared = _declared(node_class, args)
-    listed = yaml.safe_load(CONFIG.read_text())[name]["ros__parameters"]
+    listed = node_parameters(yaml.safe_load(CONFIG.read_text()), name)
+    assert listed, f"{CONFIG.name} has no parameters for {name}"
     for key, value in listed.items():
         assert key in declared, f"{CONFIG.name}: {name} declares no parameter '{key}'"
         assert declared[key] == pytest.approx(value) if isinstance(value, float) \
