@@ -35,6 +35,7 @@ from scipy.spatial.transform import Rotation
 
 from rover_bringup.errors import GloblocError
 from rover_bringup.topics import TF_STATIC
+from rover_bringup.urdf import JOINT_STATES, ROBOT_DESCRIPTION, UrdfError, mast_of, parse_urdf, tree_at
 
 LEFT_INFO, RIGHT_INFO = '/stereo/left/camera_info', '/stereo/right/camera_info'
 IMU = '/imu/data'
@@ -63,6 +64,9 @@ class BagCalibration:
             else images), ``imu``.
         left_info, right_info: the first CameraInfo of each side.
         imu_stamps_ns: the first IMU stamps, for the rate.
+        urdf: the first ``/robot_description`` (URDF text), None when not recorded.
+        joint_angles: the first ``/joint_states`` message's angles by joint name, None
+            when not recorded.
     """
 
     source: str
@@ -71,6 +75,8 @@ class BagCalibration:
     left_info: Any = None
     right_info: Any = None
     imu_stamps_ns: list[int] = field(default_factory=list)
+    urdf: str | None = None
+    joint_angles: dict[str, float] | None = None
 
 
 def _matrix(translation: Any, rotation: Any) -> np.ndarray:
@@ -95,7 +101,8 @@ def bag_calibration(rosbag: str | Path) -> BagCalibration:
     cal = BagCalibration(str(rosbag))
     try:
         with AnyReader([rosbag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
-            wanted = {TF_STATIC, LEFT_INFO, RIGHT_INFO, IMU, *images.IMAGE_TOPICS}
+            wanted = {TF_STATIC, LEFT_INFO, RIGHT_INFO, IMU, ROBOT_DESCRIPTION, JOINT_STATES,
+                      *images.IMAGE_TOPICS}
             conns = [c for c in reader.connections if c.topic in wanted]
             frame_of: dict[str, str] = {}
             for conn, _t, raw in reader.messages(connections=conns):
@@ -104,7 +111,17 @@ def bag_calibration(rosbag: str | Path) -> BagCalibration:
                     continue
                 if topic in images.IMAGE_TOPICS and topic in frame_of:
                     continue
+                if topic == ROBOT_DESCRIPTION and cal.urdf is not None or \
+                        topic == JOINT_STATES and cal.joint_angles is not None:
+                    continue
                 msg = reader.deserialize(raw, conn.msgtype)
+                if topic == ROBOT_DESCRIPTION:
+                    cal.urdf = str(msg.data)
+                    continue
+                if topic == JOINT_STATES:
+                    cal.joint_angles = {str(n): float(p) for n, p in
+                                        zip(msg.name, msg.position, strict=False)}
+                    continue
                 if topic == TF_STATIC:
                     for tf in msg.transforms:
                         key = (tf.header.frame_id.lstrip('/'), tf.child_frame_id.lstrip('/'))
@@ -222,6 +239,53 @@ def _pose_list(t: np.ndarray) -> list[float]:
     return [round(float(v), 9) for v in (*t[:3, 3], *q)]
 
 
+def _mast_tree(cal: BagCalibration, base_frame: str, left_frame: str,
+               warnings: list[str]) -> tuple[dict[tuple[str, str], np.ndarray], Any]:
+    """The frame tree to compose the sensors' poses in, and the pan-tilt mast carrying the
+    left camera (None for a fixed one).
+
+    With a ``/robot_description`` the URDF's joints at the first ``/joint_states`` angles
+    join ``/tf_static``'s transforms (which win where both give a pair), and the mast comes
+    from the URDF. Without one the tree is ``/tf_static`` alone; a bag that records
+    ``/joint_states`` then gets a note that its moving joints could not be read.
+
+    Raises:
+        CalibrationError: the URDF cannot be read or its mast is not a pan-tilt pair, or
+            the tree breaks between the base and the camera where joints move.
+    """
+    src = cal.source
+    names = sorted(cal.joint_angles or {})
+    if cal.urdf is None:
+        if names:
+            try:
+                frame_transform(cal.transforms, base_frame, left_frame, src)
+            except CalibrationError as exc:
+                raise CalibrationError(
+                    f'{exc}. The bag records {JOINT_STATES} ({", ".join(names)}) but no '
+                    f'{ROBOT_DESCRIPTION}: the camera hangs on moving joints whose origins '
+                    f'and axes only the URDF states; record {ROBOT_DESCRIPTION} (what '
+                    'robot_state_publisher latches), or write the mast.* parameters by hand '
+                    '(docs/bringup.md)') from None
+            warnings.append(f'the bag records {JOINT_STATES} ({", ".join(names)}) but no '
+                            f'{ROBOT_DESCRIPTION}: the camera is taken as fixed at its '
+                            f'{TF_STATIC} pose; if it moves on those joints, record '
+                            f'{ROBOT_DESCRIPTION} and run this again')
+        return cal.transforms, None
+    try:
+        joints = parse_urdf(cal.urdf, f'{src} {ROBOT_DESCRIPTION}')
+        mast = mast_of(joints, base_frame, left_frame, names, f'{src} {ROBOT_DESCRIPTION}')
+    except UrdfError as exc:
+        raise CalibrationError(str(exc)) from None
+    if mast is not None:
+        angles = cal.joint_angles or {}
+        warnings.append(
+            f"mast joints '{mast.pan_joint}' and '{mast.tilt_joint}' read from "
+            f'{ROBOT_DESCRIPTION}; base_to_left_camera and base_to_right_camera are the '
+            f'cameras at the first {JOINT_STATES} angles ('
+            + ', '.join(f'{n} {angles[n]:.4f} rad' for n in mast.joints) + ')')
+    return {**tree_at(joints, cal.joint_angles or {}), **cal.transforms}, mast
+
+
 def rover_parameters(cal: BagCalibration, base_frame: str = 'base_link',
                      frames: dict[str, str] | None = None) -> tuple[dict, list[str]]:
     """The ``rover.yaml`` parameters of a bag's calibration, and warnings for the user.
@@ -236,7 +300,7 @@ def rover_parameters(cal: BagCalibration, base_frame: str = 'base_link',
     """
     src = cal.source
     frames = {**cal.frames, **(frames or {})}
-    if not cal.transforms:
+    if not cal.transforms and cal.urdf is None:
         raise CalibrationError(f'{src}: no {TF_STATIC} transforms: the bag does not record '
                                'its sensors\' frames; write rover.yaml by hand '
                                '(docs/bringup.md, "A field bag\'s rover.yaml")')
@@ -249,7 +313,8 @@ def rover_parameters(cal: BagCalibration, base_frame: str = 'base_link',
         raise CalibrationError(f'{src}: no {missing} message: the intrinsics and the '
                                'baseline come from the CameraInfo')
     warnings: list[str] = []
-    pose = {side: frame_transform(cal.transforms, base_frame, frames[side], src)
+    transforms, mast = _mast_tree(cal, base_frame, frames['left'], warnings)
+    pose = {side: frame_transform(transforms, base_frame, frames[side], src)
             for side in ('left', 'right')}
     for side in ('left', 'right'):
         r = pose[side][:3, :3]
@@ -288,7 +353,7 @@ def rover_parameters(cal: BagCalibration, base_frame: str = 'base_link',
     if frames.get('imu'):
         params['imu_frame'] = frames['imu']
         params['base_to_imu'] = _pose_list(
-            frame_transform(cal.transforms, base_frame, frames['imu'], src))
+            frame_transform(transforms, base_frame, frames['imu'], src))
     else:
         warnings.append(f'no {IMU} frame: base_to_imu left out (the IMU taken as aligned '
                         f'with {base_frame})')
@@ -305,6 +370,9 @@ def rover_parameters(cal: BagCalibration, base_frame: str = 'base_link',
     else:
         warnings.append(f'{IMU}: {len(stamps)} samples: imu_rate_hz left out '
                         '(rover_vo assumes 50 Hz)')
+    if mast is not None:
+        params['mast'] = {k.split('.', 1)[1]: [round(x, 9) for x in v]
+                          if isinstance(v, list) else v for k, v in mast.to_params().items()}
     params.update(IMU_DEFAULTS)
     warnings.append('gyro_noise_density, gyro_bias_random_walk and gravity are rover_vo\'s '
                     'defaults, not this IMU\'s: set them from its datasheet and the site')

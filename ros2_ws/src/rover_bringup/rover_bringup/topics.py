@@ -37,6 +37,7 @@ INPUT_TOPICS: dict[str, TopicContract] = {
     '/stereo/left/camera_info': TopicContract('sensor_msgs/msg/CameraInfo', SENSOR_DATA_QOS),
     '/stereo/right/camera_info': TopicContract('sensor_msgs/msg/CameraInfo', SENSOR_DATA_QOS),
     '/imu/data': TopicContract('sensor_msgs/msg/Imu', SENSOR_DATA_QOS),
+    '/joint_states': TopicContract('sensor_msgs/msg/JointState', SENSOR_DATA_QOS),
     '/ground_truth/pose': TopicContract('geometry_msgs/msg/PoseStamped', DEFAULT_QOS),
 }
 

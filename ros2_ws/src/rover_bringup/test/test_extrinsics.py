@@ -39,9 +39,21 @@ def _tree() -> list[tuple[str, str, list[float], Rotation]]:
     ]
 
 
-def _expected(child: str) -> np.ndarray:
-    """``child`` in base_link, composed by hand along :func:`_tree`."""
-    parent_of = {c: (p, t, r) for p, c, t, r in _tree()}
+def _tree_at(pan_deg: float, tilt_deg: float):
+    """:func:`_tree` with the head at other angles."""
+    out = []
+    for p, c, t, r in _tree():
+        if (p, c) == ('mast', 'pan'):
+            r = Rotation.from_euler('z', pan_deg, degrees=True)
+        elif (p, c) == ('pan', 'tilt'):
+            r = Rotation.from_euler('y', tilt_deg, degrees=True)
+        out.append((p, c, t, r))
+    return out
+
+
+def _expected(child: str, tree=None) -> np.ndarray:
+    """``child`` in base_link, composed by hand along :func:`_tree` (or ``tree``)."""
+    parent_of = {c: (p, t, r) for p, c, t, r in (tree or _tree())}
     out = np.eye(4)
     while child != 'base_link':
         parent, t, r = parent_of[child]
@@ -52,12 +64,42 @@ def _expected(child: str) -> np.ndarray:
     return out
 
 
+#: The pan and tilt joints of :func:`_tree`'s head, (parent, child) -> (joint, axis).
+MAST_JOINTS = {('mast', 'pan'): ('head_pan', 'z'), ('pan', 'tilt'): ('head_tilt', 'y')}
+
+
+def _urdf() -> str:
+    """:func:`_tree` as a URDF whose head pans and tilts on :data:`MAST_JOINTS`."""
+    joints = []
+    for parent, child, t, r in _tree():
+        xyz = ' '.join(str(v) for v in t)
+        if (parent, child) in MAST_JOINTS:
+            name, axis = MAST_JOINTS[(parent, child)]
+            vec = {'y': '0 1 0', 'z': '0 0 1'}[axis]
+            joints.append(f'<joint name="{name}" type="revolute"><parent link="{parent}"/>'
+                          f'<child link="{child}"/><origin xyz="{xyz}" rpy="0 0 0"/>'
+                          f'<axis xyz="{vec}"/><limit lower="-3.0" upper="3.0" effort="1" '
+                          f'velocity="1"/></joint>')
+        else:
+            rpy = ' '.join(str(v) for v in r.as_euler('xyz'))
+            joints.append(f'<joint name="{parent}_to_{child}" type="fixed"><parent '
+                          f'link="{parent}"/><child link="{child}"/><origin xyz="{xyz}" '
+                          f'rpy="{rpy}"/></joint>')
+    links = {f for p, c, _t, _r in _tree() for f in (p, c)}
+    return ('<?xml version="1.0"?><robot name="field_rover">'
+            + ''.join(f'<link name="{k}"/>' for k in sorted(links)) + ''.join(joints)
+            + '</robot>')
+
+
 def write_field_bag(path, tree=True, camera_frame='left_camera_optical', imu=True,
                     baseline=BASELINE, imu_hz=200.0, right_late_ms=None, images=30,
-                    right_images=None):
+                    right_images=None, mast=False, urdf=True):
     """A bag directory ``path`` (rosbag/ only) recording a field rover's calibration;
     with ``right_late_ms``, ``images`` stereo pairs at 10 Hz, the right camera's stamped
-    that late and stopping after ``right_images`` (None: none missing)."""
+    that late and stopping after ``right_images`` (None: none missing). With ``mast`` the
+    head's pan and tilt are moving joints: /tf_static leaves them out, /joint_states
+    holds their angles (``PAN_DEG``, ``TILT_DEG``) and, with ``urdf``, /robot_description
+    the URDF."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -73,6 +115,8 @@ def write_field_bag(path, tree=True, camera_frame='left_camera_optical', imu=Tru
         if tree:
             tfs = []
             for parent, child, t, r in _tree():
+                if mast and (parent, child) in MAST_JOINTS:
+                    continue
                 q = r.as_quat()
                 tfs.append(T['geometry_msgs/msg/TransformStamped'](
                     header=header(0, parent), child_frame_id=child,
@@ -83,6 +127,17 @@ def write_field_bag(path, tree=True, camera_frame='left_camera_optical', imu=Tru
             msg = T['tf2_msgs/msg/TFMessage'](transforms=tfs)
             writer.write(conn('/tf_static', 'tf2_msgs/msg/TFMessage'), 0,
                          store.serialize_cdr(msg, 'tf2_msgs/msg/TFMessage'))
+        if mast and urdf:
+            msg = T['std_msgs/msg/String'](data=_urdf())
+            writer.write(conn('/robot_description', 'std_msgs/msg/String'), 0,
+                         store.serialize_cdr(msg, 'std_msgs/msg/String'))
+        if mast:
+            msg = T['sensor_msgs/msg/JointState'](
+                header=header(1, ''), name=['head_pan', 'head_tilt'],
+                position=np.radians([PAN_DEG, TILT_DEG]), velocity=np.zeros(2),
+                effort=np.zeros(0))
+            writer.write(conn('/joint_states', 'sensor_msgs/msg/JointState'), 1,
+                         store.serialize_cdr(msg, 'sensor_msgs/msg/JointState'))
         for side in ('left', 'right'):
             frame = camera_frame if side == 'left' else 'right_camera_optical'
             tx = 0.0 if side == 'left' else -FX * baseline
@@ -303,3 +358,43 @@ def test_stamp_offsets_of_a_right_camera_that_stops_early(tmp_path, monkeypatch)
     assert 5 <= len(offsets) <= 6
     assert offsets[:5] == pytest.approx([0.003] * 5)
     assert read.count('/stereo/left/image_raw/compressed') == READ_LIMIT * 2 * 20
+
+
+def test_a_pan_tilt_head_comes_from_the_urdf_and_the_joint_names(tmp_path):
+    from roi_network.mast import MastKinematics
+    from roi_network.params import node_parameters
+
+    bag = write_field_bag(tmp_path / 'field', mast=True)
+    assert main(['rover-yaml', str(bag)]) == 0
+    text = (bag / 'rover.yaml').read_text()
+    assert "mast joints 'head_pan' and 'head_tilt'" in text
+    params = node_parameters(yaml.safe_load(text), 'rover_vo')
+    kin = MastKinematics.from_params(params)
+    assert kin.joints == ('head_pan', 'head_tilt') and kin.pan_limits == (-3.0, 3.0)
+    for pan, tilt in ((PAN_DEG, TILT_DEG), (-120.0, 35.0)):
+        want = _expected('left_camera_optical', _tree_at(pan, tilt))
+        np.testing.assert_allclose(kin.base_T_left(np.radians(pan), np.radians(tilt)), want,
+                                   atol=1e-8)
+    # At the recorded angles the fixed-camera parameters are the same as a static tree's.
+    for key, frame in (('base_to_left_camera', 'left_camera_optical'),
+                       ('base_to_right_camera', 'right_camera_optical')):
+        got = np.asarray(params[key])
+        np.testing.assert_allclose(got[:3], _expected(frame)[:3, 3], atol=1e-8)
+
+
+def test_a_moving_head_without_its_urdf_or_joints_is_named(tmp_path):
+    with pytest.raises(CalibrationError, match='head_pan, head_tilt.*no /robot_description'):
+        rover_parameters(bag_calibration(write_field_bag(tmp_path / 'a', mast=True,
+                                                         urdf=False) / 'rosbag'))
+    bag = write_field_bag(tmp_path / 'b', mast=True)
+    cal = bag_calibration(bag / 'rosbag')
+    cal.joint_angles = {'pan': 0.0, 'tilt': 0.0}
+    with pytest.raises(CalibrationError, match="'head_pan' and 'head_tilt' not in the names "
+                                               "of /joint_states"):
+        rover_parameters(cal)
+    cal.urdf = cal.urdf.replace('type="revolute"', 'type="prismatic"', 1)
+    with pytest.raises(CalibrationError, match="'head_pan' \\(prismatic\\)"):
+        rover_parameters(cal)
+    cal.urdf = '<robot><joint name="x"'
+    with pytest.raises(CalibrationError, match='not a URDF document'):
+        rover_parameters(cal)
