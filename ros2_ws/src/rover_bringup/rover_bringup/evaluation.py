@@ -258,7 +258,53 @@ def _vo_summary(vo: np.ndarray | None, truth: np.ndarray) -> dict[str, Any] | No
         return {'error': f'evo could not align the odometry: {exc}'}
     stats = ape.get_all_statistics()
     return {'poses': len(vo), 'ape_aligned_rmse_m': float(stats['rmse']),
-            'ape_aligned_max_m': float(stats['max'])}
+            'ape_aligned_max_m': float(stats['max']), **stop_drift(vo, truth)}
+
+
+#: A stop: the truth moves less than this over :data:`STOP_MIN_S`, m.
+STOP_STILL_M = 0.002
+#: Shortest stop measured, s.
+STOP_MIN_S = 10.0
+
+
+def stops_of(truth: np.ndarray) -> list[tuple[float, float]]:
+    """``(start, end)`` stamps of the truth's stops: runs of poses within
+    :data:`STOP_STILL_M` of the run's first one, at least :data:`STOP_MIN_S` long."""
+    out: list[tuple[float, float]] = []
+    i = 0
+    n = len(truth)
+    while i < n:
+        j = i
+        while j + 1 < n and np.linalg.norm(truth[j + 1, 1:4] - truth[i, 1:4]) < STOP_STILL_M:
+            j += 1
+        if truth[j, 0] - truth[i, 0] >= STOP_MIN_S:
+            out.append((float(truth[i, 0]), float(truth[j, 0])))
+        i = j + 1
+    return out
+
+
+def stop_drift(vo: np.ndarray, truth: np.ndarray) -> dict[str, Any]:
+    """How far the odometry moves while the rover stands still (a panorama's stop): per
+    truth stop, the odometry's position and yaw change between its poses nearest the
+    stop's ends (inside it by 1 s, clear of the braking and the start). Empty without
+    stops covered by the odometry."""
+    from scipy.spatial.transform import Rotation
+
+    moved, turned = [], []
+    for t0, t1 in stops_of(truth):
+        a, b = t0 + 1.0, t1 - 1.0
+        ia, ib = np.searchsorted(vo[:, 0], a), np.searchsorted(vo[:, 0], b, 'right') - 1
+        if ia >= len(vo) or ib < 0 or ib <= ia or vo[ib, 0] < a or vo[ia, 0] > b:
+            continue
+        moved.append(float(np.linalg.norm(vo[ib, 1:4] - vo[ia, 1:4])))
+        ya, yb = (Rotation.from_quat(vo[k, 4:8]).as_euler('ZYX')[0] for k in (ia, ib))
+        turned.append(float(np.degrees(abs((yb - ya + np.pi) % (2 * np.pi) - np.pi))))
+    if not moved:
+        return {}
+    return {'stops': len(moved), 'stop_drift_median_m': float(np.median(moved)),
+            'stop_drift_max_m': float(np.max(moved)),
+            'stop_yaw_drift_median_deg': float(np.median(turned)),
+            'stop_yaw_drift_max_deg': float(np.max(turned))}
 
 
 def evaluate(data: RunData) -> Evaluation:
@@ -446,6 +492,12 @@ def report_markdown(s: dict[str, Any], plots: list[str]) -> str:
     if s.get('vo') and 'ape_aligned_rmse_m' in s['vo']:
         out += ['', f"Visual odometry: {s['vo']['poses']} poses, evo SE(3)-aligned APE RMSE "
                 f"{_fmt(s['vo']['ape_aligned_rmse_m'], ' m')}."]
+        if s['vo'].get('stops'):
+            v = s['vo']
+            out += [f"Through its {v['stops']} stops the odometry moved "
+                    f"{_fmt(v['stop_drift_median_m'] * 1000, ' mm', 1)} median, "
+                    f"{_fmt(v['stop_drift_max_m'] * 1000, ' mm', 1)} at most, and turned "
+                    f"{_fmt(v['stop_yaw_drift_max_deg'], ' deg', 3)} at most."]
     out += ['']
     out += [f'![{p}]({p})' for p in plots]
     return '\n'.join(out) + '\n'

@@ -301,3 +301,21 @@ def test_subprocess_free_of_display(tmp_path: Path):
                             capture_output=True, text=True, timeout=120, check=False)
     assert result.returncode == 0, result.stderr
     assert (run / 'route.png').stat().st_size > 10_000
+
+
+def test_stop_drift_measures_the_odometry_while_the_truth_stands_still():
+    import numpy as np
+
+    from rover_bringup.evaluation import stop_drift, stops_of
+
+    t = np.arange(0.0, 60.0, 0.5)
+    x = np.where(t < 20, 0.1 * t, np.where(t < 40, 2.0, 2.0 + 0.1 * (t - 40)))
+    truth = np.column_stack([t, x, 0 * t, 0 * t, 0 * t, 0 * t, 0 * t, 1 + 0 * t])
+    assert stops_of(truth) == [(20.0, 40.0)]
+    vo = truth.copy()
+    vo[(t > 20) & (t < 40), 1] += 0.01 * (t[(t > 20) & (t < 40)] - 20)  # creeps 1 cm/s
+    out = stop_drift(vo, truth)
+    assert out['stops'] == 1
+    assert out['stop_drift_max_m'] == pytest.approx(0.18, abs=1e-9)  # 21 s .. 39 s
+    assert out['stop_yaw_drift_max_deg'] == pytest.approx(0.0, abs=1e-9)
+    assert stop_drift(vo[:10], truth) == {}  # no odometry over the stop
