@@ -49,11 +49,15 @@ WORK = ROOT / "out" / "bench" / "work"
 #: Run directories of the graph (``globloc run --out``).
 RUNS = ROOT / "out" / "bench"
 TIERS = ("quick", "full")
-#: Evaluation bags per tier: (directory name, simulator preset, seed).
+#: Evaluation bags per tier: (directory name, simulator preset, seed, generate options).
+#: Each world comes twice: as the presets make it (stereo panoramas from the mast at drive
+#: stops) and with ``--no-panoramas`` (the fixed forward camera), side by side in one run.
+FIXED = ("--no-panoramas",)
 EVAL_BAGS = {
-    "quick": [("quick", "quick", 1)],
-    "full": [("quick", "quick", 1), ("atacama_1km_s1", "atacama_1km", 1),
-             ("atacama_1km_s2", "atacama_1km", 2), ("atacama_1km_s3", "atacama_1km", 3)],
+    "quick": [("quick", "quick", 1, ()), ("quick_fixed", "quick", 1, FIXED)],
+    "full": [("quick", "quick", 1, ()), ("quick_fixed", "quick", 1, FIXED),
+             *[(f"atacama_1km_s{s}{suffix}", "atacama_1km", s, opts) for s in (1, 2, 3)
+               for suffix, opts in (("", ()), ("_fixed", FIXED))]],
 }
 #: Playback rate of the end-to-end runs (``globloc run --rate``).
 RATE = 5.0
@@ -114,13 +118,15 @@ def e2e_runs(results: Path) -> dict[str, str]:
 
 def plan(tier: str, bags_dir: Path, results: Path, dry_run: bool = False) -> list[Command]:
     """The commands of a tier, in order."""
-    bags = [(bags_dir / name, preset, seed) for name, preset, seed in EVAL_BAGS[tier]]
+    bags = [(bags_dir / name, preset, seed) for name, preset, seed, _ in EVAL_BAGS[tier]]
+    options = {name: opts for name, _, _, opts in EVAL_BAGS[tier]}
     paths = [str(b) for b, _, _ in bags]
     cmds: list[Command] = []
     # 1. bags and their GNs
     for bag, preset, seed in bags:
         cmds.append(Command("bags", ["atacama_sim", "generate", "--preset", preset, "--seed",
-                                     str(seed), "--no-progress", "--out", str(bag)],
+                                     str(seed), *options[bag.name], "--no-progress",
+                                     "--out", str(bag)],
                             skip_if=lambda bag=bag: (bag / "rosbag").is_dir(),
                             why_skip=f"{_rel(bag)}/rosbag exists"))
         cmds.append(Command("bags", ["orbital_gn", "prepare", str(bag / "orbital.tif"), "--out",

@@ -26,7 +26,11 @@ def test_quick_tier_dry_run_lists_every_bench_on_the_demo_bag(run_all, tmp_path,
     assert f"atacama_sim generate --preset quick --seed 1 --no-progress --out {tmp_path}/quick" \
         in out
     assert "skipped" not in out  # nothing exists under tmp_path: everything is generated
-    assert f"e2e_bench.py {tmp_path}/quick --rate 5 --jobs 1 --tag evaluation" in out
+    # The same world with panoramas and with the fixed camera, side by side.
+    assert f"generate --preset quick --seed 1 --no-panoramas --no-progress --out " \
+        f"{tmp_path}/quick_fixed" in out
+    assert f"e2e_bench.py {tmp_path}/quick {tmp_path}/quick_fixed --rate 5 --jobs 2 " \
+        "--tag evaluation" in out
     assert f"--vo quick=<e2e run of quick>/vo.tum --gn quick={tmp_path}/quick/gn.geojson" in out
     assert "quality --bags" in out and "--recipes sun_aware" in out
     assert "generality --max-lns 120 --stress-lns 100 --seed 7 --gns" in out
@@ -42,7 +46,8 @@ def test_full_tier_adds_the_1km_seeds_and_the_paper_protocol(run_all, tmp_path, 
         assert (f"generate --preset atacama_1km --seed {seed} --no-progress "
                 f"--out {tmp_path}/atacama_1km_s{seed}") in out
     assert "--seed 2 --no-progress" in out.split("skipped")[0].splitlines()[-1]
-    assert f"{tmp_path}/atacama_1km_s3 --rate 5 --jobs 2" in out  # two graphs side by side
+    assert f"--seed 3 --no-panoramas --no-progress --out {tmp_path}/atacama_1km_s3_fixed" in out
+    assert f"{tmp_path}/atacama_1km_s3_fixed --rate 5 --jobs 2" in out  # two graphs at a time
     assert "darces_bench.py paper" in out and "darces_bench.py stress" in out
     assert "--recipes" not in out and "--methods darces" not in out
 
