@@ -47,6 +47,7 @@ from rover_bringup.respawn import Respawner
 from rover_bringup.run_outputs import export_outputs
 from rover_bringup.share import config_file
 from rover_bringup.topics import OUTPUT_TOPICS, TF_STATIC, sensor_problems
+from rover_bringup.urdf import JOINT_STATES
 
 #: Packages whose nodes read the bag's stereo pairs, CameraInfo and IMU.
 SENSOR_READERS = ('rover_vo', 'roi_detector')
@@ -174,6 +175,7 @@ def _prepare(options: RunOptions) -> _Plan:
             _warn(f'{problem} ({", ".join(readers)} will publish nothing)')
         _check_stereo_sync(location, params,
                            [(r.spec.name, r.spec.executable) for r in resolved])
+        _check_mast(location, bag_topics, readers)
         if not (location.root / 'rover.yaml').is_file():
             hint = (f'write it from the bag\'s {TF_STATIC} with `globloc rover-yaml '
                     f'{location.root}`' if TF_STATIC in bag_topics else 'write it by hand '
@@ -181,6 +183,29 @@ def _prepare(options: RunOptions) -> _Plan:
             _warn(f'{location.root / "rover.yaml"} not found: {", ".join(readers)} read the '
                   f'rover\'s extrinsics from it; {hint}')
     return _Plan(location, resolved, params, graph_path, params_path)
+
+
+def _check_mast(location: BagLocation, bag_topics: dict[str, str], readers: list[str]) -> None:
+    """Warn when ``rover.yaml`` puts the cameras on a mast and the bag records no
+    ``/joint_states`` (the detector then places no pair), or when its mast parameters do
+    not load."""
+    import yaml
+
+    from roi_network.mast import MastError, MastKinematics
+    from roi_network.params import node_parameters
+
+    path = location.root / 'rover.yaml'
+    if not path.is_file():
+        return
+    try:
+        kin = MastKinematics.from_params(node_parameters(yaml.safe_load(path.read_text()),
+                                                         'roi_detector'))
+    except (MastError, yaml.YAMLError) as exc:
+        raise GloblocError(f'{path}: {exc}') from None
+    if kin is not None and JOINT_STATES not in bag_topics:
+        _warn(f'{path} puts the cameras on a mast ({kin.pan_joint}, {kin.tilt_joint}) but '
+              f'{location.rosbag} records no {JOINT_STATES}: {", ".join(readers)} cannot '
+              'place a stereo pair without its joint angles')
 
 
 #: The stereo readers' sync parameters (roi_network.images.StereoHalves), by executable.

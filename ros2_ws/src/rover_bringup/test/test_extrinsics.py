@@ -13,6 +13,7 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from rover_bringup.cli import main
+from rover_bringup.errors import GloblocError
 from rover_bringup.extrinsics import (
     CalibrationError,
     bag_calibration,
@@ -255,6 +256,26 @@ def test_run_warns_of_a_missing_rover_yaml_and_names_the_command(tmp_path, capsy
     capsys.readouterr()
     _prepare(RunOptions(bag=bag))
     assert 'rover.yaml' not in capsys.readouterr().err
+
+
+def test_run_warns_of_a_mast_without_joint_states(tmp_path, capsys):
+    from rover_bringup.run import RunOptions, _prepare
+
+    bag = write_field_bag(tmp_path / 'field', mast=True)
+    assert main(['rover-yaml', str(bag)]) == 0
+    capsys.readouterr()
+    _prepare(RunOptions(bag=bag))
+    assert 'records no /joint_states' not in capsys.readouterr().err  # the bag records them
+    plain = write_field_bag(tmp_path / 'plain')
+    (plain / 'rover.yaml').write_text((bag / 'rover.yaml').read_text())
+    _prepare(RunOptions(bag=plain))
+    err = capsys.readouterr().err
+    assert "puts the cameras on a mast (head_pan, head_tilt)" in err
+    assert 'records no /joint_states' in err
+    text = (bag / 'rover.yaml').read_text().replace('head_tilt', 'head_pan')
+    (plain / 'rover.yaml').write_text(text)
+    with pytest.raises(GloblocError, match="mast.tilt_joint"):
+        _prepare(RunOptions(bag=plain))
 
 
 def test_the_simulators_rover_yaml_comes_back_from_its_tf_static(tmp_path):
