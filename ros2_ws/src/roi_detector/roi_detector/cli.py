@@ -54,6 +54,9 @@ def _cmd_ln(args) -> int:
     ln.save(args.out, meta)
     spaced = (f" ({stats['pairs_spaced_out']} more not read: under --min-pair-travel "
               f"{args.min_pair_travel:g} m from the last)" if stats["pairs_spaced_out"] else "")
+    if stats.get("pairs_not_placed"):
+        spaced += (f" ({stats['pairs_not_placed']} not placed: no /joint_states within "
+                   "the tolerance of their stamps)")
     print(f"roi_detector ln: {stats['pairs']} stereo pairs{spaced}, "
           f"{stats['detections']} detections, "
           f"{stats['tracks']} tracks -> {len(ln)} LN nodes in {args.out} "

@@ -5,12 +5,14 @@ stereo points, or its classified detections with the paper's per-pair method) an
 :class:`~roi_detector.rover_pipeline.DriveMapper` (the drive's elevation map, or the
 tracker), the code ``roi_detector ln`` runs offline.
 
-Subscribes the stereo pair (CompressedImage or raw Image + CameraInfo, sensor-data QoS) and
-``/vo/odometry``; publishes, after each pair whose odometry pose is known,
-``/rois/detections`` (base_link: the ROIs in the pair's view; per_pair: what the pair
-detected) and ``/rois/tracks`` (odom, every ROI followed).
+Subscribes the stereo pair (CompressedImage or raw Image + CameraInfo, sensor-data QoS),
+``/vo/odometry`` and, when the rover.yaml parameters have a mast (``mast.*``),
+``/joint_states``; publishes, after each pair whose odometry pose and camera pose are
+known, ``/rois/detections`` (base_link: the ROIs in the pair's view; per_pair: what the
+pair detected) and ``/rois/tracks`` (odom, every ROI followed).
 Bad input (undecodable image, missing pair half, odometry gap, a detection with no valid
-depth) is counted, logged once per kind and skipped; counts are on ``/rois/status``.
+depth, a pair the joint states cannot place, a joint-state message the mast cannot read)
+is counted, logged once per kind and skipped; counts are on ``/rois/status``.
 """
 
 from __future__ import annotations
@@ -24,9 +26,10 @@ from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
-from sensor_msgs.msg import CameraInfo, CompressedImage, Image, PointCloud2
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState, PointCloud2
 
-from roi_detector.inputs import BadInput, FrameMaker, OdometryBuffer, PairSpacing
+from roi_detector.camera_poses import PairPoses, rotation_of
+from roi_detector.inputs import JOINT_STATES, BadInput, FrameMaker, OdometryBuffer, PairSpacing
 from roi_detector.rover_pipeline import (
     METHODS,
     DriveMapper,
@@ -39,6 +42,7 @@ from roi_detector.rover_pipeline import (
 from roi_detector.tracking import TrackerConfig
 from roi_network import images
 from roi_network.images import TRANSPORT_PARAMETER_HELP, TransportLock
+from roi_network.mast import MAST_PARAMS, MastError
 from roi_network.pointcloud import to_pointcloud2
 from roi_network.spin import run_node
 
@@ -113,7 +117,14 @@ class RoiDetectorNode(Node):
         sync_tolerance = self.declare_parameter(
             "stereo_sync_tolerance_s", images.SYNC_TOLERANCE_S,
             d(description=images.SYNC_PARAMETER_HELP)).value
-        if len(extrinsic) != 7 or not any(extrinsic):
+        mast = {}
+        for name in MAST_PARAMS:
+            value = self.declare_parameter(name, None, d(
+                dynamic_typing=True, description="the stereo head's pan-tilt mast "
+                "(rover.yaml; roi_network.mast.MastKinematics); unset: a fixed camera")).value
+            if value is not None:
+                mast[name] = value if isinstance(value, str) else list(value)
+        if not mast.get("mast.pan_joint") and (len(extrinsic) != 7 or not any(extrinsic)):
             raise ValueError("parameter 'base_to_left_camera' is not set (pass the bag's "
                              "rover.yaml as a params file)")
         self.transports = TransportLock(str(transport), self.get_logger().warning)
@@ -123,6 +134,13 @@ class RoiDetectorNode(Node):
                           working_fx_px=float(working_fx))
         classifier = load_classifier(model or None, cfg)
         self.bad = BadInput(lambda m: self.get_logger().warning(m))
+        try:
+            # A joint-state message the mast cannot read is logged once and dropped.
+            self.poses = PairPoses({"base_to_left_camera": list(extrinsic), **mast},
+                                   self.bad, strict=False)
+        except MastError as exc:
+            raise ValueError(str(exc)) from None
+        self.clock_s: float | None = None  # the newest stamp of the inputs, s
         self.detector = RoverDetector(extrinsic, classifier, cfg, self.bad)
         self.mapper = DriveMapper(cfg, classifier=classifier)
         self.odometry = OdometryBuffer(self.max_gap_s)
@@ -152,6 +170,21 @@ class RoiDetectorNode(Node):
             self.create_subscription(CameraInfo, f"/stereo/{side}/camera_info",
                                      lambda m, s=side: self.on_info(s, m), SENSOR)
         self.create_subscription(Odometry, "/vo/odometry", self.on_odometry, RELIABLE)
+        if self.poses.has_mast:
+            self.create_subscription(JointState, JOINT_STATES, self.on_joint_state, SENSOR)
+            kin = self.poses.poser.kinematics
+            self.get_logger().info(f"mast joints '{kin.pan_joint}', '{kin.tilt_joint}': each "
+                                   f"pair placed at its camera pose from {JOINT_STATES}")
+
+    def _tick(self, stamp_s: float) -> None:
+        self.clock_s = stamp_s if self.clock_s is None else max(self.clock_s, stamp_s)
+
+    def on_joint_state(self, msg: JointState) -> None:
+        """Keep the mast's angles (PairPoses); resolve the pairs waiting for them."""
+        t = _stamp_s(msg.header.stamp)
+        self.poses.add(t, list(msg.name), list(msg.position))
+        self._tick(t)
+        self._track_waiting()
 
     def on_info(self, side: str, msg: CameraInfo) -> None:
         self.frames.info[side] = msg
@@ -162,6 +195,7 @@ class RoiDetectorNode(Node):
         half left alone for 2 s is dropped."""
         side = images.side_of(topic)
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        self._tick(stamp * 1e-9)
         if self.halves.add(side, stamp, msg) is None:
             self.bad("duplicate image", f"{topic}: two images with stamp "
                      f"{stamp * 1e-9:.3f} s: the second dropped")
@@ -180,14 +214,14 @@ class RoiDetectorNode(Node):
                                  pair["right"]))
         self._track_waiting()
 
-    def observe(self, stamp: int, left_msg, right_msg):
-        """The pair's observation (detections or stereo points); None (counted) when it
-        cannot be decoded or measured."""
+    def observe(self, stamp: int, left_msg, right_msg, base_t_left=None):
+        """The pair's observation (detections or stereo points) at its camera pose (None:
+        the fixed one); None (counted) when it cannot be decoded or measured."""
         frame = self.frames.frame(stamp, left_msg, right_msg)
         if frame is None:  # undecodable, or a CameraInfo it cannot rectify with
             return None
         try:
-            obs = self.detector.observe(frame)
+            obs = self.detector.observe(frame, base_t_left)
         except ValueError as exc:  # inconsistent CameraInfo: named field
             self.bad("bad camera_info", str(exc))
             return None
@@ -206,11 +240,14 @@ class RoiDetectorNode(Node):
                                     [q.x, q.y, q.z, q.w], cov):
             self.bad("odometry out of order", "a /vo/odometry stamp went backwards")
             return
+        self._tick(_stamp_s(msg.header.stamp))
         self._track_waiting()
 
     def _track_waiting(self) -> None:
-        """Pairs whose odometry pose has come: read those the spacing keeps (detect, map,
-        publish); a pair whose pose does not come within odometry_wait_s is counted."""
+        """Pairs whose odometry pose has come and whose camera pose can be decided (a
+        mast's joint states around their stamp, PairPoses): read those the spacing keeps
+        (detect, map, publish); a pair whose odometry does not come within
+        odometry_wait_s, or that the joint states cannot place, is counted."""
         latest = self.odometry.latest_t
         keep = []
         changed = tracks = None
@@ -218,11 +255,19 @@ class RoiDetectorNode(Node):
         for item in self.waiting:
             t, header_stamp, stamp, left_msg, right_msg = item
             pose = self.odometry.at(t)
+            if pose is not None and not self.poses.decidable(t, self.clock_s):
+                keep.append(item)  # its joint states may still come
+                continue
             if pose is not None:
                 status = header_stamp
-                if not self.spacing.keep(t, pose):
+                cam = self.poses.pose(t)
+                if cam is None:  # not placed: counted by PairPoses
                     continue
-                obs = self.observe(stamp, left_msg, right_msg)
+                if not (self.spacing.keep(t, pose, rotation_of(cam)) if self.poses.has_mast
+                        else self.spacing.keep(t, pose)):
+                    continue
+                obs = self.observe(stamp, left_msg, right_msg,
+                                   cam if self.poses.has_mast else None)
                 if obs is None:
                     continue
                 tracks = self.mapper.add_pair(obs, t, pose, self.detector.camera)
@@ -262,8 +307,9 @@ class RoiDetectorNode(Node):
                                     >= self.mapper.cfg.ln.min_obs).sum()),
                   "waiting_for_odometry": len(self.waiting),
                   "pairs_spaced_out": self.spacing.skipped,
-                  "stereo_sync_max_offset_ms": round(self.halves.max_offset_ns * 1e-6, 3), **{
-                      f"skipped: {k}": v for k, v in self.bad.counts.items()}}
+                  "stereo_sync_max_offset_ms": round(self.halves.max_offset_ns * 1e-6, 3),
+                  **({"joint_states": self.poses.joint_samples} if self.poses.has_mast
+                     else {}), **{f"skipped: {k}": v for k, v in self.bad.counts.items()}}
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         msg = DiagnosticArray()
         msg.header.stamp = stamp

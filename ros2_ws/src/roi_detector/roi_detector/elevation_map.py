@@ -359,6 +359,10 @@ class ElevationMap:
         return self._pairs > 0 and self._pairs % self.cfg.detect_every == 0 and \
             bool(self._touched)
 
+    def pending(self) -> bool:
+        """True when cells were touched since the last detection round."""
+        return bool(self._touched)
+
     def detect(self, t: float, odom_cov: np.ndarray | None = None) -> list[MapRoi]:
         """One detection round over the cells touched since the last one (plus a margin):
         update the ROI list and return the regions found this round (odom)."""

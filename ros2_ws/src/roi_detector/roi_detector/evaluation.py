@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from roi_detector.camera_poses import moved_pair_poses
 from roi_detector.inputs import load_rover_params
 from roi_detector.truth import Truth, match_to_truth
 from roi_network.geojson import read_geojson
@@ -59,12 +60,14 @@ def counted_rois(truth: Truth, bag_dir: str | Path, radius_m: float = 15.0,
             close to the route, metres.
         view_depth_m, min_views: the second recall (``recall_in_view``) counts only those
             whose centre was in the left image, at most ``view_depth_m`` deep, in at
-            least ``min_views`` stereo pairs (:meth:`Truth.views`): a fixed forward
-            camera never sees many ROIs within 15 m of the route.
+            least ``min_views`` stereo pairs (:meth:`Truth.views`; on a mast, its
+            panoramas' pairs too): a fixed forward camera never sees many ROIs within
+            15 m of the route.
     """
     wanted = truth.counted(radius_m)
-    in_view = wanted & (truth.views(load_rover_params(Path(bag_dir) / "rover.yaml"),
-                                    view_depth_m) >= min_views)
+    params = load_rover_params(Path(bag_dir) / "rover.yaml")
+    in_view = wanted & (truth.views(params, view_depth_m,
+                                    moved=moved_pair_poses(bag_dir, params)) >= min_views)
     return wanted, in_view
 
 

@@ -108,6 +108,9 @@ MAX_NEAREST_M = 30.0
 #: Tracks whose rocks are closer than this are one rock, m; and a far rock this close to
 #: a map rock is that rock.
 MERGE_M = 1.5
+#: A rover that moved less than this since a track's latest view stands still: a mast
+#: that turned the camera away then does not close the track, m.
+STILL_M = 0.05
 
 
 @dataclass(frozen=True)
@@ -281,6 +284,10 @@ class FarTrack:
     point: np.ndarray = field(default_factory=lambda: np.zeros(3))
     missed: int = 0
     odom_cov: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)))
+    #: The camera of its latest view and the rover's position then (odom): a mast that
+    #: looks away while the rover stands does not close it.
+    camera: StereoCamera | None = None
+    rover_xy: np.ndarray | None = None
 
     # 12. Triangulation (and ``refine``: re-weighted by the track's own errors).
     def triangulate(self, sigma_rad: float, range_scale: float = 1.0) -> np.ndarray:
@@ -449,10 +456,12 @@ class FarRockTracker:
                 tr.views.append(view)
                 tr.missed = 0
                 tr.odom_cov = cov
+                tr.camera, tr.rover_xy = camera, t_ob[:2].copy()
                 tr.triangulate(sigma)
             else:
                 start = centre + view.ray * blob.depth_m / max(float(view.ray @ r_oc[:, 2]), 0.1)
-                new.append(FarTrack(self._next, [view], start, odom_cov=cov))
+                new.append(FarTrack(self._next, [view], start, odom_cov=cov, camera=camera,
+                                    rover_xy=t_ob[:2].copy()))
                 self._next += 1
         keep = []
         for i, tr in enumerate(self.tracks):
@@ -460,11 +469,24 @@ class FarRockTracker:
                 in_view = bool(np.isfinite(pred[i]).all() and 0 <= pred[i, 0] < camera.width
                                and 0 <= pred[i, 1] < camera.height)
                 tr.missed += 1 if in_view else 0
+                if not in_view and self._looked_away(tr, camera, t_ob):
+                    keep.append(tr)  # a mast panned at a stop: the rock is not gone
+                    continue
                 if tr.missed > MAX_MISSED or not in_view:
                     self._close(tr)
                     continue
             keep.append(tr)
         self.tracks = keep + new
+
+    @staticmethod
+    def _looked_away(tr: FarTrack, camera: StereoCamera, t_ob: np.ndarray) -> bool:
+        """Whether the camera left ``tr``'s rock out of view only because a mast turned it
+        while the rover stood (within :data:`STILL_M` of where the track was last seen):
+        the track stays open for the views after the panorama."""
+        if tr.camera is None or tr.camera is camera or tr.rover_xy is None:
+            return False
+        return float(np.linalg.norm(t_ob[:2] - tr.rover_xy)) < STILL_M and \
+            not camera.same_mount(tr.camera)
 
     def close_all(self) -> None:
         """Close every open track (end of the drive)."""

@@ -27,6 +27,8 @@ from roi_network.trajectory import (  # noqa: F401
 
 LEFT_INFO = "/stereo/left/camera_info"
 RIGHT_INFO = "/stereo/right/camera_info"
+#: A mast's joint angles (DESIGN.md; read with :class:`~roi_detector.camera_poses.PairPoses`).
+JOINT_STATES = "/joint_states"
 
 
 class BadInput:
@@ -146,6 +148,7 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
                        log: Callable[[str], None] = print,
                        sync_tolerance_s: float = images.SYNC_TOLERANCE_S,
                        keep: Callable[[int], bool] | None = None,
+                       joints=None,
                        ) -> Iterator[StereoFrame]:
     """Stereo pairs of a bag directory (``BAG/rosbag``), paired by header stamp
     (exact, or within ``sync_tolerance_s``: :class:`roi_network.images.StereoHalves`).
@@ -159,6 +162,10 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
         sync_tolerance_s: most difference between a pair's two stamps, seconds.
         keep: ``keep(stamp_ns)`` decides, before a pair is decoded, whether it is read
             (:class:`PairSpacing`); None: every pair.
+        joints: a mast's :class:`~roi_detector.camera_poses.PairPoses`: it is given
+            every /joint_states message in the bag's order, and a pair waits (before
+            ``keep``) until its pose can be decided (``PairPoses.decidable``); None: the
+            bag's joint states are not read.
 
     The images are those of the transport the bag carries (compressed, the contract,
     when it carries both; :func:`roi_network.images.bag_transport`).
@@ -178,15 +185,26 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
     maker = FrameMaker(bad, rectify, log)
     ready: list[tuple[int, dict]] = []
     index = 0
+    mast = joints is not None and joints.has_mast
+    clock = None  # the newest header stamp read, s (a mast's pairs wait on it)
+
+    def decided(stamp_ns: int) -> bool:
+        return not mast or joints.decidable(stamp_ns * 1e-9, clock)
+
     with AnyReader([rosbag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
         transport = images.bag_transport(
             {c.topic: c.msgtype for c in reader.connections}, str(rosbag))
         left_image, right_image = images.STEREO_TOPICS[transport]
-        topics = (left_image, right_image, LEFT_INFO, RIGHT_INFO)
+        topics = (left_image, right_image, LEFT_INFO, RIGHT_INFO) + \
+            ((JOINT_STATES,) if mast else ())
         conns = [c for c in reader.connections if c.topic in topics]
         for conn, _t, raw in reader.messages(connections=conns):
             msg = reader.deserialize(raw, conn.msgtype)
-            if conn.topic in (LEFT_INFO, RIGHT_INFO):
+            if mast:
+                clock = max(clock or 0.0, _stamp_ns(msg.header) * 1e-9)
+            if conn.topic == JOINT_STATES:
+                joints.add(_stamp_ns(msg.header) * 1e-9, list(msg.name), list(msg.position))
+            elif conn.topic in (LEFT_INFO, RIGHT_INFO):
                 maker.info["left" if conn.topic == LEFT_INFO else "right"] = msg
             else:
                 stamp = _stamp_ns(msg.header)
@@ -203,20 +221,29 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
                 # A pair half that never comes: older pending stamps are given up.
                 for line in pending.give_up(stamp - 2_000_000_000):
                     bad("missing pair half", line)
-            # CameraInfo is recorded after the images of its stamp: pairs wait for it.
+            # CameraInfo is recorded after the images of its stamp: pairs wait for it
+            # (and, on a mast, for the joint states around their stamp).
             if not maker.ready:
                 continue
-            for stamp_r, slot_r in ready:
+            while ready and decided(ready[0][0]):
+                stamp_r, slot_r = ready.pop(0)
                 if keep is not None and not keep(stamp_r):
                     continue
                 frame = maker.frame(stamp_r, slot_r["left"], slot_r["right"])
                 if frame is not None:
                     yield frame
-            ready.clear()
     for line in pending.give_up(2 ** 63 - 1):
         bad("missing pair half", line)
-    if ready:
+    if ready and not maker.ready:
         bad("no camera_info", f"{len(ready)} stereo pair(s) and no CameraInfo")
+        return
+    # The bag ended: no joint sample is still to come for the pairs that wait.
+    for stamp_r, slot_r in ready:
+        if keep is not None and not keep(stamp_r):
+            continue
+        frame = maker.frame(stamp_r, slot_r["left"], slot_r["right"])
+        if frame is not None:
+            yield frame
 
 
 class PoseTrack:
@@ -278,7 +305,8 @@ class PairSpacing:
     core) and DDS would drop the excess uncounted, and every cell would count 10x the
     views. The decision reads the odometry at the pair's stamp, before the pair is decoded.
     The defaults keep every pair of the simulator's bags (0.45 m apart while moving, 10 s
-    while stopped, at most 4.3 deg of heading between two at its tightest turn).
+    while stopped, at most 4.3 deg of heading between two at its tightest turn, and on a
+    mast the panorama's pairs, each turned from the last).
 
     Args:
         min_travel_m: a pair is read once the rover moved this far since the last read
@@ -301,10 +329,14 @@ class PairSpacing:
             if not np.isfinite(value) or value < 0:
                 raise ValueError(f"pair spacing: {name} {value}: expected >= 0")
 
-    def keep(self, t: float, pose) -> bool:
+    def keep(self, t: float, pose, base_r_cam: np.ndarray | None = None) -> bool:
         """Whether the pair at ``t`` (odometry pose ``(R, p, cov)`` there) is read; a read
-        pair becomes the reference of the next decision."""
+        pair becomes the reference of the next decision. ``base_r_cam``: on a mast, the
+        camera's rotation in base_link at ``t``; the turn is then the camera's in odom
+        (a panorama's pairs, taken while the rover stands, are each read)."""
         rot, pos = pose[0], pose[1]
+        if base_r_cam is not None:
+            rot = rot @ np.asarray(base_r_cam, float)
         if self.min_travel_m > 0 and self.last is not None:
             t0, rot0, pos0 = self.last
             turn = np.degrees(Rotation.from_matrix(rot0.T @ rot).magnitude())

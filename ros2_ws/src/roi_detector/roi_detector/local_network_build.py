@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from roi_detector.camera_poses import NOT_PLACED, PairPoses, rotation_of
 from roi_detector.inputs import (
     POSE_COVARIANCE_FILE,
     BadInput,
@@ -93,6 +94,9 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
     track.cov = (read_pose_covariance(odometry_cov, track.t) if odometry_cov is not None
                  else odometry_xy_covariance(track, drift_frac))
     bad = BadInput(lambda m: log(f"roi_detector: {m}"))
+    # Each pair's camera pose: a mast's from the bag's /joint_states (a message the mast
+    # cannot read is an error naming it), else the fixed extrinsic.
+    poses = PairPoses(params, bad, strict=True)
     mapper = mapper if mapper is not None else DriveMapper(
         cfg, classifier=load_classifier(model, cfg))
     detector = RoverDetector(params["base_to_left_camera"], mapper.classifier, cfg, bad)
@@ -102,17 +106,28 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
     t_detect = 0.0
     last = None
     spacing = spacing if spacing is not None else PairSpacing()
+    camera_at: dict[int, object] = {}
 
     def keep(stamp_ns: int) -> bool:
-        pose = track.at(stamp_ns * 1e-9)
-        return pose is None or spacing.keep(stamp_ns * 1e-9, pose)  # a gap: counted below
+        t = stamp_ns * 1e-9
+        cam = poses.pose(t)
+        if cam is None:  # the joint states cannot place it: counted by PairPoses
+            return False
+        pose = track.at(t)
+        if pose is not None and not (spacing.keep(t, pose, rotation_of(cam))
+                                     if poses.has_mast else spacing.keep(t, pose)):
+            return False
+        camera_at[stamp_ns] = cam  # a gap (pose None): counted below
+        return True
 
     for frame in read_stereo_frames(bag_dir, bad, every=every, rectify=rectify,
                                     log=lambda m: log(f"roi_detector: {m}"),
-                                    sync_tolerance_s=sync_tolerance_s, keep=keep):
+                                    sync_tolerance_s=sync_tolerance_s, keep=keep,
+                                    joints=poses if poses.has_mast else None):
         n_pairs += 1
         t0 = time.perf_counter()
-        obs = detector.observe(frame)
+        cam = camera_at.pop(frame.stamp_ns)
+        obs = detector.observe(frame, None if not poses.has_mast else cam)
         pose = track.at(frame.stamp_ns * 1e-9)
         if pose is None:
             t_detect += time.perf_counter() - t0
@@ -128,6 +143,9 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
         mapper.update_ln()
     stats = {"pairs": n_pairs, "pairs_spaced_out": spacing.skipped, "detections": n_dets,
              "tracks": mapper.n_tracks,
+             **({"mast": True, "joint_states": poses.joint_samples,
+                 "pairs_not_placed": sum(bad.counts[k] for k in NOT_PLACED)}
+                if poses.has_mast else {}),
              "ln_nodes": len(mapper.ln), "bad_input": dict(bad.counts),
              "detect_s_per_pair": t_detect / max(n_pairs, 1)}
     return mapper.ln, stats

@@ -27,6 +27,7 @@ Rover (FarRocks.add, FarRocks.rocks), 15 LN nodes.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -159,11 +160,23 @@ class PairObservation:
     blobs: list[Blob] | None = None
 
 
+#: Camera poses whose rays in base_link the detector keeps (a mast's drive pose and a
+#: panorama's positions; a fixed camera has one).
+POSE_CACHE = 12
+
+
 class RoverDetector:
     """Stereo pair -> classified candidates (base_link).
 
+    Each pair is read at its left camera's pose in base_link: the fixed
+    ``base_to_left_camera``, or the ``base_t_left`` its caller gives (a mast's pose at the
+    pair's stamp, :class:`~roi_detector.camera_poses.PairPoses`). The camera model and its
+    rays in base_link are kept per pose (:data:`POSE_CACHE` of them) and computed when a
+    pose comes that is not kept.
+
     Args:
-        base_to_left_camera: rover.yaml extrinsic ``[x, y, z, qx, qy, qz, qw]``.
+        base_to_left_camera: rover.yaml extrinsic ``[x, y, z, qx, qy, qz, qw]`` (the pose
+            of the pairs given none).
         classifier: the rover model (per_pair: Rock Rover / Outcrop Rover; elevation_map:
             the far rocks' Rock Rover, which needs the blobs' appearance); None keeps
             every candidate with its proposed class (score 1).
@@ -186,35 +199,48 @@ class RoverDetector:
         self.describe_blobs = far_classifier(classifier, cfg) is not None
         self.cfg = cfg
         self.on_bad = on_bad or (lambda kind, detail: None)
+        #: The camera of the latest pair (its pose in base_link, the working resolution).
         self.camera: StereoCamera | None = None
         self._rays = None
-        self._key = None
+        # (intrinsics, pose) -> (camera, half-resolution rays in base_link), oldest first.
+        self._cache: OrderedDict = OrderedDict()
 
-    def _camera(self, frame: StereoFrame) -> StereoCamera:
+    def _camera(self, frame: StereoFrame, base_t_left=None) -> StereoCamera:
+        """The pair's camera at its pose (default: the fixed extrinsic), from the cache
+        when that pose was seen; sets :attr:`camera` and the rays."""
         h, w = frame.left.shape[:2]
-        key = (tuple(np.round(frame.left_k, 6)), tuple(np.round(frame.right_p, 6)), w, h)
-        if key != self._key:
-            self.camera = StereoCamera.from_camera_info(frame.left_k, frame.right_p, w, h,
-                                                        self.extrinsic)
-            self._rays = self.camera.rays_base()
-            self._key = key
+        pose = self.extrinsic if base_t_left is None else base_t_left
+        key = (tuple(np.round(frame.left_k, 6)), tuple(np.round(frame.right_p, 6)), w, h,
+               tuple(np.round(np.asarray(pose, float).ravel(), 9)))
+        hit = self._cache.get(key)
+        if hit is None:
+            camera = StereoCamera.from_camera_info(frame.left_k, frame.right_p, w, h, pose)
+            hit = (camera, camera.rays_base()[::2, ::2].copy())
+            self._cache[key] = hit
+            if len(self._cache) > POSE_CACHE:
+                self._cache.popitem(last=False)
+        else:
+            self._cache.move_to_end(key)
+        self.camera, self._rays = hit
         return self.camera
 
-    def observe(self, frame: StereoFrame) -> PairObservation:
+    def observe(self, frame: StereoFrame, base_t_left=None) -> PairObservation:
         """The pair's contribution under the configured method (see the module), at the
         working resolution (``RoverConfig.working_fx_px``; :attr:`camera` is then the
-        working camera)."""
+        working camera) and at the left camera's pose ``base_t_left`` (4x4 in base_link;
+        None: the fixed extrinsic)."""
         frame = at_working_resolution(frame, self.cfg.working_fx_px)
         if self.cfg.method == "per_pair":
-            return PairObservation(records=detections_to_records(self.detect(frame)))
-        camera = self._camera(frame)
+            return PairObservation(records=detections_to_records(
+                self.detect(frame, base_t_left)))
+        camera = self._camera(frame, base_t_left)
         left = cv2.cvtColor(frame.left, cv2.COLOR_BGR2GRAY)
         right = cv2.cvtColor(frame.right, cv2.COLOR_BGR2GRAY)
         st = self.cfg.stereo
         # 2. Stereo points.
         raw = self._disparity(left, right)
         disp = mask_depth_edges(raw, EDGE_WINDOW_PX, EDGE_MAX_RELATIVE_RANGE)
-        points = points_base(disp, camera, self._rays[::2, ::2], st.max_range_m)
+        points = points_base(disp, camera, self._rays, st.max_range_m)
         h, w = points.shape[:2]
         small = cv2.resize(frame.left, (w, h), interpolation=cv2.INTER_AREA)
         # 10. Dark blobs (tracked in add_pair).
@@ -237,11 +263,12 @@ class RoverDetector:
         full-resolution pixels."""
         return disparity(left, right, self.cfg.stereo)[::2, ::2]
 
-    def candidates(self, frame: StereoFrame) -> tuple[list[Candidate], dict | None]:
+    def candidates(self, frame: StereoFrame, base_t_left=None
+                   ) -> tuple[list[Candidate], dict | None]:
         """Candidates above the rover thresholds (unclassified) and the metric images, at
-        the working resolution."""
+        the working resolution and the camera pose ``base_t_left`` (None: the fixed one)."""
         frame = at_working_resolution(frame, self.cfg.working_fx_px)
-        camera = self._camera(frame)
+        camera = self._camera(frame, base_t_left)
         left = cv2.cvtColor(frame.left, cv2.COLOR_BGR2GRAY)
         right = cv2.cvtColor(frame.right, cv2.COLOR_BGR2GRAY)
         metrics = metric_images(left, 0.5)
@@ -250,7 +277,7 @@ class RoverDetector:
         # covers tens to thousands.
         st = self.cfg.stereo
         disp = self._disparity(left, right)
-        points = points_base(disp, camera, self._rays[::2, ::2], st.max_range_m)
+        points = points_base(disp, camera, self._rays, st.max_range_m)
         cands = rover_candidates(
             metrics["_gray"], points, camera, self.cfg.thresholds,
             metrics, on_no_depth=lambda: self.on_bad(
@@ -258,10 +285,11 @@ class RoverDetector:
                 "few stereo points"))
         return cands, metrics
 
-    def detect(self, frame: StereoFrame) -> list[Candidate]:
-        """Classified detections of one pair (candidates the classifiers accept)."""
+    def detect(self, frame: StereoFrame, base_t_left=None) -> list[Candidate]:
+        """Classified detections of one pair (candidates the classifiers accept), at the
+        camera pose ``base_t_left`` (None: the fixed one)."""
         frame = at_working_resolution(frame, self.cfg.working_fx_px)
-        cands, metrics = self.candidates(frame)
+        cands, metrics = self.candidates(frame, base_t_left)
         if self.classifier is None or not cands:
             for c in cands:
                 c.score = 1.0
@@ -497,6 +525,7 @@ class DriveMapper:
         self.far = FarRockTracker(cfg.far, far_classifier(classifier, cfg))
         self.ln = ln if ln is not None else LocalNetwork(cfg.ln)
         self._tracks = empty_records(0)
+        self._last_camera: StereoCamera | None = None
 
     @property
     def n_tracks(self) -> int:
@@ -510,11 +539,17 @@ class DriveMapper:
         xy cov or None)``; returns the track records (odom) the detector stands behind.
 
         elevation_map: the ROIs of the map (``n_obs`` = detection rounds that found
-        them), after a detection round when one is due.
+        them), after a detection round when one is due: every ``detect_every`` pairs, and
+        at each pair whose camera moved in base_link since the pair before (a mast's
+        panorama, and its return to the drive pose: what a stop's views found is in the
+        tracks before the rover drives on).
         """
         if obs.records is not None:
             return self.add_detections(obs.records, t, pose, camera)
         r_ob, t_ob, cov = pose
+        moved = self._last_camera is not None and camera is not self._last_camera and \
+            not camera.same_mount(self._last_camera)
+        self._last_camera = camera
         # 3. Integration.
         self.map.integrate(obs.points, obs.appearance, r_ob, np.asarray(t_ob, float),
                            camera.t_base_cam, camera.fxb)
@@ -522,7 +557,7 @@ class DriveMapper:
         if obs.blobs is not None:
             self.far.add(obs.blobs, t, r_ob, t_ob, camera, cov)
         # 4.-9. Ground, rock and outcrop regions, their Rovers, persistence (ElevationMap.detect).
-        if self.map.due():
+        if self.map.due() or (moved and self.map.pending()):
             self.map.detect(t, cov)
             self._tracks = self._map_and_far_records()
         return self._tracks

@@ -3,16 +3,20 @@
 Frames: ``base_link`` (x forward, y left, z up, origin on the ground under the rover
 centre) and the left optical frame (z forward, x right, y down). The camera model comes
 only from the pipeline's inputs: CameraInfo (K of the left camera, ``P[3] = -fx * B`` of
-the right one) and the ``base_to_left_camera`` extrinsic of ``rover.yaml``.
+the right one) and the left camera's pose in base_link: the ``base_to_left_camera``
+extrinsic of ``rover.yaml``, or, on a pan-tilt mast, the pair's own pose
+(:class:`roi_network.mast.CameraPoser`, :meth:`StereoCamera.at_pose`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
+
+from roi_network.mast import same_pose
 
 
 @dataclass(frozen=True)
@@ -39,15 +43,16 @@ class StereoCamera:
 
     @classmethod
     def from_camera_info(cls, k: np.ndarray, right_p: np.ndarray, width: int, height: int,
-                         base_to_left_camera: list[float]) -> StereoCamera:
-        """Build the model from CameraInfo fields and the rover.yaml extrinsic.
+                         base_to_left_camera) -> StereoCamera:
+        """Build the model from CameraInfo fields and the left camera's pose.
 
         Args:
             k: left CameraInfo ``k`` (9 values, row-major 3x3).
             right_p: right CameraInfo ``p`` (12 values); ``p[3] = -fx * baseline``.
             width, height: image size, pixels.
             base_to_left_camera: ``[x, y, z, qx, qy, qz, qw]``, left optical frame in
-                base_link (rover.yaml).
+                base_link (rover.yaml), or its 4x4 matrix ``base_T_left`` (a mast's pose
+                at the pair's stamp).
 
         Raises:
             ValueError: naming the field that is inconsistent.
@@ -62,12 +67,33 @@ class StereoCamera:
             raise ValueError("right camera_info: field 'p' has no positive baseline "
                              f"(p[3] = {p[0, 3]}, expected -fx * baseline)")
         pose = np.asarray(base_to_left_camera, float)
-        if pose.shape != (7,):
+        if pose.shape == (4, 4):
+            rot, centre = pose[:3, :3].copy(), pose[:3, 3].copy()
+        elif pose.shape == (7,):
+            rot, centre = Rotation.from_quat(pose[3:]).as_matrix(), pose[:3].copy()
+        else:
             raise ValueError("rover.yaml: field 'base_to_left_camera' must be "
                              "[x, y, z, qx, qy, qz, qw]")
         return cls(float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]),
-                   float(baseline), int(width), int(height),
-                   Rotation.from_quat(pose[3:]).as_matrix(), pose[:3].copy())
+                   float(baseline), int(width), int(height), rot, centre)
+
+    def at_pose(self, base_t_left: np.ndarray) -> StereoCamera:
+        """The same rig with its left camera at another pose in base_link (4x4
+        ``base_T_left``: a mast panned or tilted)."""
+        m = np.asarray(base_t_left, float)
+        return replace(self, r_base_cam=m[:3, :3].copy(), t_base_cam=m[:3, 3].copy())
+
+    @property
+    def base_t_left(self) -> np.ndarray:
+        """4x4 pose of the left optical frame in base_link."""
+        m = np.eye(4)
+        m[:3, :3], m[:3, 3] = self.r_base_cam, self.t_base_cam
+        return m
+
+    def same_mount(self, other: StereoCamera) -> bool:
+        """Whether ``other``'s left camera sits at this one's pose in base_link (a mast at
+        rest; :func:`roi_network.mast.same_pose`)."""
+        return same_pose(self.base_t_left, other.base_t_left)
 
     @property
     def fxb(self) -> float:

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from roi_detector.camera_poses import PairPoses
 from roi_detector.classifier import BinaryClassifier, ClassifierConfig
 from roi_detector.elevation_map import MAP_OUTCROP_FEATURES, MAP_OUTCROP_RULE, MAP_ROCK_FEATURES
 from roi_detector.evaluation import match_nodes, true_nodes
@@ -66,12 +67,17 @@ def labelled_candidates(bag_dir: str, feature_sets: tuple[str, ...], every: int 
     truth = Truth.load(bag_dir)
     bad = BadInput(lambda m: log(f"{bag_dir}: {m}"))
     det = RoverDetector(params["base_to_left_camera"], None, cfg, bad)
+    poses = PairPoses(params, bad, strict=True)
     xs: dict[str, list] = {fs: [] for fs in feature_sets}
     labels, stamps = [], []
-    for frame in read_stereo_frames(bag_dir, bad, every=every):
+    for frame in read_stereo_frames(bag_dir, bad, every=every,
+                                    joints=poses if poses.has_mast else None):
+        cam = poses.pose(frame.stamp_ns * 1e-9)
+        if cam is None:  # a mast's pair the joint states cannot place: counted
+            continue
         # The features are taken from the image the candidates were found in.
         frame = at_working_resolution(frame, cfg.working_fx_px)
-        cands, metrics = det.candidates(frame)
+        cands, metrics = det.candidates(frame, cam if poses.has_mast else None)
         if not cands:
             continue
         pts = truth.base_to_map(frame.stamp_ns * 1e-9, np.array([c.center for c in cands]))

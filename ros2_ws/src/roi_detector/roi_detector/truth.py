@@ -69,15 +69,18 @@ class Truth:
         d, _ = cKDTree(route).query(xy(self.rois))
         return d <= radius_m
 
-    def views(self, rover_params: dict, max_depth_m: float, step_m: float = 0.45
-              ) -> np.ndarray:
-        """Per truth ROI, the number of stereo pairs (one every ``step_m`` of the route)
-        whose left image holds its centre (0.2 m above the ground) at most
-        ``max_depth_m`` deep: what a fixed forward camera can see of it.
+    def views(self, rover_params: dict, max_depth_m: float, step_m: float = 0.45,
+              moved: list[tuple[float, np.ndarray]] = ()) -> np.ndarray:
+        """Per truth ROI, the number of stereo pairs (one every ``step_m`` of the route,
+        at the drive pose ``base_to_left_camera``; and each of ``moved``) whose left image
+        holds its centre (0.2 m above the ground) at most ``max_depth_m`` deep: what the
+        camera can see of it.
 
         Args:
             rover_params: the bag's rover.yaml parameters (``base_to_left_camera``,
                 ``fx fy cx cy``, ``image_width``, ``image_height``).
+            moved: ``(stamp s, base_T_left)`` of the pairs a mast took away from the
+                drive pose (its panoramas; :func:`~roi_detector.camera_poses.moved_pair_poses`).
         """
         tr, r, p = self.trajectory, self.rois, rover_params
         e = np.asarray(p["base_to_left_camera"], float)
@@ -86,15 +89,22 @@ class Truth:
         idx = np.searchsorted(travelled, np.arange(0.0, travelled[-1], step_m))
         centres = np.column_stack([r["x"], r["y"], r["z"] + 0.2])
         count = np.zeros(len(r), int)
-        for k in np.unique(np.clip(idx, 0, len(tr.p) - 1)):
-            r_mb = Rotation.from_quat(tr.q[k]).as_matrix()
-            pc = ((centres - tr.p[k]) @ r_mb - t_bc) @ r_bc
+
+        def seen(r_mb, t_mb, r_bc, t_bc) -> np.ndarray:
+            pc = ((centres - t_mb) @ r_mb - t_bc) @ r_bc
             z = pc[:, 2]
             with np.errstate(divide="ignore", invalid="ignore"):
                 u = p["fx"] * pc[:, 0] / z + p["cx"]
                 v = p["fy"] * pc[:, 1] / z + p["cy"]
-            count += (z > 0) & (z <= max_depth_m) & (u >= 0) & (u < p["image_width"]) & \
+            return (z > 0) & (z <= max_depth_m) & (u >= 0) & (u < p["image_width"]) & \
                 (v >= 0) & (v < p["image_height"])
+
+        for k in np.unique(np.clip(idx, 0, len(tr.p) - 1)):
+            count += seen(Rotation.from_quat(tr.q[k]).as_matrix(), tr.p[k], r_bc, t_bc)
+        for t, m in moved:
+            pose = tr.at(t)
+            if pose is not None:
+                count += seen(pose[0], pose[1], m[:3, :3], m[:3, 3])
         return count
 
     def _odom_in_map(self) -> Rotation:

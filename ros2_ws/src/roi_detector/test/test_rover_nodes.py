@@ -174,7 +174,8 @@ def _bag_messages(bag: Path, deserialize: bool = False):
 
     out: dict[str, list] = {}
     with AnyReader([bag / "rosbag"], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as r:
-        conns = [c for c in r.connections if c.topic.startswith("/stereo/")]
+        conns = [c for c in r.connections
+                 if c.topic.startswith("/stereo/") or c.topic == "/joint_states"]
         for conn, _t, raw in r.messages(connections=conns):
             out.setdefault(conn.topic, []).append(
                 r.deserialize(raw, conn.msgtype) if deserialize else raw)
@@ -184,7 +185,7 @@ def _bag_messages(bag: Path, deserialize: bool = False):
 def test_roi_detector_and_ln_builder_nodes_on_tiny(tiny_bag, tmp_path):
     from nav_msgs.msg import Odometry
     from rclpy.serialization import deserialize_message
-    from sensor_msgs.msg import CameraInfo, CompressedImage, PointCloud2
+    from sensor_msgs.msg import CameraInfo, CompressedImage, JointState, PointCloud2
 
     from roi_detector.truth import Truth
 
@@ -209,6 +210,7 @@ def test_roi_detector_and_ln_builder_nodes_on_tiny(tiny_bag, tmp_path):
                           "/stereo/right/image_raw/compressed",
                           "/stereo/left/camera_info", "/stereo/right/camera_info")}
         odom_pub = node.create_publisher(Odometry, "/vo/odometry", RELIABLE)
+        joint_pub = node.create_publisher(JointState, "/joint_states", BEST_EFFORT)
 
         spin_until = functools.partial(_spin_until, ex, det, tmp_path / "roi_detector.log")
 
@@ -224,6 +226,10 @@ def test_roi_detector_and_ln_builder_nodes_on_tiny(tiny_bag, tmp_path):
                   for r in msgs["/stereo/right/image_raw/compressed"]]
         linfo = deserialize_message(bytes(msgs["/stereo/left/camera_info"][0]), CameraInfo)
         rinfo = deserialize_message(bytes(msgs["/stereo/right/camera_info"][0]), CameraInfo)
+        # A bag with a mast records the joint angles at every pair's stamp (rover.yaml
+        # then has the mast, and the node places each pair with them).
+        joints = {(m.header.stamp.sec, m.header.stamp.nanosec): m for m in (
+            deserialize_message(bytes(r), JointState) for r in msgs.get("/joint_states", []))}
         odom = Truth.load(tiny_bag).odom_track()
         def last_status():
             if not got["status"]:
@@ -251,6 +257,9 @@ def test_roi_detector_and_ln_builder_nodes_on_tiny(tiny_bag, tmp_path):
                             (pubs["/stereo/right/camera_info"], rinfo)):
                 info.header.stamp = lm.header.stamp
                 p.publish(info)
+            js = joints.get((lm.header.stamp.sec, lm.header.stamp.nanosec))
+            if js is not None:
+                joint_pub.publish(js)
             if k == 5:  # an undecodable image: counted, skipped
                 lm.data = b"\x00" * 100
             if k == 8:  # a missing pair half: the right image only, never completed
@@ -424,9 +433,10 @@ def test_roi_detector_node_reads_raw_images(tiny_bag, tmp_path):
     from roi_network.testing import write_raw_image_copy
 
     both = write_raw_image_copy(tiny_bag, tmp_path / "both", keep_compressed=True)
+    recorded = _bag_messages(tiny_bag, deserialize=True)
     stamps = sorted({int(m.header.stamp.sec) * 10**9 + int(m.header.stamp.nanosec)
-                     for m in _bag_messages(tiny_bag, deserialize=True)
-                     ["/stereo/left/image_raw/compressed"]})
+                     for m in recorded["/stereo/left/image_raw/compressed"]})
+    has_joints = "/joint_states" in recorded  # a mast's angles, played with the pairs
     domain = _domain() + 3
     det = _start(["roi_detector", "--ros-args", "-p", "model_path:=none",
                   "--params-file", str(tiny_bag / "rover.yaml")], domain,
@@ -460,7 +470,8 @@ def test_roi_detector_node_reads_raw_images(tiny_bag, tmp_path):
              "--wait-subscribers", "30", "--topics", "/stereo/left/image_raw",
              "/stereo/right/image_raw", "/stereo/left/image_raw/compressed",
              "/stereo/right/image_raw/compressed", "/stereo/left/camera_info",
-             "/stereo/right/camera_info"], env=_env(domain), stdout=subprocess.PIPE,
+             "/stereo/right/camera_info", *(["/joint_states"] if has_joints else [])],
+            env=_env(domain), stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT, text=True)
         assert spin_until(lambda: len(got) >= len(stamps) or player.poll() is not None, 240)
         spin_until(lambda: len(got) >= len(stamps), 30)
@@ -502,3 +513,225 @@ def test_count_ln_counts_the_truth(tiny_bag):
     part = count_ln(fewer, truth, wanted, in_view)["per_class"]["rock"]
     assert part["truth_found"] == len(rocks) - 1
     assert part["ln_nodes"] == full["ln_nodes"] and part["true_nodes"] == full["ln_nodes"] - 1
+
+
+def _mast_copy(bag: Path, out: Path, joints=None, mast: bool = True) -> Path:
+    """A copy of bag directory ``bag`` with a rover.yaml that has the simulator's mast
+    (``mast``; else none) and, when ``joints`` is given, the /joint_states messages
+    ``joints(stamp_ns)`` (a list of ``(stamp_ns, names, positions)``) before each stereo
+    pair's images; the bag's own /joint_states left out."""
+    import yaml
+    from rosbags.highlevel import AnyReader
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from roi_network.params import flatten
+
+    out.mkdir(parents=True)
+    for item in bag.iterdir():
+        if item.is_file() and item.name != "rover.yaml":
+            shutil.copy2(item, out / item.name)
+    doc = yaml.safe_load((bag / "rover.yaml").read_text())
+    params = flatten(next(v["ros__parameters"] for v in doc.values() if "ros__parameters" in v))
+    params = {k: v for k, v in params.items() if not k.startswith("mast.")}
+    if mast:
+        from scipy.spatial.transform import Rotation
+
+        optical = Rotation.from_matrix(np.array([[0, 0, 1], [-1, 0, 0], [0, -1, 0]],
+                                                float)).as_quat()
+        params["mast"] = {
+            "pan_joint": "mast_pan", "pan_origin": [0.4, 0.0, 1.3, 0.0, 0.0, 0.0, 1.0],
+            "pan_axis": [0.0, 0.0, 1.0], "pan_limits": [-3.14159, 3.14159],
+            "tilt_joint": "mast_tilt", "tilt_origin": [0.0, 0.0, 0.24, 0.0, 0.0, 0.0, 1.0],
+            "tilt_axis": [0.0, 1.0, 0.0], "tilt_limits": [-0.5, 1.2],
+            "head_to_left_camera": [0.0, 0.1, 0.0, *map(float, optical)]}
+    (out / "rover.yaml").write_text(yaml.safe_dump({"/**": {"ros__parameters": params}}))
+    store = get_typestore(Stores.ROS2_JAZZY)
+    T = store.types
+    with AnyReader([bag / "rosbag"], default_typestore=store) as reader, \
+            Writer(out / "rosbag", version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=store)
+                 for c in reader.connections if c.topic != "/joint_states"}
+        js = writer.add_connection("/joint_states", "sensor_msgs/msg/JointState",
+                                   typestore=store) if joints is not None else None
+        done = set()
+        for conn, t_ns, data in reader.messages():
+            if conn.id not in conns:
+                continue
+            if js is not None and conn.topic.startswith("/stereo/") and "image" in conn.topic:
+                msg = reader.deserialize(data, conn.msgtype)
+                stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+                if stamp not in done:
+                    done.add(stamp)
+                    for s, names, pos in joints(stamp):
+                        m = T["sensor_msgs/msg/JointState"](
+                            header=T["std_msgs/msg/Header"](
+                                stamp=T["builtin_interfaces/msg/Time"](
+                                    sec=s // 10**9, nanosec=s % 10**9), frame_id=""),
+                            name=list(names), position=np.asarray(pos, float),
+                            velocity=np.zeros(0), effort=np.zeros(0))
+                        writer.write(js, t_ns - 1000, store.serialize_cdr(
+                            m, "sensor_msgs/msg/JointState"))
+            writer.write(conns[conn.id], t_ns, data)
+    return out
+
+
+DRIVE = ["mast_pan", "mast_tilt"], [0.0, float(np.radians(20.0))]
+
+
+def test_cli_ln_places_each_pair_by_the_joint_states_and_counts_what_it_cannot(
+        tiny_bag, tmp_path, capsys):
+    """``roi_detector ln`` on a mast's bag: a mast held at the drive pose gives the fixed
+    camera's LN; pairs with no joint state (none at all, too far in time, a mast that
+    stopped publishing) are not placed, counted and named once; joint names the mast does
+    not have are an error naming them."""
+    run = _in_process(capsys)
+    odom = tmp_path / "truth_odom.tum"
+    assert run("truth-odometry", str(tiny_bag), "--out", str(odom)).returncode == 0
+
+    def ln(bag, name):
+        out = tmp_path / f"{name}.geojson"
+        r = run("ln", str(bag), "--odometry", str(odom), "--out", str(out), "--model",
+                "none", "--min-obs", "1")
+        return r, (read_geojson(out) if out.exists() else None)
+
+    fixed, lnf = ln(_mast_copy(tiny_bag, tmp_path / "fixed", mast=False), "fixed")
+    assert fixed.returncode == 0, fixed.stderr
+    assert len(lnf) >= 1 and "not placed" not in fixed.stdout
+    held, lnh = ln(_mast_copy(tiny_bag, tmp_path / "held", lambda s: [(s, *DRIVE)]), "held")
+    assert held.returncode == 0, held.stderr
+    a, b = lnf.records, lnh.records
+    assert len(a) == len(b)
+    np.testing.assert_allclose(np.column_stack([b["x"], b["y"]]),
+                               np.column_stack([a["x"], a["y"]]), atol=1e-6)
+    assert lnh.metadata["joint_states"] > 0 and lnh.metadata["pairs_not_placed"] == 0
+    # No /joint_states at all: no pair placed, the run fails naming the topic once.
+    r, _ = ln(_mast_copy(tiny_bag, tmp_path / "none", None), "none")
+    assert r.returncode == 1 and "no stereo pair read (no joint states " in r.stderr
+    assert (r.stdout + r.stderr).count("/joint_states") == 1
+    # Joint samples 0.3 s from every pair: further than the tolerance.
+    r, _ = ln(_mast_copy(tiny_bag, tmp_path / "late",
+                         lambda s: [(s + 300_000_000, *DRIVE)]), "late")
+    assert r.returncode == 1 and "stale joint states" in r.stderr
+    # The mast stops publishing half way: the first half placed, the rest counted.
+    stamps = sorted(int(s) for s in np.loadtxt(odom, comments="#", ndmin=2)[:, 0] * 1e9)
+    half = stamps[len(stamps) // 2]
+    r, lns = ln(_mast_copy(tiny_bag, tmp_path / "stops",
+                           lambda s: [(s, *DRIVE)] if s < half else []), "stops")
+    assert r.returncode == 0, r.stderr
+    assert (r.stdout + r.stderr).count("stopped publishing") == 1
+    stopped = lns.metadata["bad_input"]["joint states stopped"]
+    assert stopped >= 1 and lns.metadata["pairs_not_placed"] == stopped
+    assert f"{stopped} not placed" in r.stdout
+    assert lns.metadata["pairs"] + stopped == lnf.metadata["pairs"]
+    # Joint names the mast does not have: an error naming them, no LN.
+    r, bad = ln(_mast_copy(tiny_bag, tmp_path / "names",
+                           lambda s: [(s, ["pan", "tilt"], DRIVE[1])]), "names")
+    assert r.returncode == 1 and bad is None
+    assert "'mast_pan'" in r.stderr and "'pan', 'tilt'" in r.stderr
+
+
+def test_roi_detector_node_places_pairs_by_the_joint_states_and_counts_bad_ones(
+        tiny_bag, tmp_path):
+    """The node on a mast's rover.yaml: pairs before any /joint_states are not placed
+    (counted, the topic named once in the log); a message with joint names the mast does
+    not have is logged once and dropped; pairs with their joint states are placed and
+    published; when the mast stops publishing, the pairs are skipped and it is said once."""
+    from nav_msgs.msg import Odometry
+    from rclpy.serialization import deserialize_message
+    from scipy.spatial.transform import Rotation
+    from sensor_msgs.msg import CameraInfo, CompressedImage, JointState, PointCloud2
+
+    from roi_detector.truth import Truth
+
+    mast_bag = _mast_copy(tiny_bag, tmp_path / "mast_bag", None)
+    domain = _domain() + 4
+    det = _start(["roi_detector", "--ros-args", "-p", "model_path:=none",
+                  "--params-file", str(mast_bag / "rover.yaml")], domain,
+                 tmp_path / "roi_detector.log")
+    ctx, node, ex = _driver(domain, "roi_mast_driver")
+    try:
+        from diagnostic_msgs.msg import DiagnosticArray
+
+        got, status = [], []
+        node.create_subscription(PointCloud2, "/rois/detections", got.append, RELIABLE)
+        node.create_subscription(DiagnosticArray, "/rois/status", status.append, 10)
+        pubs = {t: node.create_publisher(CompressedImage if "image" in t else CameraInfo, t,
+                                         BEST_EFFORT)
+                for t in ("/stereo/left/image_raw/compressed",
+                          "/stereo/right/image_raw/compressed",
+                          "/stereo/left/camera_info", "/stereo/right/camera_info")}
+        odom_pub = node.create_publisher(Odometry, "/vo/odometry", RELIABLE)
+        joint_pub = node.create_publisher(JointState, "/joint_states", RELIABLE)
+        spin_until = functools.partial(_spin_until, ex, det, tmp_path / "roi_detector.log")
+        assert spin_until(lambda: all(p.get_subscription_count() > 0 for p in pubs.values())
+                          and joint_pub.get_subscription_count() > 0, 30)
+        spin_until(lambda: False, 2.0)
+        msgs = _bag_messages(tiny_bag)
+        lefts = [deserialize_message(bytes(r), CompressedImage)
+                 for r in msgs["/stereo/left/image_raw/compressed"]][:14]
+        rights = [deserialize_message(bytes(r), CompressedImage)
+                  for r in msgs["/stereo/right/image_raw/compressed"]][:14]
+        linfo = deserialize_message(bytes(msgs["/stereo/left/camera_info"][0]), CameraInfo)
+        rinfo = deserialize_message(bytes(msgs["/stereo/right/camera_info"][0]), CameraInfo)
+        odom = Truth.load(tiny_bag).odom_track()
+
+        def last_status():
+            return {kv.key: kv.value for kv in status[-1].status[0].values} if status else {}
+
+        def odometry(stamp, t):
+            r_ob, p_ob, _ = odom.at(min(t, odom.t[-1]))
+            o = Odometry()
+            o.header.stamp = stamp
+            o.header.frame_id, o.child_frame_id = "odom", "base_link"
+            o.pose.pose.position.x, o.pose.pose.position.y, o.pose.pose.position.z = p_ob
+            oo = o.pose.pose.orientation
+            oo.x, oo.y, oo.z, oo.w = Rotation.from_matrix(r_ob).as_quat()
+            o.pose.covariance = list(np.diag([1e-4] * 3 + [1e-5] * 3).ravel())
+            return o
+
+        def joints(stamp, names=("mast_pan", "mast_tilt")):
+            m = JointState()
+            m.header.stamp = stamp
+            m.name = list(names)
+            m.position = list(DRIVE[1])
+            return m
+
+        placed = range(3, 10)  # joint states for these pairs; none before, none after
+        for k, (lm, rm) in enumerate(zip(lefts, rights, strict=True)):
+            t = lm.header.stamp.sec + 1e-9 * lm.header.stamp.nanosec
+            odom_pub.publish(odometry(lm.header.stamp, t))
+            if k == placed[0]:
+                joint_pub.publish(joints(lm.header.stamp, ("pan", "tilt")))
+            if k in placed:
+                joint_pub.publish(joints(lm.header.stamp))
+            for p, info in ((pubs["/stereo/left/camera_info"], linfo),
+                            (pubs["/stereo/right/camera_info"], rinfo)):
+                info.header.stamp = lm.header.stamp
+                p.publish(info)
+            pubs["/stereo/left/image_raw/compressed"].publish(lm)
+            pubs["/stereo/right/image_raw/compressed"].publish(rm)
+            if k in placed:
+                assert spin_until(lambda n=k - placed[0] + 1: len(got) >= n, 60), \
+                    (tmp_path / "roi_detector.log").read_text()
+            else:
+                spin_until(lambda: False, 1.0)
+        # A later odometry stamp: the last pairs' joint states are not coming.
+        late = lefts[-1].header.stamp
+        late.sec += 2
+        odom_pub.publish(odometry(late, late.sec + 1e-9 * late.nanosec))
+        assert spin_until(lambda: int(last_status().get("skipped: joint states stopped", 0))
+                          == 14 - placed[-1] - 1, 30), last_status()
+        s = last_status()
+        assert len(got) == len(placed)
+        assert int(s["skipped: no joint states"]) == placed[0]
+        assert int(s["skipped: bad joint states"]) == 1
+        assert int(s["joint_states"]) == len(placed)
+        assert det.poll() is None
+    finally:
+        rclpy.shutdown(context=ctx)
+        _stop(det)
+    log = (tmp_path / "roi_detector.log").read_text()
+    assert log.count("no /joint_states message has come") == 1
+    assert log.count("'pan', 'tilt'") == 1 and log.count("stopped publishing") == 1
+    assert "Traceback" not in log
