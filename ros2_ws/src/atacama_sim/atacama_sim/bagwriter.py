@@ -1,8 +1,10 @@
 """rosbag2 writer (MCAP storage, Jazzy message types) for the simulated sensors.
 
 Topics, types, frames and QoS follow DESIGN.md. Each connection records its offered QoS
-(sensor data: best effort / volatile / keep last 5; ground truth: reliable / keep last 10),
-so a player can re-offer the same profiles. Header stamps equal bag time.
+(sensor data: best effort / volatile / keep last 5; ground truth: reliable / keep last 10;
+``/tf_static`` and ``/robot_description``: reliable / transient local / keep last 1, as
+robot_state_publisher latches them), so a player can re-offer the same profiles. Header
+stamps equal bag time.
 """
 
 from __future__ import annotations
@@ -22,14 +24,11 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from atacama_sim.camera import StereoRig
+from atacama_sim.robot import FRAME_IMU, FRAME_LEFT, FRAME_RIGHT
 
 #: Bag time of the first sample, ns since the Unix epoch (fixed: the bag is deterministic).
 BAG_EPOCH_NS = 1_700_000_000_000_000_000
 
-FRAME_BASE = "base_link"
-FRAME_LEFT = "left_camera_optical"
-FRAME_RIGHT = "right_camera_optical"
-FRAME_IMU = "imu_link"
 FRAME_MAP = "map"
 
 T_LEFT_IMG = "/stereo/left/image_raw/compressed"
@@ -38,19 +37,24 @@ T_LEFT_INFO = "/stereo/left/camera_info"
 T_RIGHT_INFO = "/stereo/right/camera_info"
 T_IMU = "/imu/data"
 T_GT = "/ground_truth/pose"
+T_JOINTS = "/joint_states"
+T_TF_STATIC = "/tf_static"
+T_ROBOT = "/robot_description"
 
 _ZERO = QosTime(0, 0)
 _INF = QosTime(2147483647, 4294967295)  # rmw "infinite" duration as rosbag2 stores it
 
 
-def _qos(reliable: bool, depth: int) -> Qos:
+def _qos(reliable: bool, depth: int, latched: bool = False) -> Qos:
     return Qos(QosHistory.KEEP_LAST, depth,
                QosReliability.RELIABLE if reliable else QosReliability.BEST_EFFORT,
-               QosDurability.VOLATILE, _INF, _INF, QosLiveliness.AUTOMATIC, _INF, False)
+               QosDurability.TRANSIENT_LOCAL if latched else QosDurability.VOLATILE,
+               _INF, _INF, QosLiveliness.AUTOMATIC, _INF, False)
 
 
 SENSOR_QOS = _qos(reliable=False, depth=5)
 RELIABLE_QOS = _qos(reliable=True, depth=10)
+LATCHED_QOS = _qos(reliable=True, depth=1, latched=True)
 
 
 class BagWriter:
@@ -72,7 +76,10 @@ class BagWriter:
                 (T_LEFT_INFO, "sensor_msgs/msg/CameraInfo", SENSOR_QOS),
                 (T_RIGHT_INFO, "sensor_msgs/msg/CameraInfo", SENSOR_QOS),
                 (T_IMU, "sensor_msgs/msg/Imu", SENSOR_QOS),
-                (T_GT, "geometry_msgs/msg/PoseStamped", RELIABLE_QOS)):
+                (T_GT, "geometry_msgs/msg/PoseStamped", RELIABLE_QOS),
+                (T_JOINTS, "sensor_msgs/msg/JointState", SENSOR_QOS),
+                (T_TF_STATIC, "tf2_msgs/msg/TFMessage", LATCHED_QOS),
+                (T_ROBOT, "std_msgs/msg/String", LATCHED_QOS)):
             self.conn[topic] = self.writer.add_connection(
                 topic, msgtype, typestore=ts, offered_qos_profiles=[qos])
             self.counts[topic] = 0
@@ -148,3 +155,37 @@ class BagWriter:
         msg = ts.types["geometry_msgs/msg/PoseStamped"](header=self._header(t_ns, FRAME_MAP),
                                                         pose=pose)
         self._write(T_GT, "geometry_msgs/msg/PoseStamped", msg, t_ns)
+
+    def write_joint_state(self, t: float, names: tuple[str, ...], position: np.ndarray,
+                          velocity: np.ndarray) -> None:
+        """One ``/joint_states`` sample (rad, rad/s; frame '', no effort)."""
+        t_ns = self.stamp(t)
+        msg = self.ts.types["sensor_msgs/msg/JointState"](
+            header=self._header(t_ns, ""), name=list(names),
+            position=np.asarray(position, np.float64), velocity=np.asarray(velocity, np.float64),
+            effort=np.zeros(0, np.float64))
+        self._write(T_JOINTS, "sensor_msgs/msg/JointState", msg, t_ns)
+
+    def write_tf_static(self, t: float, transforms: list[tuple[str, str, np.ndarray]]) -> None:
+        """Every fixed joint in one ``/tf_static`` message: ``(parent, child, 4x4)``."""
+        from scipy.spatial.transform import Rotation
+
+        t_ns = self.stamp(t)
+        ts = self.ts
+        out = []
+        for parent, child, m in transforms:
+            q = Rotation.from_matrix(np.asarray(m)[:3, :3]).as_quat()
+            tr = ts.types["geometry_msgs/msg/Transform"](
+                translation=ts.types["geometry_msgs/msg/Vector3"](
+                    x=float(m[0, 3]), y=float(m[1, 3]), z=float(m[2, 3])),
+                rotation=ts.types["geometry_msgs/msg/Quaternion"](
+                    x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])))
+            out.append(ts.types["geometry_msgs/msg/TransformStamped"](
+                header=self._header(t_ns, parent), child_frame_id=child, transform=tr))
+        self._write(T_TF_STATIC, "tf2_msgs/msg/TFMessage",
+                    ts.types["tf2_msgs/msg/TFMessage"](transforms=out), t_ns)
+
+    def write_robot_description(self, t: float, text: str) -> None:
+        """The URDF, once (``/robot_description``, std_msgs/String)."""
+        self._write(T_ROBOT, "std_msgs/msg/String",
+                    self.ts.types["std_msgs/msg/String"](data=text), self.stamp(t))

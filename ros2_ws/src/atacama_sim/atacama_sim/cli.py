@@ -1,5 +1,5 @@
 """``atacama_sim generate --preset {atacama_1km,quick,tiny} --seed N --out bags/NAME
-[--set SECTION.FIELD=VALUE ...]``."""
+[--set SECTION.FIELD=VALUE ...] [--no-panoramas]``."""
 
 from __future__ import annotations
 
@@ -30,6 +30,9 @@ def main(argv: list[str] | None = None) -> int:
                      help="override one field of the preset's configuration (repeatable; "
                      "a YAML value: e.g. camera.width=1024 camera.hfov_deg=60 "
                      "route.length_m=600 imu.gravity=3.721); world.yaml records the result")
+    gen.add_argument("--no-panoramas", action="store_true",
+                     help="no stereo panoramas at the stops: the mast stays at the drive "
+                          "pose (mast.panoramas=false; rover.yaml still states the mast)")
     gen.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
 
@@ -37,6 +40,8 @@ def main(argv: list[str] | None = None) -> int:
         overrides = parse_overrides(args.set)
     except ValueError as exc:
         parser.error(str(exc))
+    if args.no_panoramas:
+        overrides.setdefault("mast", {})["panoramas"] = False
     add_site(overrides, args.crs, tuple(args.site_lonlat) if args.site_lonlat else None)
     try:
         cfg = make_config(args.preset, args.seed, overrides)
@@ -46,7 +51,8 @@ def main(argv: list[str] | None = None) -> int:
 
     stats = generate(cfg, args.out, progress=not args.no_progress,
                      orbital_only=args.orbital_only)
-    summary = {k: stats[k] for k in ("rois", "route", "timing_s", "render_s_per_stereo_frame")}
+    summary = {k: stats[k] for k in ("rois", "route", "panoramas", "timing_s",
+                                     "render_s_per_stereo_frame")}
     print(json.dumps(summary, indent=1))
     return 0
 

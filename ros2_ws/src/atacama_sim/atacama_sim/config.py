@@ -124,6 +124,37 @@ class CameraConfig:
 
 
 @dataclass
+class MastConfig:
+    """The pan-tilt mast's motion and the stereo panoramas at drive stops (its geometry is
+    :func:`atacama_sim.camera.mast_kinematics` of :class:`CameraConfig`).
+
+    At every stop between drive segments the rover, once still, slews the mast through pan
+    angles spread evenly over ``span_deg`` (as few as keep ``overlap_deg`` between
+    neighbouring views) at ``tilt_deg``, takes a stereo pair at each after it settles, and
+    returns the mast to the drive pose (pan 0, ``CameraConfig.tilt_deg``); the stop lasts
+    at least as long. The slew rate is a conservative share of a pan-tilt unit's (FLIR
+    PTU-D46-70: 60 deg/s at most).
+
+    Attributes:
+        panoramas: take a stereo panorama at every stop between drive segments (False:
+            the mast stays at the drive pose; ``atacama_sim generate --no-panoramas``).
+        span_deg: pan span of a panorama, degrees (360: all around).
+        overlap_deg: least horizontal overlap of neighbouring views, degrees; sets the
+            positions (stereo pairs) per panorama, ceil(span / (hfov - overlap)).
+        tilt_deg: tilt of the panorama row below the horizon, degrees.
+        slew_deg_s: slew rate of each joint, deg/s.
+        settle_s: wait after a move before the pair is taken, s.
+    """
+
+    panoramas: bool = True
+    span_deg: float = 360.0
+    overlap_deg: float = 10.0
+    tilt_deg: float = 20.0
+    slew_deg_s: float = 30.0
+    settle_s: float = 1.0
+
+
+@dataclass
 class ImuConfig:
     """MEMS-class IMU (numbers of an ADIS16448-like unit), at base_link.
 
@@ -160,7 +191,8 @@ class RouteConfig:
         roi_range_m: distance from the route within which a major ROI counts as passed, m.
         edge_margin_m: the route stays this far inside the world square, m.
         speed_mps: cruise speed, m/s.
-        stop_every_m: range of the distance driven between stops, m.
+        stop_every_m: range of the distance driven between stops (each holds a
+            panorama, :class:`MastConfig`), m.
         stop_s: range of a stop's duration, s.
         frame_spacing_m: a stereo pair every this much travel, m.
         stop_frame_period_s: and every this long while stopped, s.
@@ -173,7 +205,7 @@ class RouteConfig:
     roi_range_m: float = 15.0
     edge_margin_m: float = 120.0
     speed_mps: float = 0.15
-    stop_every_m: tuple[float, float] = (40.0, 90.0)
+    stop_every_m: tuple[float, float] = (12.0, 28.0)
     stop_s: tuple[float, float] = (20.0, 90.0)
     frame_spacing_m: float = 0.45
     stop_frame_period_s: float = 10.0
@@ -209,6 +241,7 @@ class WorldConfig:
         rocks: major ROIs and clutter.
         sun: sun direction over the traverse.
         camera: stereo rig.
+        mast: pan-tilt motion and panoramas.
         imu: IMU noise model.
         route: traverse.
         orbital: orthoimage.
@@ -221,6 +254,7 @@ class WorldConfig:
     rocks: RockConfig = field(default_factory=RockConfig)
     sun: SunConfig = field(default_factory=SunConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
+    mast: MastConfig = field(default_factory=MastConfig)
     imu: ImuConfig = field(default_factory=ImuConfig)
     route: RouteConfig = field(default_factory=RouteConfig)
     orbital: OrbitalConfig = field(default_factory=OrbitalConfig)
@@ -351,7 +385,8 @@ PRESETS: dict[str, dict[str, Any]] = {
         "route": {"length_m": 400.0, "rois_target": (18, 28), "edge_margin_m": 100.0},
         "rocks": {"major_per_km2": 200.0, "clusters_per_km2": 15.0},
     },
-    # Seconds: unit tests. A small square, a 12 m route through a rock cluster.
+    # Seconds: unit tests. A small square, a 12 m route through a rock cluster, no stop
+    # on the way and so no panorama (the other packages' tests drive it as a fixed camera).
     "tiny": {
         "site": {"extent_m": 128.0},
         "terrain": {"large_rms_m": 1.0, "large_wavelengths_m": (40.0, 128.0)},
@@ -382,6 +417,9 @@ def _override(obj: Any, values: dict[str, Any]) -> None:
                  or (isinstance(current, int) and not float(value).is_integer())):
             raise TypeError(f"{type(obj).__name__}.{key}: expected "
                             f"{type(current).__name__}, got {value!r}")
+        if isinstance(current, bool) and not isinstance(value, bool):
+            raise TypeError(f"{type(obj).__name__}.{key}: expected true or false, got "
+                            f"{value!r}")
         if isinstance(current, tuple) and not isinstance(value, list | tuple):
             raise TypeError(f"{type(obj).__name__}.{key}: expected a list, got {value!r}")
         if isinstance(current, tuple | int | float) and not isinstance(current, bool):

@@ -1,9 +1,10 @@
 """Make one bag directory (DESIGN.md, Files) from a configuration.
 
-Steps (docs/simulator.md, Method): 1 build the world; 2 plan the route and drive it;
-3 synthesise the IMU; 4 render the orbital image; 5 stream the traverse into the bag in time
-order (IMU, ground truth, stereo pairs rendered on demand, so memory stays bounded); 6 write
-truth, rover.yaml, world.yaml and the contact sheet.
+Steps (docs/simulator.md, Method): 1 build the world; 2 plan the route, drive it and
+schedule the mast's panoramas at the stops; 3 synthesise the IMU; 4 render the orbital
+image; 5 stream the traverse into the bag in time order (frame tree, IMU, ground truth,
+joint states, stereo pairs rendered on demand, so memory stays bounded); 6 write truth,
+rover.yaml, world.yaml and the contact sheet.
 """
 
 from __future__ import annotations
@@ -18,12 +19,14 @@ import numpy as np
 from tqdm import tqdm
 
 from atacama_sim.bagwriter import BAG_EPOCH_NS, BagWriter
-from atacama_sim.camera import StereoRig
+from atacama_sim.camera import StereoRig, mast_kinematics
 from atacama_sim.config import WorldConfig
 from atacama_sim.contact import contact_sheet
 from atacama_sim.imu import synthesize_imu
 from atacama_sim.orbital import orbital_tiles, render_orbital
+from atacama_sim.panorama import MastMotion, mast_motion, panorama_s, panorama_stop_s
 from atacama_sim.renderer import SceneRenderer
+from atacama_sim.robot import static_transforms, urdf
 from atacama_sim.route import camera_indices, drive, plan_route
 from atacama_sim.sensor import develop, developer_pool
 from atacama_sim.texture import MATERIAL_RGB
@@ -32,9 +35,15 @@ from atacama_sim.world import World
 
 CONTACT_FRAMES = 6  # frames shown on the contact sheet
 GT_RATE_HZ = 10.0  # rate of the ground-truth poses (plus one at every stereo pair), Hz
+JOINT_RATE_HZ = 10.0  # rate of /joint_states (plus one at every stereo pair), Hz
 
 
-def _contact_choice(rig: StereoRig, traj, cam_idx: np.ndarray,
+def _base_T_left(kin, motion: MastMotion, k: int) -> np.ndarray:  # noqa: N802
+    """The left camera in base_link at grid sample ``k``: the mast at its joint angles."""
+    return kin.base_T_left(float(motion.pan[k]), float(motion.tilt[k]))
+
+
+def _contact_choice(rig: StereoRig, kin, motion: MastMotion, traj, cam_idx: np.ndarray,
                     catalogue: np.ndarray) -> set[int]:
     """Frames for the contact sheet: spread along the route, preferring frames that see
     truth ROIs (centres projected into the image within 25 m)."""
@@ -44,7 +53,8 @@ def _contact_choice(rig: StereoRig, traj, cam_idx: np.ndarray,
     pts = np.column_stack([catalogue["x"], catalogue["y"], catalogue["z"]])
     score = np.zeros(len(cam_idx))
     for i, k in enumerate(cam_idx):
-        r_wc, c = rig.camera_pose(rot[k].as_matrix(), traj.p[k])
+        r_wc, c = rig.camera_pose(rot[k].as_matrix(), traj.p[k],
+                                  base_T_left=_base_T_left(kin, motion, int(k)))
         uv, z = rig.project(r_wc, c, pts)
         vis = (z > 1) & (z < 25) & (uv[:, 0] >= 0) & (uv[:, 0] < rig.width) & \
               (uv[:, 1] >= 0) & (uv[:, 1] < rig.height)
@@ -56,16 +66,20 @@ def _contact_choice(rig: StereoRig, traj, cam_idx: np.ndarray,
     return chosen
 
 
-def _traverse(cfg: WorldConfig, rig: StereoRig, renderer, traj, imu, cam_idx: np.ndarray,
-              gt_idx: np.ndarray, cat, out: Path, bar, keep_aux: bool, seen_px: np.ndarray,
-              frames_contact: list, aux: list, timings: dict[str, float]) -> dict[str, int]:
-    """Drive the route: write IMU, ground truth and stereo pairs to ``out/rosbag`` in time
-    order; fill ``seen_px`` (per ROI, most pixels in one left view), ``frames_contact``,
+def _traverse(cfg: WorldConfig, rig: StereoRig, renderer, traj, motion: MastMotion, imu,
+              cam_idx: np.ndarray, gt_idx: np.ndarray, js_idx: np.ndarray, cat, out: Path,
+              bar, keep_aux: bool, seen_px: np.ndarray, frames_contact: list, aux: list,
+              timings: dict[str, float]) -> dict[str, int]:
+    """Drive the route: write the frame tree, IMU, ground truth, joint states and stereo
+    pairs to ``out/rosbag`` in time order (at a pair's stamp the joint state before the
+    images); fill ``seen_px`` (per ROI, most pixels in one left view), ``frames_contact``,
     ``aux`` and ``timings``; return the message counts per topic."""
-    contact = _contact_choice(rig, traj, cam_idx, cat)
+    kin = mast_kinematics(cfg.camera)
+    contact = _contact_choice(rig, kin, motion, traj, cam_idx, cat)
     rot = traj.rotations()
     cam_set = {int(k): i for i, k in enumerate(cam_idx)}
     gt_set = set(gt_idx.tolist())
+    js_set = set(js_idx.tolist())
     t0 = time.perf_counter()
     render_s = 0.0
     bar.set_postfix_str("traverse")
@@ -78,7 +92,9 @@ def _traverse(cfg: WorldConfig, rig: StereoRig, renderer, traj, imu, cam_idx: np
         nonlocal n_rendered, render_s
         i = n_rendered
         k = int(cam_idx[i])
-        poses = [rig.camera_pose(rot[k].as_matrix(), traj.p[k], right=r) for r in (False, True)]
+        b_t_l = _base_T_left(kin, motion, k)
+        poses = [rig.camera_pose(rot[k].as_matrix(), traj.p[k], right=r, base_T_left=b_t_l)
+                 for r in (False, True)]
         tr = time.perf_counter()
         views = renderer.render_views(rig, poses, cfg.sun, want_label=True,
                                       want_depth=keep_aux, half=True)
@@ -88,16 +104,23 @@ def _traverse(cfg: WorldConfig, rig: StereoRig, renderer, traj, imu, cam_idx: np
         pending[i] = (pool.submit(develop, i, views[0]["rad"], views[1]["rad"], i in contact),
                       lab)
         if keep_aux:
-            aux.append({"k": k, "t": float(traj.t[k]), "z": views[0]["z"], "label": lab})
+            aux.append({"k": k, "t": float(traj.t[k]), "z": views[0]["z"], "label": lab,
+                        "base_T_left": b_t_l})
         n_rendered += 1
 
     with developer_pool(cfg.camera, rig.fx, cfg.seed) as pool, \
             BagWriter(out / "rosbag", BAG_EPOCH_NS) as bag:
+        t0_bag = float(traj.t[0])
+        bag.write_tf_static(t0_bag, static_transforms(kin, cfg.camera.baseline_m))
+        bag.write_robot_description(t0_bag, urdf(kin, cfg.camera.baseline_m))
         for k in range(len(traj.t)):
             t = float(traj.t[k])
             bag.write_imu(t, imu.gyro[k], imu.accel[k], imu.gyro_sigma, imu.accel_sigma)
             if k in gt_set:
                 bag.write_pose(t, traj.p[k], traj.q[k])
+            if k in js_set:
+                bag.write_joint_state(t, kin.joints, (motion.pan[k], motion.tilt[k]),
+                                      (motion.pan_rate[k], motion.tilt_rate[k]))
             if k not in cam_set:
                 continue
             i = cam_set[k]
@@ -138,16 +161,21 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
     # 1. Build the world.
     world = World.build(cfg)
     cat = world.rocks.catalogue
-    # 2. Plan the route and drive it.
+    # 2. Plan the route, drive it (stops long enough for a panorama), schedule the mast.
     route = plan_route(cfg.route, cat, world.terrain.extent, cfg.seed)
     rate = cfg.imu.rate_hz
-    traj = drive(route, cfg.route, world.terrain, rate, cfg.seed)
+    traj = drive(route, cfg.route, world.terrain, rate, cfg.seed,
+                 min_stop_s=panorama_stop_s(cfg.mast, cfg.camera, rate))
+    motion = mast_motion(traj, cfg.mast, cfg.camera, rate)
     # 3. Synthesise the IMU.
     imu = synthesize_imu(traj, cfg.imu, cfg.seed)
-    cam_idx = camera_indices(traj, cfg.route.frame_spacing_m, cfg.route.stop_frame_period_s,
-                             rate)
+    cam_idx = np.union1d(camera_indices(traj, cfg.route.frame_spacing_m,
+                                        cfg.route.stop_frame_period_s, rate, motion.busy),
+                         motion.frames)
     gt_step = max(1, round(rate / GT_RATE_HZ))
     gt_idx = np.union1d(np.arange(0, len(traj.t), gt_step), cam_idx)
+    js_idx = np.union1d(np.arange(0, len(traj.t), max(1, round(rate / JOINT_RATE_HZ))),
+                        cam_idx)
     rig = StereoRig.from_config(cfg.camera)
     timings["world_s"] = time.perf_counter() - t0
 
@@ -169,8 +197,8 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
     counts: dict[str, int] = {}
     # 5. Stream the traverse into the bag (_traverse).
     if not orbital_only:
-        counts = _traverse(cfg, rig, renderer, traj, imu, cam_idx, gt_idx, cat, out, bar,
-                           keep_aux, seen_px, frames_contact, aux, timings)
+        counts = _traverse(cfg, rig, renderer, traj, motion, imu, cam_idx, gt_idx, js_idx,
+                           cat, out, bar, keep_aux, seen_px, frames_contact, aux, timings)
     bar.close()
     renderer.release()
 
@@ -201,6 +229,7 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
                   "duration_s": round(float(traj.t[-1]), 2),
                   "stereo_frames": n_frames,
                   "mean_frame_spacing_m": round(route.length / max(1, n_frames - 1), 3)},
+        "panoramas": _panorama_stats(cfg, traj, motion, rate),
         "terrain": {"height_range_m": [round(float(world.terrain.base.min()), 2),
                                        round(float(world.terrain.base.max()), 2)],
                     "slope_p95_deg": round(float(np.percentile(world.terrain.slope_deg(),
@@ -219,4 +248,20 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
         stats["_world"] = world
         stats["_traj"] = traj
         stats["_cam_idx"] = cam_idx
+        stats["_motion"] = motion
     return stats
+
+
+def _panorama_stats(cfg: WorldConfig, traj, motion: MastMotion, rate: float) -> dict[str, Any]:
+    """world.yaml's panorama figures: count, shape, frames and the rover time they cost."""
+    pans = motion.panoramas
+    per = len(pans[0].frames) if pans else 0
+    step = cfg.mast.span_deg / max(1, per)
+    return {"count": len(pans), "positions_per_panorama": per,
+            "pan_deg": [round(float(np.degrees(a)), 2) for a in pans[0].pan] if pans else [],
+            "tilt_deg": cfg.mast.tilt_deg if pans else None,
+            "overlap_deg": round(cfg.camera.hfov_deg - step, 2) if pans else None,
+            "stereo_pairs": len(motion.frames),
+            "seconds_each": round(panorama_s(cfg.mast, cfg.camera, rate), 2) if pans else 0.0,
+            "mast_busy_s": round(float(np.sum(motion.busy)) / rate, 2),
+            "added_stop_s": round(traj.added_stop_s, 2)}

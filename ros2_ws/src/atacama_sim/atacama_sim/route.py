@@ -218,6 +218,7 @@ class Trajectory:
     q: np.ndarray  # (K, 4) base_link orientation (x, y, z, w), map frame
     s: np.ndarray  # (K,) arclength travelled
     moving: np.ndarray  # (K,) bool
+    added_stop_s: float = 0.0  # stop time beyond the drawn durations (min_stop_s), s
 
     def rotations(self) -> Rotation:
         return Rotation.from_quat(self.q)
@@ -239,9 +240,12 @@ def _segment(length: float, v: float, a: float, dt: float) -> np.ndarray:
 
 
 def drive(route: Route, cfg: RouteConfig, terrain: Terrain, rate: float,
-          seed: int) -> Trajectory:
-    """Time-sample the rover driving ``route`` with stops, riding on the terrain."""
+          seed: int, min_stop_s: float = 0.0) -> Trajectory:
+    """Time-sample the rover driving ``route`` with stops, riding on the terrain. A stop
+    between drive segments lasts at least ``min_stop_s`` (a panorama's); the durations
+    drawn are the same either way."""
     rng = rng_for(seed, "drive")
+    added = 0.0
     dt = 1.0 / rate
     pieces, moving = [np.zeros(int(3 * rate))], [np.zeros(int(3 * rate), bool)]
     s0 = 0.0
@@ -251,7 +255,12 @@ def drive(route: Route, cfg: RouteConfig, terrain: Terrain, rate: float,
         pieces.append(prof[1:])
         moving.append(np.ones(len(prof) - 1, bool))
         s0 += seg
-        stop = rng.uniform(*cfg.stop_s) if s0 < route.length - 1e-6 else 3.0
+        if s0 < route.length - 1e-6:
+            drawn = rng.uniform(*cfg.stop_s)
+            stop = max(drawn, min_stop_s)
+            added += stop - drawn
+        else:
+            stop = 3.0
         n = int(stop * rate)
         pieces.append(np.full(n, s0))
         moving.append(np.zeros(n, bool))
@@ -282,16 +291,19 @@ def drive(route: Route, cfg: RouteConfig, terrain: Terrain, rate: float,
     roll = gaussian_filter1d(np.arctan(gy), sig, mode="nearest")
     yaw = gaussian_filter1d(yaw, sig / 2, mode="nearest")
     rot = Rotation.from_euler("ZYX", np.column_stack([yaw, pitch, roll]))
-    return Trajectory(t, np.column_stack([x, y, z]), rot.as_quat(), s, mov)
+    return Trajectory(t, np.column_stack([x, y, z]), rot.as_quat(), s, mov, float(added))
 
 
 def camera_indices(traj: Trajectory, spacing: float, stop_period: float,
-                   rate: float) -> np.ndarray:
-    """Grid indices of stereo frames: every ``spacing`` metres of travel, and every
-    ``stop_period`` seconds while stopped."""
+                   rate: float, busy: np.ndarray | None = None) -> np.ndarray:
+    """Grid indices of the stereo frames at the drive pose: every ``spacing`` metres of
+    travel, and every ``stop_period`` seconds while stopped, none while ``busy`` (the mast
+    away from the drive pose)."""
     idx = [0]
     last_s, last_t = traj.s[0], traj.t[0]
     for k in range(1, len(traj.t)):
+        if busy is not None and busy[k]:
+            continue
         if traj.s[k] - last_s >= spacing or (not traj.moving[k] and
                                               traj.t[k] - last_t >= stop_period):
             idx.append(k)

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from atacama_sim.camera import StereoRig, quat_xyzw
+from atacama_sim.camera import StereoRig, mast_kinematics, quat_xyzw
 from atacama_sim.config import WorldConfig
 from roi_network.geojson import write_geojson
 from roi_network.network import MapFrame, RoiNetwork
@@ -46,7 +46,8 @@ def write_tum(path: Path, t: np.ndarray, p: np.ndarray, q: np.ndarray) -> None:
 def rover_params(rig: StereoRig, cfg: WorldConfig) -> dict[str, Any]:
     """Extrinsics and sensor constants as ROS 2 node parameters (params-file layout)."""
     def pose(t: np.ndarray, r: np.ndarray) -> list[float]:
-        return [float(v) for v in (*t, *quat_xyzw(r))]
+        # 12 decimals: the mast's chain of products leaves 1e-17 residues
+        return [round(float(v), 12) + 0.0 for v in (*t, *quat_xyzw(r))]
     ic = cfg.imu
     params = {
         "base_frame": "base_link",
@@ -68,8 +69,16 @@ def rover_params(rig: StereoRig, cfg: WorldConfig) -> dict[str, Any]:
         "accel_noise_density": float(ic.accel_noise_density),
         "accel_bias_random_walk": float(ic.accel_bias_rw),
         "gravity": float(ic.gravity),
+        "mast": mast_params(cfg),
     }
     return {"/**": {"ros__parameters": params}}
+
+
+def mast_params(cfg: WorldConfig) -> dict[str, Any]:
+    """The mast's ``mast.*`` parameters, nested as a params file holds them (ROS flattens
+    ``mast: {pan_joint: ...}`` to ``mast.pan_joint``)."""
+    flat = mast_kinematics(cfg.camera).to_params()
+    return {k.split(".", 1)[1]: v for k, v in flat.items()}
 
 
 ROVER_YAML_HEADER = """\
@@ -80,8 +89,17 @@ ROVER_YAML_HEADER = """\
 #   base_link: x forward, y left, z up, origin on the ground under the rover centre.
 #   camera frames are optical: z forward, x right, y down. Rectified pair: the right
 #   camera is the left one moved baseline_m along the left camera's +x.
+#   base_to_left_camera and base_to_right_camera are the cameras at the mast's drive
+#   pose (pan 0, tilt camera_tilt_deg), where they are while the rover drives.
 # baseline_m: stereo baseline; camera_height_m: left optical centre above base_link;
-# camera_tilt_deg: optical axis below the base_link x-y plane.
+# camera_tilt_deg: optical axis below the base_link x-y plane (the drive pose).
+# mast.*: the pan-tilt mast the stereo head rides on, as URDF states its joints (the
+#   bag's /robot_description): pan_joint / tilt_joint name the joints of /joint_states;
+#   pan_origin: the pan joint frame in base_link at zero angle; tilt_origin: the tilt
+#   joint frame in the pan link; head_to_left_camera: the left optical frame in the tilt
+#   link (poses [x, y, z, qx, qy, qz, qw]); *_axis: rotation axis in the joint frame
+#   (tilt about +y: positive looks down); *_limits: [lower, upper] rad. The camera at
+#   joint angles (pan, tilt) is roi_network.mast.MastKinematics.base_T_left(pan, tilt).
 # image_width/height, fx, fy, cx, cy: rectified pinhole intrinsics (pixels), as in
 #   CameraInfo K (no distortion).
 # imu_*: IMU rate, white-noise densities (rad/s/sqrt(Hz), m/s^2/sqrt(Hz)) and bias

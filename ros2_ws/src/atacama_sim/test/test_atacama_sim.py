@@ -1,4 +1,5 @@
-"""atacama_sim: the bag's geometry is right (tiny preset, generated once per module)."""
+"""atacama_sim: the bag's geometry is right (tiny preset with one stop and its panorama,
+generated once per module)."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from atacama_sim.bagwriter import BAG_EPOCH_NS
 from atacama_sim.camera import StereoRig
 from atacama_sim.config import CONSTANT_FIELDS, constant_value, make_config
 from atacama_sim.generate import generate
+from atacama_sim.panorama import panorama_stop_s
 from atacama_sim.renderer import SceneRenderer
 from atacama_sim.rocks import INST, generate_rocks
 from atacama_sim.route import drive, plan_route
@@ -33,12 +35,17 @@ SEED = 3
 #: of its fewer pixels (the elevation map drops those points, docs/roi_detector.md). The
 #: other packages' tests run the default lens.
 LENS = {"camera": {"hfov_deg": 45.0}}
+#: The test bag: the lens, and one stop half way, so the rover takes one panorama (at the
+#: 45 deg lens with 5 deg overlap, 9 positions over 360 deg, 12 deg down: its 35 deg tall
+#: view sees the ground from 2.7 m to the horizon).
+TINY = {**LENS, "route": {"stop_every_m": (6.0, 6.0)},
+        "mast": {"overlap_deg": 5.0, "tilt_deg": 12.0}}
 
 
 @pytest.fixture(scope="module")
 def bag(tmp_path_factory: pytest.TempPathFactory) -> dict:
     out = tmp_path_factory.mktemp("bags") / "tiny"
-    cfg = make_config("tiny", SEED, LENS)
+    cfg = make_config("tiny", SEED, TINY)
     stats = generate(cfg, out, progress=False, keep_aux=True)
     return {"dir": out, "cfg": cfg, "stats": stats}
 
@@ -66,6 +73,42 @@ def _rig_from_bag(bag_dir: Path, info) -> tuple[StereoRig, np.ndarray, np.ndarra
     rig = StereoRig(int(info.width), int(info.height), k[0, 0], k[1, 1], k[0, 2], k[1, 2],
                     params["baseline_m"], r_bc, pose[:3])
     return rig, r_bc, pose[:3]
+
+
+class _Poser:
+    """The left camera in base_link at an image stamp, from the bag alone: rover.yaml's
+    mast at the ``/joint_states`` sample of that stamp."""
+
+    def __init__(self, bag_dir: Path, messages: dict) -> None:
+        from roi_network.mast import MastKinematics
+        from roi_network.params import node_parameters
+
+        self.kin = MastKinematics.from_params(
+            node_parameters(yaml.safe_load((bag_dir / "rover.yaml").read_text()), "any"))
+        self.angles = {t: tuple(m.position) for t, m in messages["/joint_states"]}
+
+    def joints(self, t: float) -> tuple[float, float]:
+        return self.angles[BAG_EPOCH_NS + round(t * 1e9)]
+
+    def base_T_left(self, t: float) -> np.ndarray:  # noqa: N802
+        return self.kin.base_T_left(*self.joints(t))
+
+
+def _poser(bag_dir: Path, messages: dict) -> _Poser:
+    return _Poser(bag_dir, messages)
+
+
+def _b_t_l(poser: _Poser, t: float) -> np.ndarray:
+    """The left camera in base_link at ``t`` seconds after the bag start, from the bag."""
+    return poser.base_T_left(t)
+
+
+def _pano_stamps(messages: dict) -> list[int]:
+    """Image stamps of the panorama: between the first and last joint sample away from
+    pan 0 (one of its views may look straight ahead)."""
+    away = [t for t, m in messages["/joint_states"] if abs(m.position[0]) > 1e-9]
+    return [t for t, _ in messages["/stereo/left/image_raw/compressed"]
+            if away and away[0] <= t <= away[-1]]
 
 
 def _tum(bag_dir: Path) -> np.ndarray:
@@ -100,6 +143,10 @@ def test_bag_layout_and_topics(bag: dict, messages: dict) -> None:
     assert np.allclose(dt, 1 / bag["cfg"].imu.rate_hz, atol=1e-6)
     for topic, msgs in messages.items():
         for t, m in msgs[:50]:
+            if topic == "/tf_static":
+                m = m.transforms[0]
+            if topic == "/robot_description":
+                continue  # a String: no header
             assert m.header.stamp.sec * 10**9 + m.header.stamp.nanosec == t, topic
     assert messages["/ground_truth/pose"][0][1].header.frame_id == "map"
     left = messages["/stereo/left/camera_info"][0][1]
@@ -156,15 +203,17 @@ def _drawn_dist(mask: np.ndarray, uv: np.ndarray) -> float:
 
 def test_truth_points_project_onto_rendered_pixels(bag: dict, messages: dict) -> None:
     """Extreme points of the truth rock meshes (top, leftmost, rightmost vertex; CPU
-    geometry), projected with the bag's CameraInfo, rover.yaml and truth pose, land on the
-    rock's rendered pixels within 1 px (unless something nearer hides them)."""
+    geometry), projected with the bag's CameraInfo, rover.yaml (the mast at the joint
+    states' angles) and truth pose, land on the rock's rendered pixels within 1 px (unless
+    something nearer hides them), in the drive frames and the panorama's."""
     world = bag["stats"]["_world"]
     tum = _tum(bag["dir"])
     rig, _, _ = _rig_from_bag(bag["dir"], messages["/stereo/left/camera_info"][0][1])
+    poser = _poser(bag["dir"], messages)
     dists = []
     for a in bag["stats"]["_aux"]:
         r_wb, p_wb = _pose_at(tum, a["t"])
-        r_wc, c_w = rig.camera_pose(r_wb, p_wb)
+        r_wc, c_w = rig.camera_pose(r_wb, p_wb, base_T_left=_b_t_l(poser, a["t"]))
         for inst in world.rocks.majors:
             mask = a["label"] == int(inst[INST["label"]])
             if mask.sum() < 100:
@@ -185,29 +234,36 @@ def test_truth_points_project_onto_rendered_pixels(bag: dict, messages: dict) ->
     dists = np.array(dists)
     assert len(dists) >= 10, "too few rock extremes in view"
     # Rasterisation samples pixel centres: even exact geometry leaves an extreme point
-    # 0-1 px from the nearest drawn centre (median ~0.5); a 1 px error would double that.
+    # 0-1 px from the nearest drawn centre (median ~0.6), a thin tip up to ~1.1 px; a 1 px
+    # error would double that.
     assert np.median(dists) < 0.75, np.round(dists, 2)
-    assert np.mean(dists <= 1.0) >= 0.9, np.round(dists, 2)
+    assert np.mean(dists <= 1.25) >= 0.95, np.round(dists, 2)
 
 
 def test_rendered_depth_lies_on_terrain(bag: dict, messages: dict) -> None:
-    """Ground pixels back-projected with the bag's camera model and truth pose at the
-    rendered depth lie on the truth terrain surface."""
+    """Ground pixels back-projected with the bag's camera model (rover.yaml's mast at the
+    joint states' angles) and truth pose at the rendered depth lie on the truth terrain
+    surface, in a drive frame and in every panorama view."""
     world = bag["stats"]["_world"]
     tum = _tum(bag["dir"])
     rig, _, _ = _rig_from_bag(bag["dir"], messages["/stereo/left/camera_info"][0][1])
-    a = bag["stats"]["_aux"][len(bag["stats"]["_aux"]) // 2]
-    r_wb, p_wb = _pose_at(tum, a["t"])
-    r_wc, c_w = rig.camera_pose(r_wb, p_wb)
-    vv, uu = np.mgrid[240:480:8, 0:640:8]
-    z = a["z"][vv, uu]
-    ok = (a["label"][vv, uu] == 0) & (z > 0) & (z < 12)
-    ray = np.stack([(uu - rig.cx) / rig.fx, (vv - rig.cy) / rig.fy, np.ones_like(z)], -1)
-    pts = (ray * z[..., None])[ok] @ r_wc.T + c_w
-    dz = pts[:, 2] - world.terrain.height(pts[:, 0], pts[:, 1])
-    # clutter rocks are label 0 too: they stick up; the ground itself is within 3 cm
-    assert np.median(np.abs(dz)) < 0.01
-    assert np.mean(np.abs(dz) < 0.03) > 0.85
+    poser = _poser(bag["dir"], messages)
+    aux = bag["stats"]["_aux"]
+    pano = set(_pano_stamps(messages))
+    views = [a for a in aux if BAG_EPOCH_NS + round(a["t"] * 1e9) in pano]
+    assert len(views) == 9
+    for a in [aux[len(aux) // 4], *views]:
+        r_wb, p_wb = _pose_at(tum, a["t"])
+        r_wc, c_w = rig.camera_pose(r_wb, p_wb, base_T_left=_b_t_l(poser, a["t"]))
+        vv, uu = np.mgrid[240:480:8, 0:640:8]
+        z = a["z"][vv, uu]
+        ok = (a["label"][vv, uu] == 0) & (z > 0) & (z < 12)
+        ray = np.stack([(uu - rig.cx) / rig.fx, (vv - rig.cy) / rig.fy, np.ones_like(z)], -1)
+        pts = (ray * z[..., None])[ok] @ r_wc.T + c_w
+        dz = pts[:, 2] - world.terrain.height(pts[:, 0], pts[:, 1])
+        # clutter rocks are label 0 too: they stick up; the ground itself is within 3 cm
+        assert np.median(np.abs(dz)) < 0.01, a["t"]
+        assert np.mean(np.abs(dz) < 0.03) > 0.85, a["t"]
 
 
 def _sgbm(left: np.ndarray, right: np.ndarray) -> np.ndarray:
@@ -268,10 +324,16 @@ def test_rock_is_raised_in_stereo(bag: dict, messages: dict) -> None:
     info = messages["/stereo/left/camera_info"][0][1]
     rig, _, _ = _rig_from_bag(bag["dir"], info)
     fxb = -messages["/stereo/right/camera_info"][0][1].p[3]
+    # Drive views only: a panorama view (12 deg down) sees the far horizon behind a rock's
+    # top, where SGBM's blocks give the rim the far disparity and lift it up to 0.2 m (a
+    # stereo edge effect; the projection and depth tests cover those views' geometry).
+    pano = set(_pano_stamps(messages))
     checked = 0
     for _i, rid, a, lm, rm in _frames_with_rocks(bag, messages, 1200):
         row = cat[cat["id"] == rid][0]
         if row["label"] != 1 or checked >= 4 or np.median(a["z"][a["label"] == rid]) > 15:
+            continue
+        if BAG_EPOCH_NS + round(a["t"] * 1e9) in pano:
             continue
         disp = _sgbm(_decode(lm), _decode(rm))
         rock = (a["label"] == rid)
@@ -279,7 +341,7 @@ def test_rock_is_raised_in_stereo(bag: dict, messages: dict) -> None:
         ring &= ~(cv2.dilate(rock.astype(np.uint8), np.ones((9, 9), np.uint8)) > 0)
         ring &= a["label"] == 0
         r_wb, p_wb = _pose_at(tum, a["t"])
-        r_wc, c_w = rig.camera_pose(r_wb, p_wb)
+        r_wc, c_w = rig.camera_pose(r_wb, p_wb, base_T_left=a["base_T_left"])
         pr = _stereo_points(rock, disp, fxb, rig, r_wc, c_w)
         pg = _stereo_points(ring, disp, fxb, rig, r_wc, c_w)
         if len(pr) < 200 or len(pg) < 200:
@@ -379,10 +441,11 @@ def test_imu_consistent_with_motion(bag: dict, messages: dict) -> None:
 
 def test_same_seed_same_truth_and_trajectory(bag: dict, messages: dict,
                                              tmp_path: Path) -> None:
-    cfg = make_config("tiny", SEED, LENS)
+    cfg = make_config("tiny", SEED, TINY)
     world = World.build(cfg)
     route = plan_route(cfg.route, world.rocks.catalogue, world.terrain.extent, cfg.seed)
-    traj = drive(route, cfg.route, world.terrain, cfg.imu.rate_hz, cfg.seed)
+    traj = drive(route, cfg.route, world.terrain, cfg.imu.rate_hz, cfg.seed,
+                 panorama_stop_s(cfg.mast, cfg.camera, cfg.imu.rate_hz))
     write_truth_rois(world.rocks.catalogue, cfg, world.origin, tmp_path / "rois.geojson")
     assert (tmp_path / "rois.geojson").read_bytes() == \
         (bag["dir"] / "truth/rois.geojson").read_bytes()
@@ -411,7 +474,8 @@ def test_renderer_is_deterministic(bag: dict) -> None:
     r = SceneRenderer(world.terrain, world.textures, world.rocks, MATERIAL_RGB,
                       (cfg.camera.width, cfg.camera.height))
     try:
-        poses = [rig.camera_pose(traj.rotations()[k].as_matrix(), traj.p[k])]
+        poses = [rig.camera_pose(traj.rotations()[k].as_matrix(), traj.p[k],
+                                 base_T_left=bag["stats"]["_aux"][3]["base_T_left"])]
         a, b = (r.render_views(rig, poses, cfg.sun, want_label=True, want_depth=True)[0]
                 for _ in range(2))
     finally:
@@ -427,7 +491,7 @@ def test_same_seed_same_bag(bag: dict, tmp_path: Path) -> None:
     from rosbags.typesys import Stores, get_typestore
 
     again = tmp_path / "tiny"
-    generate(make_config("tiny", SEED, LENS), again, progress=False)
+    generate(make_config("tiny", SEED, TINY), again, progress=False)
 
     def raw(d: Path) -> list[tuple[str, int, bytes]]:
         with AnyReader([d / "rosbag"],
@@ -451,7 +515,7 @@ def test_orbital_only_writes_the_same_orbital_products_and_no_traverse(
     out = tmp_path / "tiny_orbital"
     (out / "rosbag").mkdir(parents=True)
     (out / "rover.yaml").write_text("stale")
-    cfg = make_config("tiny", SEED, LENS)
+    cfg = make_config("tiny", SEED, TINY)
     stats = generate(cfg, out, progress=False, orbital_only=True)
     assert not (out / "rosbag").exists() and not (out / "rover.yaml").exists()
     for name in ("truth/rois.geojson", "truth/trajectory.tum", "truth/orbital_labels.tif",
@@ -517,3 +581,247 @@ def test_world_yaml_with_constant_keys_loads() -> None:
             make_config("tiny", SEED, {section: {key: value}})
     with pytest.raises(KeyError, match=re.escape("'nope' in WorldConfig.albedo")):
         make_config("tiny", SEED, {"albedo": {"nope": 1}})
+
+
+# -- the mast: drive pose, joint states, panoramas, frame tree ----------------------------
+def _fixed_camera(cfg) -> tuple[np.ndarray, np.ndarray]:
+    """The camera before the mast: 20 deg down, image right = rover right, at
+    (mast_x_m, baseline / 2, mast_height_m)."""
+    th = np.radians(cfg.camera.tilt_deg)
+    z = np.array([np.cos(th), 0.0, -np.sin(th)])
+    x = np.array([0.0, -1.0, 0.0])
+    r = np.column_stack([x, np.cross(z, x), z])
+    return r, np.array([cfg.camera.mast_x_m, cfg.camera.baseline_m / 2,
+                        cfg.camera.mast_height_m])
+
+
+def _rover_params(bag_dir: Path) -> dict:
+    from roi_network.params import node_parameters
+
+    return node_parameters(yaml.safe_load((bag_dir / "rover.yaml").read_text()), "vo")
+
+
+def test_drive_pose_is_the_fixed_camera(bag: dict, messages: dict) -> None:
+    """At the drive angles the mast puts the camera exactly where the fixed camera was;
+    rover.yaml's base_to_*_camera are that pose, and every frame at the drive angles was
+    rendered from it."""
+    from atacama_sim.camera import drive_angles, mast_kinematics
+    from roi_network.mast import pose_matrix
+
+    cfg = bag["cfg"]
+    r, t = _fixed_camera(cfg)
+    m = mast_kinematics(cfg.camera).base_T_left(*drive_angles(cfg.camera))
+    np.testing.assert_allclose(m[:3, :3], r, atol=1e-12)
+    np.testing.assert_allclose(m[:3, 3], t, atol=1e-12)
+    params = _rover_params(bag["dir"])
+    left = pose_matrix(params["base_to_left_camera"], "left")
+    right = pose_matrix(params["base_to_right_camera"], "right")
+    np.testing.assert_allclose(left[:3, :3], r, atol=1e-9)
+    np.testing.assert_allclose(left[:3, 3], t, atol=1e-9)
+    np.testing.assert_allclose(right[:3, 3], t - [0, cfg.camera.baseline_m, 0], atol=1e-9)
+    poser = _poser(bag["dir"], messages)
+    at_drive = 0
+    for a in bag["stats"]["_aux"]:
+        if np.allclose(poser.joints(a["t"]), drive_angles(cfg.camera), atol=1e-12):
+            np.testing.assert_allclose(a["base_T_left"], m, atol=1e-12)
+            at_drive += 1
+    assert at_drive >= len(bag["stats"]["_aux"]) - 9 > 20
+
+
+def test_joint_states_at_every_image_and_the_panorama_spans_the_circle(
+        bag: dict, messages: dict) -> None:
+    """``/joint_states``: 10 Hz, and a sample at every stereo stamp written before its
+    images, with the mast settled there; the panorama's pans cover 360 deg with overlap;
+    no drive-pose frame is taken while the mast is away."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    cfg = bag["cfg"]
+    js = messages["/joint_states"]
+    assert all(list(m.name) == ["mast_pan", "mast_tilt"] and m.header.frame_id == ""
+               for _, m in js)
+    stamps = np.array([t for t, _ in js])
+    assert np.all(np.diff(stamps) > 0) and np.max(np.diff(stamps)) <= 100_000_000
+    by_t = {t: m for t, m in js}
+    order: dict[int, list[str]] = {}
+    with AnyReader([bag["dir"] / "rosbag"],
+                   default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        for conn, t, _raw in reader.messages():
+            order.setdefault(t, []).append(conn.topic)
+    pans, drive = [], (0.0, np.radians(cfg.camera.tilt_deg))
+    pano = set(_pano_stamps(messages))
+    for t, _ in messages["/stereo/left/image_raw/compressed"]:
+        m = by_t[t]  # a sample at exactly the image stamp ...
+        topics = order[t]  # ... written before the images
+        assert topics.index("/joint_states") < topics.index(
+            "/stereo/left/image_raw/compressed")
+        assert np.allclose(m.velocity, 0.0), "a pair taken while the mast moves"
+        if t in pano:
+            assert m.position[1] == pytest.approx(np.radians(cfg.mast.tilt_deg))
+            pans.append(float(m.position[0]))
+        else:
+            assert np.allclose(m.position, drive, atol=1e-12)
+    assert len(pans) == 9
+    step = np.diff(np.degrees(pans))
+    assert np.allclose(step, 40.0) and np.all(step < cfg.camera.hfov_deg)
+    covered = np.degrees(pans[-1] - pans[0]) + cfg.camera.hfov_deg
+    assert covered >= 360.0
+    assert bag["stats"]["panoramas"]["count"] == 1
+    derived = yaml.safe_load((bag["dir"] / "world.yaml").read_text())["derived"]
+    assert derived["panoramas"]["positions_per_panorama"] == 9
+    assert derived["panoramas"]["mast_busy_s"] > 0
+
+
+def test_truth_rock_beside_the_route_is_in_a_panorama_view(bag: dict, messages: dict) -> None:
+    """Truth rocks beside the stop, out of the forward view, project with the bag's camera
+    model (rover.yaml's mast at the joint states' angles) onto their rendered pixels in a
+    panorama view."""
+    world = bag["stats"]["_world"]
+    cat = world.rocks.catalogue
+    tum = _tum(bag["dir"])
+    rig, _, _ = _rig_from_bag(bag["dir"], messages["/stereo/left/camera_info"][0][1])
+    poser = _poser(bag["dir"], messages)
+    pano = set(_pano_stamps(messages))
+    views = [a for a in bag["stats"]["_aux"] if BAG_EPOCH_NS + round(a["t"] * 1e9) in pano]
+    assert len(views) == 9
+    r_wb, p_wb = _pose_at(tum, views[0]["t"])
+    heading = r_wb[:2, 0]
+    checked = 0
+    for row in cat[cat["label"] == 1]:
+        d = np.array([row["x"], row["y"]]) - p_wb[:2]
+        bearing = np.degrees(np.arccos(np.dot(d, heading) / np.linalg.norm(d)))
+        if not (2.0 < np.linalg.norm(d) < 15.0 and bearing > 45.0):
+            continue  # beside or behind the stop, out of the forward camera's view
+        centre = np.array([[row["x"], row["y"], row["z"] + row["height_m"] / 2]])
+        for a in views:
+            r_wc, c_w = rig.camera_pose(r_wb, p_wb, base_T_left=_b_t_l(poser, a["t"]))
+            uv, z = rig.project(r_wc, c_w, centre)
+            u, v = uv[0]
+            if z[0] > 0 and 40 <= u < rig.width - 40 and 40 <= v < rig.height - 40:
+                mask = a["label"] == int(row["id"])
+                if mask.sum() < 50:
+                    continue  # hidden behind another rock
+                assert _drawn_dist(mask, uv[0]) < 3.0, int(row["id"])
+                checked += 1
+    assert checked >= 2
+
+
+def test_rover_yaml_mast_round_trips(bag: dict) -> None:
+    """rover.yaml's ``mast:`` section, read as a node gets it (``mast.*``), is the
+    simulator's mast at every angle."""
+    from atacama_sim.camera import mast_kinematics
+    from roi_network.mast import MAST_PARAMS, MastKinematics, same_pose
+
+    params = _rover_params(bag["dir"])
+    assert set(MAST_PARAMS) <= set(params)
+    kin = MastKinematics.from_params(params)
+    ref = mast_kinematics(bag["cfg"].camera)
+    assert kin.joints == ("mast_pan", "mast_tilt")
+    np.testing.assert_allclose(kin.pan_origin[:3, 3], [0.4, 0.0, 1.30])
+    for pan, tilt in ((0.0, 0.35), (2.6, 0.1), (-2.6, 1.1), (1.0, -0.4)):
+        assert same_pose(kin.base_T_left(pan, tilt), ref.base_T_left(pan, tilt), 1e-9, 1e-9)
+
+
+def _urdf_chain(text: str, frame: str, angles: dict[str, float]) -> np.ndarray:
+    """``base_link -> frame`` of a URDF at joint angles (origin xyz rpy, axis)."""
+    import xml.etree.ElementTree as ET
+
+    joints = {j.find("child").get("link"): j for j in ET.fromstring(text).iter("joint")}
+    m = np.eye(4)
+    while frame != "base_link":
+        j = joints[frame]
+        o = j.find("origin")
+        t = np.eye(4)
+        t[:3, :3] = Rotation.from_euler("xyz", [float(v) for v in o.get("rpy").split()]
+                                        ).as_matrix()
+        t[:3, 3] = [float(v) for v in o.get("xyz").split()]
+        if j.get("type") == "revolute":
+            axis = np.array([float(v) for v in j.find("axis").get("xyz").split()])
+            rot = np.eye(4)
+            rot[:3, :3] = Rotation.from_rotvec(axis * angles[j.get("name")]).as_matrix()
+            t = t @ rot
+        m = t @ m
+        frame = j.find("parent").get("link")
+    return m
+
+
+def test_tf_static_and_robot_description(bag: dict, messages: dict) -> None:
+    """One latched ``/tf_static`` with the fixed joints and one latched
+    ``/robot_description`` whose joints put the cameras where the mast does."""
+    from atacama_sim.camera import mast_kinematics
+
+    cfg = bag["cfg"]
+    (t0, tf), = messages["/tf_static"]
+    (t1, desc), = messages["/robot_description"]
+    assert t0 == t1 == messages["/imu/data"][0][0]
+    pairs = {(x.header.frame_id, x.child_frame_id): x.transform for x in tf.transforms}
+    assert set(pairs) == {("base_link", "imu_link"), ("base_link", "mast_pan_base"),
+                          ("mast_tilt_link", "left_camera_optical"),
+                          ("left_camera_optical", "right_camera_optical")}
+    pan_base = pairs[("base_link", "mast_pan_base")]
+    assert (pan_base.translation.x, pan_base.translation.z) == pytest.approx((0.4, 1.30))
+    assert pairs[("left_camera_optical", "right_camera_optical")].translation.x == \
+        pytest.approx(cfg.camera.baseline_m)
+    text = desc.data
+    assert 'name="mast_pan" type="revolute"' in text and '<axis xyz="0 1 0"/>' in text
+    kin = mast_kinematics(cfg.camera)
+    for pan, tilt in ((0.0, np.radians(20)), (1.2, 0.5), (-2.9, -0.3)):
+        angles = {"mast_pan": pan, "mast_tilt": tilt}
+        np.testing.assert_allclose(_urdf_chain(text, "left_camera_optical", angles),
+                                   kin.base_T_left(pan, tilt), atol=1e-9)
+        right = kin.base_T_left(pan, tilt)
+        right[:3, 3] += right[:3, 0] * cfg.camera.baseline_m
+        np.testing.assert_allclose(_urdf_chain(text, "right_camera_optical", angles), right,
+                                   atol=1e-9)
+    meta = yaml.safe_load((bag["dir"] / "rosbag/metadata.yaml").read_text())
+    topics = {t["topic_metadata"]["name"]: t["topic_metadata"]
+              for t in meta["rosbag2_bagfile_information"]["topics_with_message_count"]}
+    for name in ("/tf_static", "/robot_description"):
+        qos = topics[name]["offered_qos_profiles"]
+        text = qos if isinstance(qos, str) else json.dumps(qos)
+        assert "durability: 1" in text or "transient_local" in text or \
+            '"durability": 1' in text, text
+
+
+def test_no_panoramas_takes_no_pan_frames(bag: dict, tmp_path: Path) -> None:
+    """``--no-panoramas``: the same stop, the mast at the drive pose throughout, no
+    panorama in world.yaml, the mast still in rover.yaml."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_typestore
+
+    from atacama_sim.cli import main
+
+    out = tmp_path / "nopano"
+    assert main(["generate", "--preset", "tiny", "--seed", str(SEED), "--no-progress",
+                 "--out", str(out), "--no-panoramas", "--set", "camera.hfov_deg=45",
+                 "--set", "route.stop_every_m=[6, 6]"]) == 0
+    derived = yaml.safe_load((out / "world.yaml").read_text())["derived"]
+    assert derived["panoramas"]["count"] == 0 and derived["panoramas"]["stereo_pairs"] == 0
+    assert derived["route"]["stereo_frames"] < bag["stats"]["route"]["stereo_frames"]
+    drive = (0.0, np.radians(20.0))
+    with AnyReader([out / "rosbag"],
+                   default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        conns = [c for c in reader.connections if c.topic == "/joint_states"]
+        positions = [reader.deserialize(raw, c.msgtype).position
+                     for c, _t, raw in reader.messages(connections=conns)]
+    assert len(positions) > 100 and np.allclose(positions, drive, atol=1e-12)
+    assert "mast.pan_joint" in _rover_params(out)
+
+
+def test_panorama_shape_is_checked() -> None:
+    """Pan positions spread evenly, symmetric, inside the stops, as few as keep the
+    overlap; a shape that cannot is refused naming the field."""
+    from atacama_sim.config import CameraConfig, MastConfig
+    from atacama_sim.panorama import pan_angles
+
+    cam = CameraConfig()
+    np.testing.assert_allclose(np.degrees(pan_angles(MastConfig(), cam)),
+                               [-150, -90, -30, 30, 90, 150])
+    np.testing.assert_allclose(np.degrees(pan_angles(MastConfig(overlap_deg=15), cam)),
+                               -180 + 360 / 7 * (np.arange(7) + 0.5))
+    np.testing.assert_allclose(np.degrees(pan_angles(MastConfig(span_deg=120), cam)),
+                               [-30, 30])
+    with pytest.raises(ValueError, match=r"mast\.overlap_deg"):
+        pan_angles(MastConfig(overlap_deg=70), cam)
+    with pytest.raises(ValueError, match=r"mast\.span_deg"):
+        pan_angles(MastConfig(span_deg=400), cam)
