@@ -34,6 +34,11 @@ def cmd_odometry(args: argparse.Namespace) -> int:
     report = odometry(args.bag_dir, config, args.out, progress=args.progress)
     print(f"{Path(args.out) / TUM_FILE}: {report['pairs']} poses over "
           f"{report['distance_m']:.1f} m, {report['pairs_per_cpu_s']:.1f} pairs per CPU second")
+    if report["mast"]:
+        st = report["status"]
+        print(f"mast: {st['mast_moved_frames']} pairs off the reference's camera pose (not "
+              f"measured), {st['mast_reanchors']} new references at a new pose, "
+              f"{st['frames_without_joint_states']} pairs without a joint state")
     return 0
 
 
@@ -50,6 +55,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
           f"{d['segments']} segments), heading {d['heading_drift_deg_per_100m']:.3f} deg/100 m, "
           f"APE {d['ape_rmse_m']:.3f} m RMSE, final {d['final_error_m']:.2f} m "
           f"({d['final_error_pct']:.3f} %)")
+    if d["stops"]:
+        print(f"{d['stops']} stops: position change {d['stop_position_mm_mean']:.1f} mm mean, "
+              f"{d['stop_position_mm_max']:.1f} mm max; yaw change "
+              f"{d['stop_yaw_deg_max']:.3f} deg max; excursion "
+              f"{d['stop_excursion_mm_max']:.1f} mm max")
     return 0
 
 

@@ -23,6 +23,7 @@ from typing import Any
 
 import yaml
 
+from roi_network.mast import MAST_PARAMS
 from roi_network.params import node_parameters
 
 MODES = ("paper", "vo")
@@ -259,7 +260,7 @@ def config_from_params_file(path: str | Path) -> VoConfig:
     doc = _load_params_file(path)
     own = node_parameters({k: v for k, v in doc.items() if k != "/**"}, NODE_NAME)
     known = set(flat_parameters(VoConfig())) | set(ROVER_PARAMETERS) | set(
-        NODE_ONLY_PARAMETERS)
+        NODE_ONLY_PARAMETERS) | set(MAST_PARAMS)
     values = node_parameters(doc, NODE_NAME)
     unknown = [k for k in own if k not in known] + unknown_options(values)
     if unknown:

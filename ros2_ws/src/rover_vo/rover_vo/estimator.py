@@ -7,13 +7,14 @@ IMU-propagated with a growing covariance.
 The node (``vo_node.py``) and the offline CLI (``cli.py``) both call :meth:`VoEstimator.feed`
 with the same messages.
 
-Steps (docs/rover_vo.md, Method): 1 pair and order, 2 IMU propagation, 3 zero velocity,
-4 tracking, 5 stereo and reconstruction, 6 outlier rejection and motion, 7 covariance,
-8 gravity.
+Steps (docs/rover_vo.md, Method): 1 pair and order, 2 IMU propagation, 3 camera pose,
+4 zero velocity, 5 tracking, 6 stereo and reconstruction, 7 outlier rejection and motion,
+8 covariance, 9 gravity.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections import Counter
 from collections.abc import Callable
@@ -24,6 +25,14 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from roi_network.images import StereoHalves, StereoRectifiers, describe
+from roi_network.mast import (
+    NO_JOINT_STATES,
+    STALE_JOINT_STATES,
+    CameraPoser,
+    MastError,
+    MastKinematics,
+    same_pose,
+)
 from rover_vo import messages as m
 from rover_vo.config import ROVER_PARAMETERS, VoConfig
 from rover_vo.features import stereo_match, track
@@ -55,12 +64,16 @@ UNSEEN_ROTATION_SIGMA_DEG = 10.0
 #: fastest speed and turn rate seen before it, times the gap.
 RESUME_MOTION_FRACTION = 0.5
 
+#: A mast that holds a new camera pose for this many pairs in a row gets a new reference
+#: frame there (a new drive tilt); fewer, and the pose is waited out (a panorama's views).
+MAST_SETTLE_FRAMES = 3
+
 #: Kinds of bad input counted in /vo/status (``bad_input.<kind>``).
 BAD_INPUT_KINDS = (
     "corrupt_image", "bad_image_size", "missing_left", "missing_right", "missing_camera_info",
     "bad_camera_info", "imu_gap", "imu_nan", "imu_duplicate", "imu_out_of_order",
     "stereo_duplicate", "stereo_out_of_order", "textureless", "overexposed", "vision_failed",
-    "internal_error",
+    NO_JOINT_STATES, STALE_JOINT_STATES, "bad_joint_state", "internal_error",
 )
 
 
@@ -71,7 +84,8 @@ class VoOutput:
     Attributes:
         state: ``odom_T_base`` and its covariance ``[x y z rx ry rz]`` (odom frame).
         linear, angular: body-frame velocity (m/s, rad/s) over the last interval.
-        source: ``vision``, ``zero_velocity``, ``imu_propagation`` or ``initial``.
+        source: ``vision``, ``zero_velocity``, ``imu_propagation``, ``initial`` or
+            ``resumed``.
         stamp_ns: the pair's header stamp, exact (ns).
     """
 
@@ -111,6 +125,10 @@ class Counters:
     propagated: int = 0
     keyframes: int = 0
     imu: int = 0
+    joint_states: int = 0
+    mast_moved: int = 0  # pairs not measured: the camera was off the reference's pose
+    no_joint_states: int = 0  # pairs with no joint state within the tolerance
+    mast_reanchors: int = 0  # references started at a new camera pose
     bad: Counter = field(default_factory=Counter)
 
 
@@ -119,14 +137,32 @@ class VoEstimator:
 
     Args:
         config: options.
-        params: flat rover.yaml parameters (extrinsics, IMU noise, gravity).
+        params: flat rover.yaml parameters (extrinsics, IMU noise, gravity, the mast's
+            ``mast.*``).
         log: ``log(level, text)``; default: the ``rover_vo`` Python logger.
+        raise_joint_state_errors: a ``/joint_states`` message the mast cannot read
+            (unknown joint names, angles outside the limits) raises
+            :class:`~roi_network.mast.MastError` (the offline CLI) instead of being counted
+            as ``bad_joint_state``, logged once, and left out (the node).
+
+    Raises:
+        MastError: rover.yaml's mast is malformed (the message names the field).
     """
 
     def __init__(self, config: VoConfig, params: dict[str, Any],
-                 log: Callable[[int, str], None] | None = None) -> None:
+                 log: Callable[[int, str], None] | None = None,
+                 raise_joint_state_errors: bool = False) -> None:
         self.cfg = config
         self.params = dict(params)
+        # The camera's pose in base_link: fixed (rig.base_T_left), or on a mast whose
+        # angles come on /joint_states.
+        self.mast = MastKinematics.from_params(self.params)
+        self.poser = CameraPoser(self.mast) if self.mast is not None else None
+        self.raise_joint_state_errors = raise_joint_state_errors
+        self._last_camera: np.ndarray | None = None  # last pose from a joint state
+        self._settling: tuple[np.ndarray, int] | None = None  # new pose, pairs at it
+        self._first_input_s: float | None = None
+        self._newest_input_s: float | None = None
         self.use_imu = config.use_imu
         # The IMU's constants: rover.yaml's, else the defaults.
         rover = {k: float(self.params.get(k, ROVER_PARAMETERS[k])) for k in (
@@ -234,6 +270,9 @@ class VoEstimator:
         if topic == m.TOPIC_IMU:
             self._feed_imu(msg)
             return self._drain(force=False)
+        if topic == m.TOPIC_JOINT_STATES:
+            self._feed_joint_state(msg)
+            return self._drain(force=False)
         if topic in (m.TOPIC_LEFT_INFO, m.TOPIC_RIGHT_INFO):
             self.info["left" if topic == m.TOPIC_LEFT_INFO else "right"] = msg
             return []
@@ -241,6 +280,7 @@ class VoEstimator:
             side = m.side_of(topic)
             self.image_topics[side] = topic
             t_ns = m.stamp_ns(msg)
+            self._seen(t_ns * 1e-9)
             if self.last_pair_ns is not None and t_ns <= self.last_pair_ns:
                 kind = "stereo_duplicate" if t_ns == self.last_pair_ns else "stereo_out_of_order"
                 self.bad(kind, f"{topic}: stamp {t_ns * 1e-9:.3f} s not after the last "
@@ -275,8 +315,46 @@ class VoEstimator:
             self.halves.pop(key)
             self.pairs[key] = _Pair(key, slot.get("left"), slot.get("right"))
 
+    @property
+    def has_mast(self) -> bool:
+        """Whether the camera moves on a mast (rover.yaml ``mast.*``; reads /joint_states)."""
+        return self.poser is not None
+
+    def _seen(self, t: float) -> None:
+        """Note a sensor stamp (IMU, image): how long /joint_states has been silent."""
+        if self._first_input_s is None:
+            self._first_input_s = t
+        if self._newest_input_s is None or t > self._newest_input_s:
+            self._newest_input_s = t
+
+    def _feed_joint_state(self, msg: Any) -> None:
+        if self.poser is None:
+            return  # a rover without a mast: its joints (wheels...) are not the camera's
+        t, names, positions = m.joint_state(msg)
+        try:
+            self.poser.add(t, names, positions)
+        except MastError as exc:
+            if self.raise_joint_state_errors:
+                raise
+            self.bad("bad_joint_state", f"{exc}: message at {t:.3f} s left out")
+            return
+        self.counts.joint_states += 1
+
+    def _joints_ready(self, t: float) -> bool:
+        """A pair at ``t`` waits for a joint state at or after it, unless /joint_states
+        has been silent for ``INPUT_WAIT_S`` of sensor time (never came, or stopped)."""
+        if self.poser is None:
+            return True
+        last = self.poser.last_stamp
+        if last is not None and last >= t:
+            return True
+        since = last if last is not None else self._first_input_s
+        return (since is not None and self._newest_input_s is not None
+                and self._newest_input_s - since > INPUT_WAIT_S)
+
     def _feed_imu(self, msg: Any) -> None:
         t = m.stamp_s(msg)
+        self._seen(t)
         gyro, accel = m.imu_sample(msg)
         if self.propagator is None:
             # Extrinsics of the IMU come with the rig; hold samples until then.
@@ -308,7 +386,8 @@ class VoEstimator:
             ready = (pair.left is not None and pair.right is not None
                      and self.info["left"] is not None and self.info["right"] is not None
                      and (not self.use_imu
-                          or (latest is not None and latest >= t_ns * 1e-9)))
+                          or (latest is not None and latest >= t_ns * 1e-9))
+                     and self._joints_ready(t_ns * 1e-9))
             stale = max(self.pairs) - t_ns > wait_ns
             if not (ready or stale or force):
                 break
@@ -394,17 +473,73 @@ class VoEstimator:
         if self.state is None:
             if images is None:
                 return None
-            return self._initialize(t, *images)
+            return self._initialize(t, *images, base_T_left=self._camera_at(t))
         # 2. IMU propagation: the gyro over the interval (rotation prior: _vision, _predict).
         iv = self._imu_interval(self.state.t, t)
         if images is None:
             return self._propagate(t, iv)
+        # 3. Camera pose: a pair taken off the reference's camera pose measures the mast,
+        # not the rover.
+        camera = self._camera_at(t)
+        if not same_pose(camera, self.kf.base_T_left):
+            return self._mast_moved(t, iv, camera, images)
+        self._settling = None
         left = images[0]
-        # 3. Zero velocity. Detection: standing still, nothing moves (no drift at stops).
+        # 4. Zero velocity. Detection: standing still, nothing moves (no drift at stops).
         flow = image_motion_px(self.last_image, left, self.kf.tracked[self.kf.alive])
         if is_stationary(flow, iv, self.cfg.imu):
             return self._zero_velocity(t, iv, left)
         return self._vision(t, iv, images)
+
+    def _camera_at(self, t: float) -> np.ndarray:
+        """The left camera's pose in base_link at ``t``: the fixed one, or the mast's at the
+        joint angles of ``t``. Without a joint state within the tolerance (counted), the
+        last known pose, or before any, rover.yaml's ``base_to_left_camera`` (the drive
+        pose)."""
+        if self.poser is None:
+            return self.rig.base_T_left
+        pose = self.poser.pose_at(t)
+        if not isinstance(pose, str):
+            self._last_camera = pose.base_T_left
+            return pose.base_T_left
+        self.counts.no_joint_states += 1
+        topic = m.TOPIC_JOINT_STATES
+        used = ("the last known joint angles" if self._last_camera is not None else
+                "rover.yaml's base_to_left_camera (the drive pose)")
+        if pose == NO_JOINT_STATES:
+            self.bad(pose, f"{topic}: no joint state of the mast "
+                     f"({', '.join(self.mast.joints)}) by the pair at {t:.3f} s: the "
+                     f"camera is taken at {used}")
+        else:
+            self.bad(pose, f"{topic}: no joint state within {self.poser.tolerance_s:g} s of "
+                     f"the pair at {t:.3f} s (newest at {self.poser.last_stamp:.3f} s): the "
+                     f"camera is taken at {used}")
+        return self.rig.base_T_left if self._last_camera is None else self._last_camera
+
+    def _mast_moved(self, t: float, iv: ImuInterval | None, camera: np.ndarray,
+                    images: tuple[np.ndarray, np.ndarray]) -> VoOutput:
+        """A pair off the reference's camera pose: the rover is held as at a stop (the
+        IMU alone decides whether it stands still), and the reference is kept for the
+        mast's return. A new pose held for ``MAST_SETTLE_FRAMES`` pairs gets a new
+        reference."""
+        self.counts.mast_moved += 1
+        n = 1
+        if self._settling is not None and same_pose(camera, self._settling[0]):
+            n = self._settling[1] + 1
+        self._settling = (camera if n == 1 else self._settling[0], n)
+        if iv is None or iv.max_rate < self.cfg.imu.zero_velocity_gyro_rad_s:
+            # Standing still by the gyro (without one: a mast moves at stops).
+            out = self._zero_velocity(t, iv, None)
+        else:
+            out = self._propagate(t, iv, standing=True)
+        if n >= MAST_SETTLE_FRAMES:
+            self._log(logging.INFO, f"camera pose in base_link changed and held for {n} "
+                      f"pairs at {t:.3f} s: a new reference frame there")
+            self._new_keyframe(*images, base_T_left=camera)
+            self.last_image = images[0]
+            self.counts.mast_reanchors += 1
+            self._settling = None
+        return out
 
     def _imu_interval(self, t0: float, t1: float) -> ImuInterval | None:
         if not self.use_imu or self.propagator is None:
@@ -426,12 +561,13 @@ class VoEstimator:
         yaw = np.arctan2(R[1, 0], R[0, 0])
         return Rotation.from_euler("z", -yaw).as_matrix() @ R
 
-    def _initialize(self, t: float, left: np.ndarray, right: np.ndarray) -> VoOutput:
+    def _initialize(self, t: float, left: np.ndarray, right: np.ndarray,
+                    base_T_left: np.ndarray) -> VoOutput:
         if self._resume is not None:
             resumed = self._resumed_state(t)
             if resumed is not None:
                 self.state = resumed
-                self._new_keyframe(left, right)
+                self._new_keyframe(left, right, base_T_left)
                 self.last_image = left
                 self.source = "resumed"
                 return VoOutput(self.state.copy(), np.zeros(3), np.zeros(3), "resumed")
@@ -443,7 +579,7 @@ class VoEstimator:
         c = self.cfg.covariance
         self.state = OdomState(t, R0, P=systematic_prior(
             c.scale_sigma, c.heading_rate_sigma_deg_per_100m))
-        self._new_keyframe(left, right)
+        self._new_keyframe(left, right, base_T_left)
         self.last_image = left
         self.source = "initial"
         return VoOutput(self.state.copy(), np.zeros(3), np.zeros(3), "initial")
@@ -480,9 +616,16 @@ class VoEstimator:
                   f"{sigma_p:.2f} m and {np.degrees(sigma_yaw):.1f} deg added")
         return new
 
-    def _new_keyframe(self, left: np.ndarray, right: np.ndarray) -> None:
+    def _new_keyframe(self, left: np.ndarray, right: np.ndarray,
+                      base_T_left: np.ndarray | None = None) -> None:
+        """A new reference frame at the current state, its camera at ``base_T_left``
+        (default: the current reference's)."""
         f = self.cfg.features
-        self.kf, n_corners, n_stereo = make_keyframe(self.state, left, right, self.rig,
+        rig = self.rig
+        T = self.kf.base_T_left if base_T_left is None else base_T_left
+        if T is not rig.base_T_left:
+            rig = dataclasses.replace(rig, base_T_left=T)
+        self.kf, n_corners, n_stereo = make_keyframe(self.state, left, right, rig,
                                                      f.max_corners, f.max_depth_m)
         self.counts.keyframes += 1
         self.stats.keyframe = True
@@ -502,7 +645,10 @@ class VoEstimator:
         self.source = source
         return VoOutput(new.copy(), *self.velocity, source)
 
-    def _zero_velocity(self, t: float, iv: ImuInterval | None, left: np.ndarray) -> VoOutput:
+    def _zero_velocity(self, t: float, iv: ImuInterval | None,
+                       left: np.ndarray | None) -> VoOutput:
+        """Standing still: the pose held. ``left`` becomes the last image (None: a mast
+        frame, whose view is not the reference's)."""
         self.counts.zero_velocity += 1
         new = self.state.copy()
         new.t = t
@@ -510,7 +656,8 @@ class VoEstimator:
             self.propagator.update_bias_at_rest(t, iv, self.imu_rate)
             new.R = self._tilt_update(new.R, iv, stationary=True)
             self.kf.state.R = self._tilt_update(self.kf.state.R, iv, stationary=True)
-        self.last_image = left
+        if left is not None:
+            self.last_image = left
         self.stats.tracked = self.kf.n_alive
         return self._output(new, "zero_velocity", moving=False)
 
@@ -538,10 +685,14 @@ class VoEstimator:
         dR_last, dp_last = self.last_step
         return (iv.R if iv is not None else dR_last), dp_last
 
-    def _propagate(self, t: float, iv: ImuInterval | None) -> VoOutput:
-        """No usable image: dead-reckon with the gyro and the last step, covariance growing."""
+    def _propagate(self, t: float, iv: ImuInterval | None,
+                   standing: bool = False) -> VoOutput:
+        """No usable image: dead-reckon with the gyro and the last step (``standing``: no
+        step, a mast frame at a stop), covariance growing."""
         self.counts.propagated += 1
         dR, dp = self._predict(iv)
+        if standing:
+            dp = np.zeros(3)
         cov = self.cfg.covariance
         step = float(np.linalg.norm(dp))
         Q = step_noise(step, cov.propagation_translation_sigma,
@@ -557,7 +708,8 @@ class VoEstimator:
         return self._output(new, "imu_propagation", moving=False)
 
     def _cam(self) -> tuple[np.ndarray, np.ndarray]:
-        T = self.rig.base_T_left
+        """The reference's camera pose in base_link (the current pair's: step 3)."""
+        T = self.kf.base_T_left
         return T[:3, :3], T[:3, 3]
 
     def _camera_from_keyframe(self, odom_R_b: np.ndarray, odom_p_b: np.ndarray
@@ -573,7 +725,7 @@ class VoEstimator:
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Where keyframe points ``X`` land if the body moves by ``(dR, dp)`` from the last
         state: ``(cur_R_kf, cur_t_kf, points in the current camera, pixels)``."""
-        rig = self.rig
+        rig = self.rig  # intrinsics; the camera's pose is the reference's (_cam)
         R_guess, t_guess = self._camera_from_keyframe(self.state.R @ dR,
                                                       self.state.p + self.state.R @ dp)
         Xp = X @ R_guess.T + t_guess
@@ -591,7 +743,7 @@ class VoEstimator:
         idx = np.flatnonzero(kf.alive)
         X = kf.points[idx]
         need = cfg.motion.min_inliers
-        # 4. Tracking: LK from the keyframe's own image (no tracking drift accumulates over
+        # 5. Tracking: LK from the keyframe's own image (no tracking drift accumulates over
         # its span), starting where the predicted motion puts each keyframe point.
         R_guess, t_guess, Xp, predicted = self._predict_pixels(X, idx, dR, dp)
         uv, ok = track(kf.image, left, kf.corners[idx], predicted)
@@ -615,7 +767,7 @@ class VoEstimator:
         self.stats.tracked = int(ok.sum())
         est = None
         if ok.sum() >= cfg.motion.min_inliers:
-            # 5. Stereo and reconstruction (points triangulated in make_keyframe).
+            # 6. Stereo and reconstruction (points triangulated in make_keyframe).
             # Right image: each tracked corner is searched where its predicted depth puts it.
             disp_guess = np.where(in_front, rig.fx * rig.baseline_m / np.maximum(Xp[:, 2], 0.5),
                                   3.0)[ok]
@@ -626,7 +778,7 @@ class VoEstimator:
             prior = prior_cov = None
             if iv is not None:
                 prior, prior_cov = self._gyro_prior(kf.state.t, t)
-            # 6. Outlier rejection and motion: PnP RANSAC, refinement, then the gyro prior.
+            # 7. Outlier rejection and motion: PnP RANSAC, refinement, then the gyro prior.
             K = rig.camera_matrix
             est_vo = estimate_motion(X[ok], uv[ok], uv_r, K, rig.baseline_m, cfg.motion,
                                      R_guess, t_guess)
@@ -652,7 +804,7 @@ class VoEstimator:
         kf_R_cur_c, kf_p_cur_c = est.R.T, -est.R.T @ est.t
         kf_R_b = R_bc @ kf_R_cur_c @ R_bc.T
         kf_p_b = R_bc @ kf_p_cur_c + p_bc - kf_R_b @ p_bc
-        # 7. Covariance: the refinement's covariance against the distance model, composed.
+        # 8. Covariance: the refinement's covariance against the distance model, composed.
         cov_cam = est.cov
         rot = np.zeros((6, 6))
         rot[:3, :3] = rot[3:, 3:] = R_bc
@@ -683,7 +835,7 @@ class VoEstimator:
                 R_vo_b = R_bc @ est_vo.R.T @ R_bc.T
                 rot3 = R_bc @ est_vo.cov[:3, :3] @ R_bc.T
                 self.propagator.update_bias_from_rotation(kf.state.t, t, R_vo_b, rot3)
-                # 8. Gravity from the accelerometer just before the frame (the body tilts as
+                # 9. Gravity from the accelerometer just before the frame (the body tilts as
                 # it drives over relief: a mean over the whole span would lag).
                 recent = self.propagator.interval(t - TILT_WINDOW_S, t)
                 if recent is not None:
@@ -714,6 +866,9 @@ class VoEstimator:
             "keyframe": s.keyframe, "pairs": c.pairs, "vision_frames": c.vision,
             "zero_velocity_frames": c.zero_velocity, "propagated_frames": c.propagated,
             "keyframes": c.keyframes, "imu_samples": c.imu,
+            "joint_state_samples": c.joint_states, "mast_moved_frames": c.mast_moved,
+            "frames_without_joint_states": c.no_joint_states,
+            "mast_reanchors": c.mast_reanchors,
             "distance_m": round(self.state.distance_m, 3) if self.state else 0.0,
         }
         if self.propagator is not None:

@@ -1,6 +1,8 @@
 """VO metrics with evo (DESIGN.md "Metrics"): KITTI-style relative translation error over
 100..800 m segments, heading drift over 100 m segments, aligned APE, final position error
-as a share of the distance travelled. Evaluation code only: this is where truth is read.
+as a share of the distance travelled; and how far the estimate moved across each stop of
+the truth (a stop, mast panorama or not, must neither drift nor jump). Evaluation code
+only: this is where truth is read.
 """
 
 from __future__ import annotations
@@ -12,6 +14,13 @@ from pathlib import Path
 import numpy as np
 
 SEGMENTS_M = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
+#: A stop: the truth stays within this of its first pose (m) ...
+STOP_STILL_M = 0.002
+#: ... for at least this long (s), as ``globloc eval`` counts stops.
+STOP_MIN_S = 10.0
+#: The poses of a stop are those this far inside its ends (s): clear of braking and
+#: starting.
+STOP_MARGIN_S = 1.0
 
 
 class EvalError(ValueError):
@@ -33,6 +42,12 @@ class VoMetrics:
         final_error_m, final_error_pct: end-point error with the first poses aligned, and
             as % of distance_m.
         per_length: {length_m: translation error %} of each segment length with data.
+        stops: stops of the truth with at least two estimated poses (:func:`stop_drift`).
+        stop_position_mm_max, stop_position_mm_mean: the estimate's position change from
+            the first to the last pose of a stop (mm), largest and mean over the stops.
+        stop_yaw_deg_max: largest |yaw change| from the first to the last pose of a stop.
+        stop_excursion_mm_max: largest distance of any pose of a stop from its first (mm):
+            a jump that comes back shows here, not in the change.
     """
 
     distance_m: float
@@ -45,9 +60,70 @@ class VoMetrics:
     final_error_m: float
     final_error_pct: float
     per_length: dict
+    stops: int = 0
+    stop_position_mm_max: float = float("nan")
+    stop_position_mm_mean: float = float("nan")
+    stop_yaw_deg_max: float = float("nan")
+    stop_excursion_mm_max: float = float("nan")
 
     def as_dict(self) -> dict:
         return asdict(self)
+
+
+@dataclass
+class StopDrift:
+    """The estimate across one stop of the truth.
+
+    Attributes:
+        start_s, end_s: the stop (truth stamps, s).
+        poses: estimated poses inside it.
+        position_mm: position change from the first to the last of them (mm).
+        yaw_deg: yaw change from the first to the last (deg, signed).
+        excursion_mm: largest distance of any of them from the first (mm).
+    """
+
+    start_s: float
+    end_s: float
+    poses: int
+    position_mm: float
+    yaw_deg: float
+    excursion_mm: float
+
+
+def truth_stops(truth: np.ndarray) -> list[tuple[float, float]]:
+    """``(start, end)`` stamps of the truth's stops (``truth``: TUM rows): runs of poses
+    within :data:`STOP_STILL_M` of the run's first, at least :data:`STOP_MIN_S` long."""
+    stops, i, n = [], 0, len(truth)
+    while i < n:
+        j = i
+        while j + 1 < n and np.linalg.norm(truth[j + 1, 1:4] - truth[i, 1:4]) < STOP_STILL_M:
+            j += 1
+        if truth[j, 0] - truth[i, 0] >= STOP_MIN_S:
+            stops.append((float(truth[i, 0]), float(truth[j, 0])))
+        i = j + 1
+    return stops
+
+
+def stop_drift(estimate: np.ndarray, truth: np.ndarray) -> list[StopDrift]:
+    """How the estimate moved across each stop of the truth (both TUM rows; the pose
+    change needs no alignment): its poses from :data:`STOP_MARGIN_S` after the stop's
+    start to as long before its end. Stops with fewer than two of them are left out."""
+    from scipy.spatial.transform import Rotation
+
+    out = []
+    for t0, t1 in truth_stops(truth):
+        t = estimate[:, 0]
+        inside = estimate[(t >= t0 + STOP_MARGIN_S) & (t <= t1 - STOP_MARGIN_S)]
+        if len(inside) < 2:
+            continue
+        p = inside[:, 1:4]
+        yaw = Rotation.from_quat(inside[[0, -1], 4:8]).as_euler("ZYX")[:, 0]
+        out.append(StopDrift(
+            start_s=t0, end_s=t1, poses=len(inside),
+            position_mm=float(np.linalg.norm(p[-1] - p[0]) * 1e3),
+            yaw_deg=float(np.degrees(np.angle(np.exp(1j * (yaw[1] - yaw[0]))))),
+            excursion_mm=float(np.linalg.norm(p - p[0], axis=1).max() * 1e3)))
+    return out
 
 
 def read_tum(path: str | Path):
@@ -123,6 +199,15 @@ def evaluate(est_path: str | Path, truth_path: str | Path,
     origin = copy.deepcopy(est)
     origin.align_origin(ref)
     final = float(np.linalg.norm(origin.positions_xyz[-1] - ref.positions_xyz[-1]))
+    stops = stop_drift(_tum_rows(est_path), _tum_rows(truth_path))
+    stop_figures = {}
+    if stops:
+        mm = [d.position_mm for d in stops]
+        stop_figures = {
+            "stop_position_mm_max": round(max(mm), 3),
+            "stop_position_mm_mean": round(float(np.mean(mm)), 3),
+            "stop_yaw_deg_max": round(max(abs(d.yaw_deg) for d in stops), 4),
+            "stop_excursion_mm_max": round(max(d.excursion_mm for d in stops), 3)}
     return VoMetrics(
         distance_m=round(distance, 3), poses=int(est.num_poses),
         kitti_drift_pct=round(kitti, 4), kitti_rot_deg_per_100m=round(kitti_rot, 4),
@@ -130,7 +215,16 @@ def evaluate(est_path: str | Path, truth_path: str | Path,
         ape_rmse_m=round(float(ape.get_statistic(metrics.StatisticsType.rmse)), 4),
         final_error_m=round(final, 4),
         final_error_pct=round(100.0 * final / distance, 4) if distance > 0 else float("nan"),
-        per_length=per_length)
+        per_length=per_length, stops=len(stops), **stop_figures)
+
+
+def _tum_rows(path: str | Path) -> np.ndarray:
+    from roi_network.trajectory import read_tum_rows
+
+    try:
+        return read_tum_rows(path)
+    except ValueError as exc:
+        raise EvalError(str(exc)) from None
 
 
 def plot_trajectories(est_path: str | Path, truth_path: str | Path, out_png: str | Path,

@@ -29,6 +29,8 @@ class Keyframe:
         alive: (N,) bool, still tracked.
         image: the keyframe's left image.
         frames: frames measured against this keyframe so far.
+        base_T_left: 4x4 pose of the left camera in base_link when the keyframe was taken
+            (a mast moves it; a frame is measured against the keyframe only at this pose).
     """
 
     state: OdomState
@@ -38,6 +40,7 @@ class Keyframe:
     tracked: np.ndarray
     alive: np.ndarray
     frames: int = 0
+    base_T_left: np.ndarray | None = None
 
     @property
     def n_alive(self) -> int:
@@ -58,7 +61,7 @@ def make_keyframe(state: OdomState, left: np.ndarray, right: np.ndarray,
     Args:
         state: the keyframe's odometry state.
         left, right: the pair's images.
-        rig: the stereo rig.
+        rig: the stereo rig, with the camera's pose at this frame (``base_T_left``).
         max_corners: corners detected at most.
         max_depth_m: points farther than this (m) are not kept.
 
@@ -76,5 +79,6 @@ def make_keyframe(state: OdomState, left: np.ndarray, right: np.ndarray,
                                 rig.baseline_m)
     near = pts[:, 2] < max_depth_m
     kept = corners[ok][near]
-    kf = Keyframe(state.copy(), left, pts[near], kept, kept.copy(), np.ones(len(kept), bool))
+    kf = Keyframe(state.copy(), left, pts[near], kept, kept.copy(), np.ones(len(kept), bool),
+                  base_T_left=rig.base_T_left)
     return kf, len(corners), int(near.sum())

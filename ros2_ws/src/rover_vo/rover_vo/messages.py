@@ -17,6 +17,8 @@ TOPIC_LEFT, TOPIC_RIGHT = images.STEREO_TOPICS[images.COMPRESSED]
 TOPIC_LEFT_INFO = "/stereo/left/camera_info"
 TOPIC_RIGHT_INFO = "/stereo/right/camera_info"
 TOPIC_IMU = "/imu/data"
+#: The mast's joint angles (read when rover.yaml has a mast: roi_network.mast).
+TOPIC_JOINT_STATES = "/joint_states"
 
 
 def input_topics(transport: str = images.COMPRESSED) -> tuple[str, ...]:
@@ -41,6 +43,11 @@ def imu_sample(msg: Any) -> tuple[np.ndarray, np.ndarray]:
     """``(gyro rad/s, specific force m/s^2)`` of a sensor_msgs/Imu, in its frame."""
     w, a = msg.angular_velocity, msg.linear_acceleration
     return np.array([w.x, w.y, w.z], float), np.array([a.x, a.y, a.z], float)
+
+
+def joint_state(msg: Any) -> tuple[float, list[str], list[float]]:
+    """``(stamp s, names, positions rad)`` of a sensor_msgs/JointState."""
+    return stamp_s(msg), [str(n) for n in msg.name], [float(p) for p in msg.position]
 
 
 def decode_image(msg: Any) -> np.ndarray | None:

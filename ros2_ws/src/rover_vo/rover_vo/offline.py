@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from roi_network.files import write_atomic
+from roi_network.mast import MastError
 from roi_network.trajectory import POSE_COVARIANCE_FILE, write_pose_covariance
 from rover_vo.bag import BagError, read_messages, rover_params
 from rover_vo.config import VoConfig, flat_parameters
@@ -50,12 +51,20 @@ def run_odometry(bag_dir: str | Path, config: VoConfig, progress: bool = False) 
 
     Returns:
         ``{"outputs": [VoOutput], "status": {...}, "seconds": float, "cpu_seconds": float,
-        "estimator_cpu_seconds": float, "rss_mb": [(pair index, MB)], "config": {...}}``.
+        "estimator_cpu_seconds": float, "rss_mb": [(pair index, MB)], "config": {...},
+        "mast": bool}``.
+
+    Raises:
+        BagError: the bag cannot be read, its rover.yaml's mast is malformed, or a
+            ``/joint_states`` message does not fit the mast (the message names the field).
     """
     import psutil
 
     params = rover_params(bag_dir)
-    est = VoEstimator(config, params)
+    try:
+        est = VoEstimator(config, params, raise_joint_state_errors=True)
+    except MastError as exc:
+        raise BagError(f"{Path(bag_dir) / 'rover.yaml'}: {exc}") from None
     outputs = []
     proc = psutil.Process()
     rss = []
@@ -63,7 +72,10 @@ def run_odometry(bag_dir: str | Path, config: VoConfig, progress: bool = False) 
     feed_cpu = 0.0
     for topic, msg in read_messages(bag_dir):
         c = time.process_time()
-        new = est.feed(topic, msg)
+        try:
+            new = est.feed(topic, msg)
+        except MastError as exc:
+            raise BagError(f"{Path(bag_dir) / 'rosbag'}: {exc}") from None
         feed_cpu += time.process_time() - c
         outputs += new
         if new and len(outputs) % 100 == 0:
@@ -73,8 +85,7 @@ def run_odometry(bag_dir: str | Path, config: VoConfig, progress: bool = False) 
     outputs += est.finish()
     return {"outputs": outputs, "status": est.status(), "seconds": time.perf_counter() - t0,
             "cpu_seconds": time.process_time() - c0, "estimator_cpu_seconds": feed_cpu,
-            "rss_mb": rss,
-            "config": flat_parameters(est.cfg)}
+            "rss_mb": rss, "config": flat_parameters(est.cfg), "mast": est.has_mast}
 
 
 def odometry(bag_dir: str | Path, config: VoConfig, out: str | Path,
@@ -112,7 +123,7 @@ def odometry(bag_dir: str | Path, config: VoConfig, out: str | Path,
             len(outputs) / max(result["estimator_cpu_seconds"], 1e-9), 3),
         "peak_rss_mb": round(peak_rss_mb(), 1),
         "rss_mb_first_last": [round(rss[0], 1), round(rss[-1], 1)] if rss else None,
-        "sources": sources, "status": result["status"],
+        "sources": sources, "mast": result["mast"], "status": result["status"],
         "final_position_sigma_m": round(float(np.sqrt(np.trace(final.cov[:2, :2]))), 4),
         "final_yaw_sigma_deg": round(float(np.degrees(np.sqrt(final.cov[5, 5]))), 4),
         "threads": {"OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS"),

@@ -1,10 +1,11 @@
 """The rover_vo node: stereo + IMU visual odometry on the live topics.
 
 Thin ROS wrapper around :class:`~rover_vo.estimator.VoEstimator` (the offline CLI runs the
-same estimator on the same messages). Subscribes the stereo images, camera infos and IMU
-(sensor-data QoS); publishes ``/vo/odometry`` (nav_msgs/Odometry, odom -> base_link, pose
-covariance growing with the distance driven, body twist) at each stereo pair and
-``/vo/status`` (diagnostics). Extrinsics come from the bag's rover.yaml parameters.
+same estimator on the same messages). Subscribes the stereo images, camera infos, IMU and,
+when rover.yaml has a mast, ``/joint_states`` (sensor-data QoS); publishes ``/vo/odometry``
+(nav_msgs/Odometry, odom -> base_link, pose covariance growing with the distance driven,
+body twist) at each stereo pair and ``/vo/status`` (diagnostics). Extrinsics and the mast's
+kinematics come from the bag's rover.yaml parameters.
 """
 
 from __future__ import annotations
@@ -20,9 +21,10 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from scipy.spatial.transform import Rotation
-from sensor_msgs.msg import CameraInfo, Imu
+from sensor_msgs.msg import CameraInfo, Imu, JointState
 
 from roi_network.images import TRANSPORT_PARAMETER_HELP, TransportLock
+from roi_network.mast import MAST_PARAMS
 from roi_network.spin import run_node
 from rover_vo import messages as m
 from rover_vo.config import (
@@ -87,6 +89,13 @@ class VoNode(Node):
         for name, default in ROVER_PARAMETERS.items():
             rover[name] = self.declare_parameter(
                 name, default, ParameterDescriptor(description=f"rover.yaml: {name}")).value
+        # The mast's kinematics, as rover.yaml gives them (none: a fixed camera; a missing
+        # field of a mast is an error naming it, not a default).
+        for name in MAST_PARAMS:
+            if name in overrides:
+                rover[name] = self.declare_parameter(
+                    name, overrides[name].value,
+                    ParameterDescriptor(description=f"rover.yaml: {name}")).value
         self.odom_frame = self.declare_parameter(
             "odom_frame", "odom", ParameterDescriptor(description="odometry frame")).value
         self.base_frame = self.declare_parameter(
@@ -128,8 +137,14 @@ class VoNode(Node):
         for topic in (m.TOPIC_LEFT_INFO, m.TOPIC_RIGHT_INFO):
             self.create_subscription(CameraInfo, topic,
                                      lambda msg, t=topic: self.on_message(t, msg), sensor_qos(10))
+        waiting = m.TOPIC_IMU
+        if self.estimator.has_mast:
+            self.create_subscription(
+                JointState, m.TOPIC_JOINT_STATES,
+                lambda msg: self.on_message(m.TOPIC_JOINT_STATES, msg), sensor_qos(200))
+            waiting += f" and {m.TOPIC_JOINT_STATES} (mast {', '.join(self.estimator.mast.joints)})"
         logger.info(f"mode {config.mode}; waiting for stereo images "
-                    f"({' or '.join(self.transports.subscribed())}) and {m.TOPIC_IMU}")
+                    f"({' or '.join(self.transports.subscribed())}) and {waiting}")
 
     def on_imu(self, msg: Any) -> None:
         """One IMU message, then every other one already queued (:meth:`drain_imu`)."""

@@ -1,13 +1,19 @@
 """Fixtures of the rover_vo tests: a tiny bag generated once per session (atacama_sim
 ``tiny`` preset, ~30 stereo pairs over 12 m) and its messages read back with rosbags.
+The mast tests' flat world is ``vo_flatworld.py``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
+import sys
 from pathlib import Path
 
 import pytest
+
+# pytest runs with --import-mode=importlib: put the helper module beside the tests on the path.
+sys.path.insert(0, str(Path(__file__).parent))
 
 from rover_vo.bag import read_messages, rover_params
 from rover_vo.testing import run
@@ -21,6 +27,18 @@ SEED = 7  # neither an evaluation (1-3) nor a training (101, 102) seed
 CAMERA = {"camera": {"hfov_deg": 45.0}}
 
 
+def tiny_overrides() -> dict:
+    """The tiny bag's overrides: the 45 deg lens, and a simulator with a mast keeps it at
+    the drive pose (rover.yaml's mast.* and /joint_states, no panoramas: the estimator
+    tests count pairs and references; the panoramas' are the flat world's)."""
+    from atacama_sim.config import WorldConfig
+
+    over = dict(CAMERA)
+    if any(f.name == "mast" for f in dataclasses.fields(WorldConfig)):
+        over["mast"] = {"panoramas": False}
+    return over
+
+
 @pytest.fixture(scope="session")
 def tiny_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A freshly generated tiny bag directory (rosbag/, rover.yaml, truth/)."""
@@ -28,7 +46,7 @@ def tiny_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from atacama_sim.generate import generate
 
     out = tmp_path_factory.mktemp("bags") / "tiny"
-    generate(make_config("tiny", SEED, CAMERA), out, progress=False)
+    generate(make_config("tiny", SEED, tiny_overrides()), out, progress=False)
     return out
 
 

@@ -12,6 +12,7 @@ import time
 import numpy as np
 import pytest
 import rclpy
+import vo_flatworld as fw
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -19,7 +20,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from roi_network.testing import write_raw_image_copy
 from roi_network.trajectory import read_tum_rows
 from rover_vo import messages as m
-from rover_vo.bag import read_messages
+from rover_vo.bag import read_messages, rover_params
 from rover_vo.testing import run
 
 pytestmark = pytest.mark.ros
@@ -32,20 +33,33 @@ def _exe(name):
     return exe
 
 
-@pytest.fixture(params=["compressed", "raw"])
-def bag_and_run(request, tiny_bag, clean_run, tiny_params, tmp_path_factory):
-    """The tiny bag with the contract's compressed images, and a copy with raw
+def _played(topics, messages):
+    """The topics to play: the VO's inputs, with /joint_states when the bag has them."""
+    joints = any(t == m.TOPIC_JOINT_STATES for t, _ in messages)
+    return (*topics, m.TOPIC_JOINT_STATES) if joints else tuple(topics)
+
+
+@pytest.fixture(params=["compressed", "raw", "panorama"])
+def bag_and_run(request, tiny_bag, clean_run, tiny_messages, tiny_params, tmp_path_factory):
+    """The tiny bag with the contract's compressed images, a copy with raw
     sensor_msgs/Image through a distorting lens, D in its CameraInfo (what a camera
-    driver records), each with its offline run."""
+    driver records), and the flat world's stop with a mast panorama, each with its
+    offline run, the topics to play and the rate."""
     if request.param == "compressed":
-        return tiny_bag, clean_run, m.INPUT_TOPICS
+        return tiny_bag, clean_run, _played(m.INPUT_TOPICS, tiny_messages), 2
+    if request.param == "panorama":
+        bag = fw.write_bag(fw.stream(fw.panorama_schedule(period_s=2.0, drive=3, stand=1)),
+                           tmp_path_factory.mktemp("pano") / "flat_pano")
+        messages = list(read_messages(bag))
+        return bag, run(messages, rover_params(bag)), _played(m.INPUT_TOPICS, messages), 4
     raw = write_raw_image_copy(tiny_bag, tmp_path_factory.mktemp("raw") / "tiny_raw",
                                distortion=(-0.28, 0.09, 0.0, 0.0, 0.0))
-    return raw, run(list(read_messages(raw)), tiny_params), m.input_topics("raw")
+    messages = list(read_messages(raw))
+    return raw, run(messages, tiny_params), _played(m.input_topics("raw"), messages), 2
 
 
 def test_node_on_tiny_bag_agrees_with_offline(bag_and_run, ros_env, tmp_path):
-    tiny_bag, (est, offline, _), topics = bag_and_run
+    tiny_bag, (est, offline, _), topics, rate = bag_and_run
     offline_status = {k: str(v) for k, v in est.status().items() if k.startswith("bad_input.")}
     node = subprocess.Popen([_exe("rover_vo"), "--ros-args", "--params-file",
                              str(tiny_bag / "rover.yaml")],
@@ -69,8 +83,8 @@ def test_node_on_tiny_bag_agrees_with_offline(bag_and_run, ros_env, tmp_path):
                and time.monotonic() < deadline and node.poll() is None):
             executor.spin_once(timeout_sec=0.1)
         player = subprocess.Popen(
-            [_exe("globloc"), "play", str(tiny_bag), "--rate", "2", "--wait-subscribers", "30",
-             "--topics", *topics], env=ros_env, stdout=subprocess.PIPE,
+            [_exe("globloc"), "play", str(tiny_bag), "--rate", str(rate),
+             "--wait-subscribers", "30", "--topics", *topics], env=ros_env, stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT, text=True)
         deadline = time.monotonic() + 150
         while (len(odom) < len(offline) and time.monotonic() < deadline
@@ -110,10 +124,10 @@ def test_node_on_tiny_bag_agrees_with_offline(bag_and_run, ros_env, tmp_path):
     log = node.stdout.read()
     assert node.returncode == 0, log
     # The rectification is said once per side, among the warnings of the same logger.
-    assert log.count("images are rectified to its P") == (2 if topics != m.INPUT_TOPICS
-                                                           else 0), log
+    raw = m.TOPIC_LEFT not in topics
+    assert log.count("images are rectified to its P") == (2 if raw else 0), log
 
-    if topics != m.INPUT_TOPICS:
+    if raw:
         return  # the CLI's files are checked once, on the contract's bag
     # The offline CLI on the same bag writes the same poses.
     out_dir = tmp_path / "vo"
