@@ -161,6 +161,7 @@ class VoEstimator:
         self.raise_joint_state_errors = raise_joint_state_errors
         self._last_camera: np.ndarray | None = None  # last pose from a joint state
         self._settling: tuple[np.ndarray, int] | None = None  # new pose, pairs at it
+        self._after_mast = False  # the last pair was a mast frame: the rover stood
         self._first_input_s: float | None = None
         self._newest_input_s: float | None = None
         self.use_imu = config.use_imu
@@ -488,8 +489,11 @@ class VoEstimator:
         # 4. Zero velocity. Detection: standing still, nothing moves (no drift at stops).
         flow = image_motion_px(self.last_image, left, self.kf.tracked[self.kf.alive])
         if is_stationary(flow, iv, self.cfg.imu):
-            return self._zero_velocity(t, iv, left)
-        return self._vision(t, iv, images)
+            out = self._zero_velocity(t, iv, left)
+        else:
+            out = self._vision(t, iv, images)
+        self._after_mast = False
+        return out
 
     def _camera_at(self, t: float) -> np.ndarray:
         """The left camera's pose in base_link at ``t``: the fixed one, or the mast's at the
@@ -523,6 +527,7 @@ class VoEstimator:
         mast's return. A new pose held for ``MAST_SETTLE_FRAMES`` pairs gets a new
         reference."""
         self.counts.mast_moved += 1
+        self._after_mast = True
         n = 1
         if self._settling is not None and same_pose(camera, self._settling[0]):
             n = self._settling[1] + 1
@@ -681,8 +686,11 @@ class VoEstimator:
         return R @ Rotation.from_rotvec(-gain * angle * axis / s).as_matrix()
 
     def _predict(self, iv: ImuInterval | None) -> tuple[np.ndarray, np.ndarray]:
-        """Predicted body motion of this interval: gyro rotation, last step's translation."""
+        """Predicted body motion of this interval: gyro rotation, last step's translation
+        (none right after mast frames: the rover stood while its mast moved)."""
         dR_last, dp_last = self.last_step
+        if self._after_mast:
+            dp_last = np.zeros(3)
         return (iv.R if iv is not None else dR_last), dp_last
 
     def _propagate(self, t: float, iv: ImuInterval | None,

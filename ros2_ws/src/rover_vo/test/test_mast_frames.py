@@ -132,6 +132,22 @@ def retilt_run(retilt_stream):
     return run(retilt_stream, fw.rover_params())
 
 
+def test_an_unusable_pair_back_at_the_drive_pose_keeps_the_rover_standing(pano_stream):
+    """The first pair after the views is unusable (no texture): the rover, standing while
+    its mast moved, is propagated in place, not on by the last drive step."""
+    back = next(f.t for f in PANO.frames if f.t > 25.0 and f.pan == 0.0)
+    grey = np.full((fw.H, fw.W), 128, np.uint8)
+    msgs = fw.Messages()
+    stream = [(t, msgs.image(m.stamp_ns(msg), grey))
+              if t in m.IMAGE_TOPICS and m.stamp_ns(msg) == _stamp(back) else (t, msg)
+              for t, msg in pano_stream]
+    est, outputs, _ = run(stream, fw.rover_params())
+    assert est.counts.bad["textureless"] == 1
+    stop = _stop(outputs, PANO)
+    assert max(np.linalg.norm(o.state.p - stop[0].state.p) for o in stop) < 1e-9
+    assert np.abs(_errors(outputs, PANO)).max() < 0.02
+
+
 def test_a_new_drive_tilt_gets_a_new_reference(retilt_run):
     """The mast settles at a new tilt for good: the pairs there are waited out until
     MAST_SETTLE_FRAMES of them, then a new reference with the new camera pose, and the
