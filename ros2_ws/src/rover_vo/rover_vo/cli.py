@@ -59,7 +59,10 @@ def cmd_eval(args: argparse.Namespace) -> int:
         print(f"{d['stops']} stops: position change {d['stop_position_mm_mean']:.1f} mm mean, "
               f"{d['stop_position_mm_max']:.1f} mm max; yaw change "
               f"{d['stop_yaw_deg_max']:.3f} deg max; excursion "
-              f"{d['stop_excursion_mm_max']:.1f} mm max")
+              f"{d['stop_excursion_mm_max']:.1f} mm max; motion into and through a stop "
+              f"off the truth's by {d['stop_error_mm_mean']:.1f} mm mean, "
+              f"{d['stop_error_mm_max']:.1f} mm max, yaw {d['stop_yaw_error_deg_max']:.3f} "
+              "deg max")
     return 0
 
 

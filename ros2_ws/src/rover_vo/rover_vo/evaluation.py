@@ -48,6 +48,11 @@ class VoMetrics:
         stop_yaw_deg_max: largest |yaw change| from the first to the last pose of a stop.
         stop_excursion_mm_max: largest distance of any pose of a stop from its first (mm):
             a jump that comes back shows here, not in the change.
+        stop_error_mm_max, stop_error_mm_mean: error of the estimate's motion from the
+            last pose before a stop to its last pose in it, against the truth's (mm):
+            what the change counts of the rover's creep into the stop after its last pair
+            is not an error.
+        stop_yaw_error_deg_max: largest |yaw error| of that motion.
     """
 
     distance_m: float
@@ -65,6 +70,9 @@ class VoMetrics:
     stop_position_mm_mean: float = float("nan")
     stop_yaw_deg_max: float = float("nan")
     stop_excursion_mm_max: float = float("nan")
+    stop_error_mm_max: float = float("nan")
+    stop_error_mm_mean: float = float("nan")
+    stop_yaw_error_deg_max: float = float("nan")
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -80,6 +88,11 @@ class StopDrift:
         position_mm: position change from the first to the last of them (mm).
         yaw_deg: yaw change from the first to the last (deg, signed).
         excursion_mm: largest distance of any of them from the first (mm).
+        error_mm: error of the estimate's motion from its last pose before them to the
+            last of them, against the truth's (in the body frame of the former; mm). A
+            rover that stops after its last pair and takes no pair before its mast pans
+            creeps into the stop unseen; the change shows the creep, this does not.
+        yaw_error_deg: the yaw error of that motion (deg, signed).
     """
 
     start_s: float
@@ -88,6 +101,8 @@ class StopDrift:
     position_mm: float
     yaw_deg: float
     excursion_mm: float
+    error_mm: float = float("nan")
+    yaw_error_deg: float = float("nan")
 
 
 def truth_stops(truth: np.ndarray) -> list[tuple[float, float]]:
@@ -108,21 +123,39 @@ def stop_drift(estimate: np.ndarray, truth: np.ndarray) -> list[StopDrift]:
     """How the estimate moved across each stop of the truth (both TUM rows; the pose
     change needs no alignment): its poses from :data:`STOP_MARGIN_S` after the stop's
     start to as long before its end. Stops with fewer than two of them are left out."""
-    from scipy.spatial.transform import Rotation
+    from scipy.spatial.transform import Rotation, Slerp
 
+    def wrap_deg(a: float) -> float:
+        return float(np.degrees(np.angle(np.exp(1j * a))))
+
+    t = estimate[:, 0]
+    slerp = Slerp(truth[:, 0], Rotation.from_quat(truth[:, 4:8]))
     out = []
     for t0, t1 in truth_stops(truth):
-        t = estimate[:, 0]
-        inside = estimate[(t >= t0 + STOP_MARGIN_S) & (t <= t1 - STOP_MARGIN_S)]
-        if len(inside) < 2:
+        window = np.flatnonzero((t >= t0 + STOP_MARGIN_S) & (t <= t1 - STOP_MARGIN_S))
+        if len(window) < 2:
             continue
+        inside = estimate[window]
         p = inside[:, 1:4]
         yaw = Rotation.from_quat(inside[[0, -1], 4:8]).as_euler("ZYX")[:, 0]
-        out.append(StopDrift(
-            start_s=t0, end_s=t1, poses=len(inside),
-            position_mm=float(np.linalg.norm(p[-1] - p[0]) * 1e3),
-            yaw_deg=float(np.degrees(np.angle(np.exp(1j * (yaw[1] - yaw[0]))))),
-            excursion_mm=float(np.linalg.norm(p - p[0], axis=1).max() * 1e3)))
+        d = StopDrift(start_s=t0, end_s=t1, poses=len(inside),
+                      position_mm=float(np.linalg.norm(p[-1] - p[0]) * 1e3),
+                      yaw_deg=wrap_deg(yaw[1] - yaw[0]),
+                      excursion_mm=float(np.linalg.norm(p - p[0], axis=1).max() * 1e3))
+        a, b = window[0] - 1, window[-1]
+        if a >= 0 and truth[0, 0] <= t[a]:
+            ta, tb = t[a], t[b]
+            p_true = [np.array([np.interp(s, truth[:, 0], truth[:, k]) for k in (1, 2, 3)])
+                      for s in (ta, tb)]
+            R_true = slerp([ta, tb])
+            R_est = Rotation.from_quat(estimate[[a, b], 4:8])
+            moved_true = R_true[0].inv().apply(p_true[1] - p_true[0])
+            moved_est = R_est[0].inv().apply(estimate[b, 1:4] - estimate[a, 1:4])
+            d.error_mm = float(np.linalg.norm(moved_est - moved_true) * 1e3)
+            yaw_true = R_true.as_euler("ZYX")[:, 0]
+            yaw_est = R_est.as_euler("ZYX")[:, 0]
+            d.yaw_error_deg = wrap_deg((yaw_est[1] - yaw_est[0]) - (yaw_true[1] - yaw_true[0]))
+        out.append(d)
     return out
 
 
@@ -208,6 +241,12 @@ def evaluate(est_path: str | Path, truth_path: str | Path,
             "stop_position_mm_mean": round(float(np.mean(mm)), 3),
             "stop_yaw_deg_max": round(max(abs(d.yaw_deg) for d in stops), 4),
             "stop_excursion_mm_max": round(max(d.excursion_mm for d in stops), 3)}
+        err = [d for d in stops if np.isfinite(d.error_mm)]
+        if err:
+            stop_figures.update({
+                "stop_error_mm_max": round(max(d.error_mm for d in err), 3),
+                "stop_error_mm_mean": round(float(np.mean([d.error_mm for d in err])), 3),
+                "stop_yaw_error_deg_max": round(max(abs(d.yaw_error_deg) for d in err), 4)})
     return VoMetrics(
         distance_m=round(distance, 3), poses=int(est.num_poses),
         kitti_drift_pct=round(kitti, 4), kitti_rot_deg_per_100m=round(kitti_rot, 4),

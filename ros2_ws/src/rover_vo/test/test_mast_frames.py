@@ -286,6 +286,7 @@ def test_offline_cli_reads_the_joint_states_and_measures_the_stop(pano_stream, t
     (stop,) = stop_drift(read_tum_rows(tmp_path / "vo" / "vo.tum"), truth)
     assert stop.poses == 9  # 1 s inside the stop's ends: its last drive pair is out
     assert stop.position_mm < 0.01 and stop.excursion_mm < 0.01 and abs(stop.yaw_deg) < 0.01
+    assert stop.error_mm < 0.01 and abs(stop.yaw_error_deg) < 0.01
 
 
 def test_offline_cli_exits_naming_unknown_joints(drive_stream, tmp_path, capsys):
@@ -295,13 +296,21 @@ def test_offline_cli_exits_naming_unknown_joints(drive_stream, tmp_path, capsys)
     assert "rosbag" in err and "'mast_pan'" in err and "field 'name'" in err, err
 
 
-def test_stop_drift_sees_a_jump_that_comes_back():
+def test_stop_drift_sees_a_jump_that_comes_back_and_not_the_creep():
+    """The truth drives along x at 1 m/s, stands from 5 s to 20 s; the estimate's last
+    pair before the stop is at 4.5 s (the rover crept 0.5 m after it; the estimate is
+    5 cm behind there), then it creeps at 1 mm/s through the stop and jumps 0.3 m at
+    10-12 s and back."""
     truth = np.array([[t, min(t, 5.0) if t < 20 else 5.0 + (t - 20), 0, 0, 0, 0, 0, 1]
-                      for t in np.arange(0.0, 30.0, 0.1)])
-    est = np.array([[t, 5.0 + (0.3 if 10 <= t < 12 else 0.0) + 0.001 * (t - 6), 0, 0,
-                     0, 0, 0, 1] for t in np.arange(6.0, 19.5, 1.0)])
+                      for t in np.arange(300) / 10.0])
+    est = np.array([[4.5, 4.45, 0, 0, 0, 0, 0, 1]] + [
+        [t, 5.0 + (0.3 if 10 <= t < 12 else 0.0) + 0.001 * (t - 6), 0, 0, 0, 0, 0, 1]
+        for t in np.arange(6.0, 19.5, 1.0)])
     (d,) = stop_drift(est, truth)
     assert d.start_s == pytest.approx(5.0, abs=0.11) and d.end_s == pytest.approx(20.0,
                                                                                abs=0.11)
     assert d.position_mm == pytest.approx(1.0 * (d.poses - 1), abs=1e-6)  # 1 mm/s
     assert d.excursion_mm == pytest.approx(300 + 1.0 * 5, abs=1.0)
+    # From the 4.5 s pose: the truth moved 0.5 m, the estimate 0.563 m.
+    assert d.poses == 14 and d.error_mm == pytest.approx(63.0, abs=1e-3)
+    assert d.yaw_error_deg == pytest.approx(0.0, abs=1e-9)
