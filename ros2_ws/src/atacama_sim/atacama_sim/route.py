@@ -294,18 +294,33 @@ def drive(route: Route, cfg: RouteConfig, terrain: Terrain, rate: float,
     return Trajectory(t, np.column_stack([x, y, z]), rot.as_quat(), s, mov, float(added))
 
 
+#: A stop's first frame is taken this long after the wheels stop (the body settled, before
+#: the mast moves: atacama_sim.panorama.STILL_S), s.
+STOP_FRAME_DELAY_S = 1.0
+
+
 def camera_indices(traj: Trajectory, spacing: float, stop_period: float,
                    rate: float, busy: np.ndarray | None = None) -> np.ndarray:
     """Grid indices of the stereo frames at the drive pose: every ``spacing`` metres of
-    travel, and every ``stop_period`` seconds while stopped, none while ``busy`` (the mast
-    away from the drive pose)."""
+    travel, once :data:`STOP_FRAME_DELAY_S` after the wheels stop (the end-of-drive view,
+    before a panorama), then every ``stop_period`` seconds while stopped; none while
+    ``busy`` (the mast away from the drive pose)."""
     idx = [0]
     last_s, last_t = traj.s[0], traj.t[0]
+    stopped_at, stop_seen = None, True
     for k in range(1, len(traj.t)):
+        if traj.moving[k]:
+            stopped_at, stop_seen = None, False
+        elif stopped_at is None:
+            stopped_at = traj.t[k]
         if busy is not None and busy[k]:
             continue
-        if traj.s[k] - last_s >= spacing or (not traj.moving[k] and
-                                              traj.t[k] - last_t >= stop_period):
+        end_of_drive = (not stop_seen and stopped_at is not None
+                        and traj.t[k] - stopped_at >= STOP_FRAME_DELAY_S)
+        if end_of_drive or traj.s[k] - last_s >= spacing or (
+                not traj.moving[k] and traj.t[k] - last_t >= stop_period):
             idx.append(k)
             last_s, last_t = traj.s[k], traj.t[k]
+            if stopped_at is not None:
+                stop_seen = True
     return np.array(idx)

@@ -825,3 +825,20 @@ def test_panorama_shape_is_checked() -> None:
         pan_angles(MastConfig(overlap_deg=70), cam)
     with pytest.raises(ValueError, match=r"mast\.span_deg"):
         pan_angles(MastConfig(span_deg=400), cam)
+
+
+def test_a_stop_gets_its_end_of_drive_frame_before_the_mast_moves():
+    from atacama_sim.route import STOP_FRAME_DELAY_S, Trajectory, camera_indices
+
+    rate = 50.0
+    t = np.arange(0, 60, 1 / rate)
+    moving = (t > 3) & (t < 20)
+    s = np.cumsum(moving) * 0.15 / rate  # 0.15 m/s while moving
+    traj = Trajectory(t, np.zeros((len(t), 3)), np.tile([0, 0, 0, 1.0], (len(t), 1)), s, moving)
+    busy = (t >= 22) & (t < 49)  # the panorama, 2 s after the wheels stop
+    idx = camera_indices(traj, 0.45, 10.0, rate, busy)
+    in_stop = t[idx][t[idx] >= 20]
+    assert in_stop[0] == pytest.approx(20 + STOP_FRAME_DELAY_S, abs=2 / rate)
+    assert not np.any(busy[idx])
+    # Without it the first stop frame would come only after the panorama.
+    assert np.sum((t[idx] > 20) & (t[idx] < 22)) == 1
