@@ -525,7 +525,9 @@ class DriveMapper:
         self.far = FarRockTracker(cfg.far, far_classifier(classifier, cfg))
         self.ln = ln if ln is not None else LocalNetwork(cfg.ln)
         self._tracks = empty_records(0)
-        self._last_camera: StereoCamera | None = None
+        # A mast's pose the detector drives with, and whether the camera has left it.
+        self._home: StereoCamera | None = None
+        self._away = False
 
     @property
     def n_tracks(self) -> int:
@@ -540,16 +542,13 @@ class DriveMapper:
 
         elevation_map: the ROIs of the map (``n_obs`` = detection rounds that found
         them), after a detection round when one is due: every ``detect_every`` pairs, and
-        at each pair whose camera moved in base_link since the pair before (a mast's
-        panorama, and its return to the drive pose: what a stop's views found is in the
-        tracks before the rover drives on).
+        at the pair that brings a mast back to the pose it left (the end of a panorama:
+        what the stop's views found is in the tracks before the rover drives on).
         """
         if obs.records is not None:
             return self.add_detections(obs.records, t, pose, camera)
         r_ob, t_ob, cov = pose
-        moved = self._last_camera is not None and camera is not self._last_camera and \
-            not camera.same_mount(self._last_camera)
-        self._last_camera = camera
+        back = self._returned(camera)
         # 3. Integration.
         self.map.integrate(obs.points, obs.appearance, r_ob, np.asarray(t_ob, float),
                            camera.t_base_cam, camera.fxb)
@@ -557,10 +556,21 @@ class DriveMapper:
         if obs.blobs is not None:
             self.far.add(obs.blobs, t, r_ob, t_ob, camera, cov)
         # 4.-9. Ground, rock and outcrop regions, their Rovers, persistence (ElevationMap.detect).
-        if self.map.due() or (moved and self.map.pending()):
+        if self.map.due() or (back and self.map.pending()):
             self.map.detect(t, cov)
             self._tracks = self._map_and_far_records()
         return self._tracks
+
+    def _returned(self, camera: StereoCamera) -> bool:
+        """Whether ``camera`` brings the mast back to the pose it had before it moved
+        (a fixed camera never moves)."""
+        if self._home is None:
+            self._home = camera
+        if camera is self._home or camera.same_mount(self._home):
+            back, self._away = self._away, False
+            return back
+        self._away = True
+        return False
 
     def finish(self, t: float, cov=None) -> np.ndarray:
         """A last detection round over what was integrated since the last one (and the

@@ -16,6 +16,7 @@ from roi_detector.camera_poses import PairPoses, rotation_of
 from roi_detector.elevation_map import CELL_M, appearance
 from roi_detector.far_rocks import FarRockConfig, FarRockTracker, dark_blobs
 from roi_detector.inputs import BadInput, PairSpacing, StereoFrame
+from roi_detector.local_network import LocalNetwork
 from roi_detector.rover_pipeline import (
     DriveMapper,
     PairObservation,
@@ -291,3 +292,42 @@ def test_a_far_track_stays_open_while_the_mast_looks_away_at_a_stop():
     view(tracker, _camera(math.radians(-90), PAN_TILT), xs[-1] + 3.0, 300.0)
     assert not tracker.tracks and len(tracker.measured) == 1
 
+
+
+def _stop_with_panorama(round_at_return: bool) -> tuple[list[int], np.ndarray]:
+    """A drive up to a stop, the stop's 6-view panorama and the mast's return to the drive
+    pose, a rock 8 m ahead and 6 m to the left of the stop: the LN's size after the drive,
+    after the panorama and after the return pair, and the LN."""
+    rock = (20.0, 6.0, 0.7, 0.8)
+    cfg = RoverConfig()
+    mapper = DriveMapper(cfg)
+    if not round_at_return:
+        mapper._returned = lambda camera: False
+    ln = LocalNetwork(cfg.ln)
+    sizes, t, stop = [], 0.0, 12.0
+
+    def pair(camera, x):
+        nonlocal t
+        mapper.add_pair(_observation(camera, (x, 0.0), [rock]), t, _pose(x), camera)
+        ln.update(mapper.current_tracks())
+        t += 3.0
+
+    for x in np.arange(stop - 6 * 0.45, stop + 1e-9, 0.45):
+        pair(_camera(), x)
+    sizes.append(len(ln))
+    for a in (-150, -90, -30, 30, 90, 150):
+        pair(_camera(math.radians(a), PAN_TILT), stop)
+    sizes.append(len(ln))
+    pair(_camera(), stop)  # the mast back at the drive pose; the rover still stands
+    sizes.append(len(ln))
+    return sizes, ln.records
+
+
+def test_a_stops_panorama_reaches_the_ln_before_the_rover_drives_on():
+    """The detection round at the mast's return to the drive pose confirms what the stop's
+    views found: the rock is in the LN before the rover moves. Without that round it
+    would wait for the next round, 3 pairs on, with the rover driving."""
+    sizes, rec = _stop_with_panorama(True)
+    assert sizes == [0, 0, 1] and rec["label"][0] == ROCK
+    np.testing.assert_allclose([rec["x"][0], rec["y"][0]], [20.0, 6.0], atol=0.5)
+    assert _stop_with_panorama(False)[0] == [0, 0, 0]
