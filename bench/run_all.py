@@ -155,11 +155,12 @@ def plan(tier: str, bags_dir: Path, results: Path, dry_run: bool = False) -> lis
         return _py("roi_bench.py", "--name", TAG, *paths, *extra)
 
     cmds.append(Command("roi", roi_argv))
-    # 5. orbital GN
+    # 5. orbital GN (a _fixed bag's world, orbital image and GN are its twin's)
+    worlds = [(bag, p, s) for bag, p, s in bags if not options[bag.name]]
     recipes = [] if tier == "full" else ["--recipes", "sun_aware"]
-    cmds.append(Command("orbital", _py("orbital_gn_bench.py", "quality", "--bags", *paths,
-                                       *recipes)))
-    for bag, _, _ in bags:
+    cmds.append(Command("orbital", _py("orbital_gn_bench.py", "quality", "--bags",
+                                       *[str(b) for b, _, _ in worlds], *recipes)))
+    for bag, _, _ in worlds:
         cmds.append(Command("orbital", _py("orbital_gn_bench.py", "matcher", "--bag", str(bag),
                                            "--gn", str(bag / "gn.geojson"))))
     # 6. matcher tables
