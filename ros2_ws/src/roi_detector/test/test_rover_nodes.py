@@ -21,6 +21,7 @@ import pytest
 import rclpy
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
+from roi_detector.inputs import PairSpacing
 from roi_network.geojson import read_geojson
 from roi_network.pointcloud import from_pointcloud2, to_pointcloud2
 from roi_network.records import ROCK, empty_records
@@ -238,8 +239,12 @@ def test_roi_detector_and_ln_builder_nodes_on_tiny(tiny_bag, tmp_path):
 
         gap = set(range(24, 28))  # no odometry for these pairs (12 s): an odometry gap
         expected = 0
+        # The node's pair spacing, replayed: which of the pairs with a pose it reads (the
+        # drive's, 0.45 m apart, all; a standstill's, a few seconds apart, one per 5 s).
+        spacing = PairSpacing()
         for k, (lm, rm) in enumerate(zip(lefts, rights, strict=True)):
             t = lm.header.stamp.sec + 1e-9 * lm.header.stamp.nanosec
+            read = k not in gap and k != 8 and spacing.keep(t, odom.at(t))
             if k not in gap:
                 r_ob, p_ob, _ = odom.at(t)
                 from scipy.spatial.transform import Rotation
@@ -276,9 +281,9 @@ def test_roi_detector_and_ln_builder_nodes_on_tiny(tiny_bag, tmp_path):
                         break
                     pubs["/stereo/left/image_raw/compressed"].publish(lm)
                     pubs["/stereo/right/image_raw/compressed"].publish(rm)
-            if k != 5 and k not in gap:  # a pair is published once its pose is known
+            if k != 5 and read:  # a pair is published once its pose is known
                 expected += 1
-            if k in gap:  # no detection comes back: pace the (best-effort) images instead
+            if k in gap or not read:  # no detection comes back: pace the images instead
                 spin_until(lambda: False, 1.0)
             assert spin_until(lambda e=expected: len(got["det"]) >= e, 60), \
                 (tmp_path / "roi_detector.log").read_text()
@@ -298,7 +303,7 @@ def test_roi_detector_and_ln_builder_nodes_on_tiny(tiny_bag, tmp_path):
         status = last_status()
         assert int(status["skipped: undecodable image"]) == 1
         assert int(status["skipped: odometry gap"]) >= 1
-        assert status["pairs_spaced_out"] == "0"  # 0.45 m apart: every pair is read
+        assert status["pairs_spaced_out"] == str(spacing.skipped)
         assert det.poll() is None and lnb.poll() is None
         # The LN is on disk; a killed ln_builder restarts with it.
         saved = read_geojson(tmp_path / "ln.geojson")
@@ -437,6 +442,9 @@ def test_roi_detector_node_reads_raw_images(tiny_bag, tmp_path):
     stamps = sorted({int(m.header.stamp.sec) * 10**9 + int(m.header.stamp.nanosec)
                      for m in recorded["/stereo/left/image_raw/compressed"]})
     has_joints = "/joint_states" in recorded  # a mast's angles, played with the pairs
+    odom = Truth.load(tiny_bag).odom_track()
+    spacing = PairSpacing()  # the pairs the node reads (a standstill's: one per 5 s)
+    read = [s for s in stamps if spacing.keep(s * 1e-9, odom.at(s * 1e-9))]
     domain = _domain() + 3
     det = _start(["roi_detector", "--ros-args", "-p", "model_path:=none",
                   "--params-file", str(tiny_bag / "rover.yaml")], domain,
@@ -453,7 +461,6 @@ def test_roi_detector_node_reads_raw_images(tiny_bag, tmp_path):
         spin_until = functools.partial(_spin_until, ex, det, tmp_path / "roi_detector.log")
 
         assert spin_until(lambda: odom_pub.get_subscription_count() > 0, 30)
-        odom = Truth.load(tiny_bag).odom_track()
         for t_ns in stamps:
             r_ob, p_ob, _ = odom.at(t_ns * 1e-9)
             o = Odometry()
@@ -473,10 +480,10 @@ def test_roi_detector_node_reads_raw_images(tiny_bag, tmp_path):
              "/stereo/right/camera_info", *(["/joint_states"] if has_joints else [])],
             env=_env(domain), stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT, text=True)
-        assert spin_until(lambda: len(got) >= len(stamps) or player.poll() is not None, 240)
-        spin_until(lambda: len(got) >= len(stamps), 30)
+        assert spin_until(lambda: len(got) >= len(read) or player.poll() is not None, 240)
+        spin_until(lambda: len(got) >= len(read), 30)
         assert player.wait(timeout=60) == 0, player.stdout.read()
-        assert [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in got] == stamps
+        assert [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in got] == read
         assert det.poll() is None
     finally:
         if player is not None and player.poll() is None:
@@ -623,7 +630,8 @@ def test_cli_ln_places_each_pair_by_the_joint_states_and_counts_what_it_cannot(
     stopped = lns.metadata["bad_input"]["joint states stopped"]
     assert stopped >= 1 and lns.metadata["pairs_not_placed"] == stopped
     assert f"{stopped} not placed" in r.stdout
-    assert lns.metadata["pairs"] + stopped == lnf.metadata["pairs"]
+    assert lns.metadata["pairs"] + lns.metadata["pairs_spaced_out"] + stopped == \
+        lnf.metadata["pairs"] + lnf.metadata["pairs_spaced_out"]
     # Joint names the mast does not have: an error naming them, no LN.
     r, bad = ln(_mast_copy(tiny_bag, tmp_path / "names",
                            lambda s: [(s, ["pan", "tilt"], DRIVE[1])]), "names")
