@@ -261,26 +261,12 @@ def _vo_summary(vo: np.ndarray | None, truth: np.ndarray) -> dict[str, Any] | No
             'ape_aligned_max_m': float(stats['max']), **stop_drift(vo, truth)}
 
 
-#: A stop: the truth moves less than this over :data:`STOP_MIN_S`, m.
-STOP_STILL_M = 0.002
-#: Shortest stop measured, s.
-STOP_MIN_S = 10.0
-
-
 def stops_of(truth: np.ndarray) -> list[tuple[float, float]]:
-    """``(start, end)`` stamps of the truth's stops: runs of poses within
-    :data:`STOP_STILL_M` of the run's first one, at least :data:`STOP_MIN_S` long."""
-    out: list[tuple[float, float]] = []
-    i = 0
-    n = len(truth)
-    while i < n:
-        j = i
-        while j + 1 < n and np.linalg.norm(truth[j + 1, 1:4] - truth[i, 1:4]) < STOP_STILL_M:
-            j += 1
-        if truth[j, 0] - truth[i, 0] >= STOP_MIN_S:
-            out.append((float(truth[i, 0]), float(truth[j, 0])))
-        i = j + 1
-    return out
+    """``(start, end)`` stamps of the truth's stops, as rover_vo's evaluation finds them
+    (:func:`rover_vo.evaluation.truth_stops`: still within 2 mm for 10 s or more)."""
+    from rover_vo.evaluation import truth_stops
+
+    return truth_stops(truth)
 
 
 def stop_drift(vo: np.ndarray, truth: np.ndarray) -> dict[str, Any]:
