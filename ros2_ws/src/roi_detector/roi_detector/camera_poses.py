@@ -12,7 +12,8 @@ and the pair is not placed (not read at all): the stereo points, the map, the fa
 the in-view tests all need the pair's pose, and a guessed one would put the ROIs of a panned
 view metres off. The kinds:
 
-- ``no joint states``: rover.yaml has a mast and no /joint_states message has come;
+- ``no joint states``: rover.yaml has a mast and no /joint_states message had come by the
+  pair's stamp (the first came later than the tolerance after it, or none at all);
 - ``stale joint states``: the samples around the pair are further than the tolerance from it;
 - ``joint states stopped``: the newest sample is older than the pair by more than the
   tolerance (the mast stopped publishing; pairs are skipped until it resumes);
@@ -42,6 +43,11 @@ from roi_network.params import flatten
 
 #: The kinds of pair a mast's joint states could not place (``BadInput`` kinds).
 NOT_PLACED = ("no joint states", "stale joint states", "joint states stopped")
+#: How long a pair waits for a joint sample at or after its stamp, in the inputs' own time
+#: (the newest stamp of any input), s. A node's executor may take a pair's images and its
+#: odometry before the joint states queued beside them: a wait of the tolerance alone
+#: decided pairs before their samples were read.
+JOINT_WAIT_S = 2.0
 
 
 class PairPoses:
@@ -66,6 +72,7 @@ class PairPoses:
         self.fixed = None if self.poser.has_mast else list(flat["base_to_left_camera"])
         self.bad = bad
         self.strict = strict
+        self.first: float | None = None  # the stamp of the first joint sample kept, s
 
     @property
     def has_mast(self) -> bool:
@@ -91,18 +98,21 @@ class PairPoses:
                 raise
             self.bad("bad joint states", f"{exc}: the message is dropped, as if it had "
                      "not come")
+            return
+        if self.has_mast and (self.first is None or stamp_s < self.first):
+            self.first = float(stamp_s)
 
     def decidable(self, t: float, clock_s: float | None) -> bool:
         """Whether the pose at ``t`` can be decided now: always without a mast; with one,
         once a joint sample at or after ``t`` has come (the interpolation's bracket), or
-        the stream's clock ``clock_s`` (the newest stamp of any input) passed ``t`` by the
-        tolerance (none will come in time)."""
+        the inputs' clock ``clock_s`` (the newest stamp of any input) passed ``t`` by
+        :data:`JOINT_WAIT_S` (none is coming)."""
         if not self.has_mast:
             return True
         last = self.poser.last_stamp
         if last is not None and last >= t:
             return True
-        return clock_s is not None and clock_s > t + self.poser.tolerance_s
+        return clock_s is not None and clock_s > t + JOINT_WAIT_S
 
     def pose(self, t: float):
         """The left camera's pose at ``t``: the fixed ``[x, y, z, qx, qy, qz, qw]``
@@ -115,17 +125,18 @@ class PairPoses:
             return got.base_T_left
         kin = self.poser.kinematics
         last = self.poser.last_stamp
-        if got == NO_JOINT_STATES:
+        tol = self.poser.tolerance_s
+        if got == NO_JOINT_STATES or self.first is None or self.first > t + tol:
             self.bad("no joint states", f"rover.yaml has a mast (joints '{kin.pan_joint}', "
                      f"'{kin.tilt_joint}') but no {JOINT_STATES} message has come: the pair "
                      f"at {t:.3f} s is not placed")
-        elif last is not None and last < t - self.poser.tolerance_s:
+        elif last is not None and last < t - tol:
             self.bad("joint states stopped", f"{JOINT_STATES}: the newest sample is at "
                      f"{last:.3f} s, the pair at {t:.3f} s: the mast stopped publishing; "
                      "pairs are not placed until it resumes")
         else:
             self.bad("stale joint states", f"{JOINT_STATES}: no sample within "
-                     f"{self.poser.tolerance_s:g} s of the pair at {t:.3f} s: not placed")
+                     f"{tol:g} s of the pair at {t:.3f} s: not placed")
         return None
 
 

@@ -50,6 +50,10 @@ RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 #: Sensor-data QoS (best effort) with room for the pairs that arrive while one is processed.
 SENSOR = QoSProfile(depth=20, reliability=qos_profile_sensor_data.reliability,
                     durability=qos_profile_sensor_data.durability)
+#: Sensor-data QoS for /joint_states: a 10 Hz stream, 50 Hz at 5x, with room for the
+#: seconds a detection round takes (at depth 20 the samples around a pair were lost).
+JOINTS = QoSProfile(depth=200, reliability=qos_profile_sensor_data.reliability,
+                    durability=qos_profile_sensor_data.durability)
 
 
 def _stamp_s(stamp) -> float:
@@ -171,7 +175,7 @@ class RoiDetectorNode(Node):
                                      lambda m, s=side: self.on_info(s, m), SENSOR)
         self.create_subscription(Odometry, "/vo/odometry", self.on_odometry, RELIABLE)
         if self.poses.has_mast:
-            self.create_subscription(JointState, JOINT_STATES, self.on_joint_state, SENSOR)
+            self.create_subscription(JointState, JOINT_STATES, self.on_joint_state, JOINTS)
             kin = self.poses.poser.kinematics
             self.get_logger().info(f"mast joints '{kin.pan_joint}', '{kin.tilt_joint}': each "
                                    f"pair placed at its camera pose from {JOINT_STATES}")

@@ -149,9 +149,12 @@ def test_images_before_any_joint_state_are_not_placed_counted_and_named_once():
     said = []
     bad = BadInput(said.append)
     poses = PairPoses(mast_params(), bad)
-    assert not poses.decidable(1.0, 1.05) and poses.decidable(1.0, 1.2)  # no sample comes
+    assert not poses.decidable(1.0, 2.5) and poses.decidable(1.0, 3.5)  # no sample comes
     assert [poses.pose(t) for t in (1.0, 2.0, 3.0)] == [None] * 3
-    assert bad.counts["no joint states"] == 3
+    # The first sample comes later: the pairs before it had none.
+    poses.add(3.5, JOINTS, [0.0, DRIVE_TILT])
+    assert poses.pose(3.2) is None and poses.pose(3.45) is not None
+    assert bad.counts["no joint states"] == 4 and not bad.counts["stale joint states"]
     assert len(said) == 1 and "/joint_states" in said[0] and "mast_pan" in said[0]
 
 

@@ -726,7 +726,7 @@ def test_roi_detector_node_places_pairs_by_the_joint_states_and_counts_bad_ones(
                 spin_until(lambda: False, 1.0)
         # A later odometry stamp: the last pairs' joint states are not coming.
         late = lefts[-1].header.stamp
-        late.sec += 2
+        late.sec += 3
         odom_pub.publish(odometry(late, late.sec + 1e-9 * late.nanosec))
         assert spin_until(lambda: int(last_status().get("skipped: joint states stopped", 0))
                           == 14 - placed[-1] - 1, 30), last_status()
