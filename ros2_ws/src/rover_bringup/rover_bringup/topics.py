@@ -41,9 +41,12 @@ INPUT_TOPICS: dict[str, TopicContract] = {
     '/ground_truth/pose': TopicContract('geometry_msgs/msg/PoseStamped', DEFAULT_QOS),
 }
 
-#: Topics the pipeline publishes: everything ``globloc run`` records.
+#: Topics the pipeline publishes: everything ``globloc run`` records (the nodes' status
+#: topics too: the run's verdict reads their counts).
 OUTPUT_TOPICS: dict[str, TopicContract] = {
     '/vo/odometry': TopicContract('nav_msgs/msg/Odometry', DEFAULT_QOS),
+    '/vo/status': TopicContract('diagnostic_msgs/msg/DiagnosticArray', DEFAULT_QOS),
+    '/rois/status': TopicContract('diagnostic_msgs/msg/DiagnosticArray', DEFAULT_QOS),
     '/rois/detections': TopicContract('sensor_msgs/msg/PointCloud2', DEFAULT_QOS),
     '/rois/tracks': TopicContract('sensor_msgs/msg/PointCloud2', DEFAULT_QOS),
     '/local_network': TopicContract('sensor_msgs/msg/PointCloud2', LATCHED_QOS),
