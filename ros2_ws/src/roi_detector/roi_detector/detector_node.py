@@ -10,9 +10,12 @@ Subscribes the stereo pair (CompressedImage or raw Image + CameraInfo, sensor-da
 ``/joint_states``; publishes, after each pair whose odometry pose and camera pose are
 known, ``/rois/detections`` (base_link: the ROIs in the pair's view; per_pair: what the
 pair detected) and ``/rois/tracks`` (odom, every ROI followed).
-Bad input (undecodable image, missing pair half, odometry gap, a detection with no valid
-depth, a pair the joint states cannot place, a joint-state message the mast cannot read)
-is counted, logged once per kind and skipped; counts are on ``/rois/status``.
+Bad input (a CameraInfo it cannot use, an image that does not decode or is of an encoding
+it does not read, a pair whose sizes differ, a message stamped before the one before it,
+a missing pair half, a pair with no usable CameraInfo, odometry gap, a detection with no
+valid depth, a pair the joint states cannot place, a joint-state message the mast cannot
+read) is counted, logged once per kind naming its topic, stamp and field, and skipped;
+counts are on ``/rois/status``.
 """
 
 from __future__ import annotations
@@ -29,7 +32,16 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState, PointCloud2
 
 from roi_detector.camera_poses import PairPoses, rotation_of
-from roi_detector.inputs import JOINT_STATES, BadInput, FrameMaker, OdometryBuffer, PairSpacing
+from roi_detector.inputs import (
+    INFO_TOPICS,
+    INFO_WAIT_NS,
+    JOINT_STATES,
+    BadInput,
+    FrameMaker,
+    OdometryBuffer,
+    PairSpacing,
+    StampOrder,
+)
 from roi_detector.rover_pipeline import (
     METHODS,
     DriveMapper,
@@ -161,6 +173,8 @@ class RoiDetectorNode(Node):
         # Pairs awaiting their odometry pose: (stamp s, header stamp, stamp ns, left, right).
         self.waiting: list = []
         self.frames = FrameMaker(self.bad, bool(rectify), self.get_logger().info)
+        self.order = StampOrder(self.bad)
+        self._status_ns = -(2 ** 62)  # stamp of the latest /rois/status, ns
         self.n_pairs = 0
         self.id_base = session_id_base(time.time())
         prov = {} if classifier is None else classifier.meta.get("provenance", {})
@@ -191,7 +205,12 @@ class RoiDetectorNode(Node):
         self._track_waiting()
 
     def on_info(self, side: str, msg: CameraInfo) -> None:
-        self.frames.info[side] = msg
+        """Take a side's CameraInfo (one the pipeline cannot use, or stamped before the
+        last, is counted and skipped: the side keeps the one it had)."""
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if not self.order(INFO_TOPICS[side], stamp) or not self.frames.set_info(side, msg):
+            self.publish_status(msg.header.stamp, throttle=True)
+            return
         self._process_ready()
 
     def on_image(self, topic: str, msg: CompressedImage | Image) -> None:
@@ -199,11 +218,23 @@ class RoiDetectorNode(Node):
         half left alone for 2 s is dropped."""
         side = images.side_of(topic)
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if not self.order(topic, stamp):
+            self.publish_status(msg.header.stamp, throttle=True)
+            return
         self._tick(stamp * 1e-9)
         if self.halves.add(side, stamp, msg) is None:
             self.bad("duplicate image", f"{topic}: two images with stamp "
                      f"{stamp * 1e-9:.3f} s: the second dropped")
             return
+        if not self.frames.ready:
+            # Complete pairs that waited INFO_WAIT_NS for a usable CameraInfo.
+            dropped = [s for s in self.halves.complete() if s < stamp - INFO_WAIT_NS]
+            for s in dropped:
+                self.halves.pop(s)
+                self.bad("no camera_info", f"stereo pair at {s * 1e-9:.3f} s: "
+                         f"{self.frames.missing()}")
+            if dropped:
+                self.publish_status(msg.header.stamp, throttle=True)
         for line in self.halves.give_up(stamp - 2_000_000_000):
             self.bad("missing pair half", line)
         self._process_ready()
@@ -301,11 +332,19 @@ class RoiDetectorNode(Node):
         out["id"] += np.uint32(self.id_base)
         return out
 
-    def publish_status(self, stamp) -> None:
-        """Pair, track and bad-input counts on /rois/status."""
+    def publish_status(self, stamp, throttle: bool = False) -> None:
+        """Pair, track and bad-input counts on /rois/status; with ``throttle`` (input
+        skipped outside a pair's processing) at most once per second of stamps."""
+        stamp_ns = stamp.sec * 1_000_000_000 + stamp.nanosec
+        if throttle and abs(stamp_ns - self._status_ns) < 1_000_000_000:
+            return
+        self._status_ns = stamp_ns
         status = DiagnosticStatus(name="roi_detector", hardware_id="rover_stereo")
         status.level = DiagnosticStatus.OK if not self.bad.counts else DiagnosticStatus.WARN
         status.message = f"{self.n_pairs} pairs, {self.mapper.n_tracks} tracks"
+        if not self.n_pairs and self.bad.counts:
+            kinds = ", ".join(f"{k} {v}" for k, v in self.bad.counts.most_common(3))
+            status.message += f"; no pair read ({kinds})"
         values = {"pairs": self.n_pairs, "tracks": self.mapper.n_tracks,
                   "confirmed": int((self.mapper.current_tracks()["n_obs"]
                                     >= self.mapper.cfg.ln.min_obs).sum()),

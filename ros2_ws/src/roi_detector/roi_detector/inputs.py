@@ -1,7 +1,12 @@
 """Pipeline inputs shared by the offline CLI and the nodes: images, rover.yaml, odometry.
 
 Bad input is counted per kind and reported once per kind (``BadInput``): the caller skips
-the message and goes on, so neither a node nor a CLI run dies on one bad frame.
+the message and goes on, so neither a node nor a CLI run dies on one bad frame. Each report
+names the topic, the message's stamp and the field (``/stereo/left/camera_info at
+1403715273.712 s: K[0] (fx) = 0``): a CameraInfo the pipeline cannot use
+(:func:`camera_info_problem`), an image that does not decode or whose encoding is not one
+it reads, a stereo pair whose images differ in size from each other or from their
+CameraInfo, a message older than the one before it on its topic (:class:`StampOrder`).
 """
 
 from __future__ import annotations
@@ -27,6 +32,12 @@ from roi_network.trajectory import (  # noqa: F401
 
 LEFT_INFO = "/stereo/left/camera_info"
 RIGHT_INFO = "/stereo/right/camera_info"
+#: Each side's CameraInfo topic.
+INFO_TOPICS = {"left": LEFT_INFO, "right": RIGHT_INFO}
+#: Pairs wait this long (stamps of the input read after them) for a usable CameraInfo
+#: before they are counted as ``no camera_info`` and dropped, ns (the nodes give a lone
+#: pair half as long).
+INFO_WAIT_NS = 2_000_000_000
 #: A mast's joint angles (DESIGN.md; read with :class:`~roi_detector.camera_poses.PairPoses`).
 JOINT_STATES = "/joint_states"
 
@@ -49,10 +60,90 @@ class BadInput:
             self._report(f"{kind}: {detail} (skipped; further '{kind}' counted, not logged)")
 
 
+class StampOrder:
+    """The newest header stamp read on each topic: a message stamped before the one read
+    before it on its topic is counted (``stamp out of order``), named and skipped.
+
+    Args:
+        bad: the bad-input counter.
+    """
+
+    def __init__(self, bad: BadInput) -> None:
+        self.bad = bad
+        self.last: dict[str, int] = {}
+
+    def __call__(self, topic: str, stamp_ns: int) -> bool:
+        """Whether the message of ``topic`` stamped ``stamp_ns`` is in order (and read)."""
+        prev = self.last.get(topic)
+        if prev is not None and stamp_ns < prev:
+            self.bad("stamp out of order", f"{topic} at {stamp_ns * 1e-9:.3f} s: stamped "
+                     f"before the message before it ({prev * 1e-9:.3f} s)")
+            return False
+        self.last[topic] = stamp_ns
+        return True
+
+
 def decode_image(msg) -> np.ndarray | None:
     """BGR uint8 image of a sensor_msgs/CompressedImage or sensor_msgs/Image; None if it
     does not decode (:func:`roi_network.images.decode_image`)."""
     return images.decode_image(msg, colour=True)
+
+
+def image_topic(side: str, msg) -> str:
+    """The stereo image topic of ``side`` that carries a message of ``msg``'s type."""
+    transport = images.RAW if hasattr(msg, "encoding") else images.COMPRESSED
+    return images.STEREO_TOPICS[transport][0 if side == "left" else 1]
+
+
+def why_undecodable(msg) -> tuple[str, str]:
+    """(bad-input kind, what is wrong) of an image message that does not decode: an
+    encoding the pipeline does not read, or a payload that is empty, corrupt or shorter
+    than its size says."""
+    encoding = getattr(msg, "encoding", None)
+    if encoding is not None and str(encoding) not in images.RAW_ENCODINGS:
+        return ("unsupported image encoding",
+                f"encoding '{encoding}' is not one this pipeline reads "
+                f"({', '.join(images.RAW_ENCODINGS)})")
+    return "undecodable image", images.describe(msg)
+
+
+def camera_info_problem(side: str, msg) -> str | None:
+    """What makes a stereo CameraInfo unusable, naming the field and its value
+    (``K[0] (fx) = 0``); None when the pipeline can use it.
+
+    The pipeline reads P (the rectified camera: left P's 3x3, right ``P[3] = -fx * B``)
+    and, to rectify, D, K and R; a K of zeros (no calibration of the raw camera) is
+    allowed, as :func:`roi_network.images.describes_rectified` reads it.
+    """
+    fields = {name: np.asarray(getattr(msg, name.lower()), float).ravel()
+              for name in ("K", "P", "R", "D")}
+    for name, size in (("K", 9), ("P", 12), ("R", 9)):
+        if fields[name].size != size:
+            return f"{name} holds {fields[name].size} numbers, not {size}"
+    for name, values in fields.items():
+        bad = np.flatnonzero(~np.isfinite(values))
+        if len(bad):
+            return f"{name}[{bad[0]}] = {values[bad[0]]}"
+    k, p = fields["K"], fields["P"]
+    checks = [("K", 0, "fx"), ("K", 4, "fy")] if np.any(k) else []
+    for name, i, what in [*checks, ("P", 0, "fx"), ("P", 5, "fy")]:
+        if not fields[name][i] > 0:
+            return f"{name}[{i}] ({what}) = {fields[name][i]:g}"
+    if side == "right" and not p[3] < 0:
+        return (f"P[3] (-fx*B) = {p[3]:g}: expected -fx * baseline, negative (the right "
+                "camera on the left one's +x)")
+    return None
+
+
+def info_size(info) -> tuple[int, int] | None:
+    """(width, height) of the images a CameraInfo describes (its region of interest, if
+    set, over its binning); None when it gives none (width or height 0)."""
+    roi = getattr(info, "roi", None)
+    w = int(roi.width) if roi is not None and int(roi.width) > 0 else int(info.width)
+    h = int(roi.height) if roi is not None and int(roi.height) > 0 else int(info.height)
+    w //= max(1, int(getattr(info, "binning_x", 0) or 0))
+    h //= max(1, int(getattr(info, "binning_y", 0) or 0))
+    return (w, h) if w > 0 and h > 0 else None
 
 
 def load_rover_params(path: str | Path) -> dict:
@@ -105,7 +196,8 @@ class FrameMaker:
     left camera's intrinsics are P's left 3x3, those of the rectified image.
 
     Args:
-        bad: bad-input counter (undecodable image, a CameraInfo it cannot rectify with).
+        bad: bad-input counter (a CameraInfo it cannot use, an image that does not decode
+            or whose size is not its CameraInfo's or the other side's).
         rectify: False reads every image as rectified, whatever its CameraInfo says.
         log: called once per side when its images are rectified.
     """
@@ -116,20 +208,64 @@ class FrameMaker:
         self.rectifiers = images.StereoRectifiers(log or (lambda _text: None), "rectify") \
             if rectify else None
         self.info: dict[str, object] = {"left": None, "right": None}
+        #: CameraInfo messages refused per side (:meth:`set_info`).
+        self.rejected: Counter[str] = Counter()
 
     @property
     def ready(self) -> bool:
         """Both CameraInfo have come."""
         return self.info["left"] is not None and self.info["right"] is not None
 
+    def set_info(self, side: str, msg) -> bool:
+        """Take ``side``'s CameraInfo; one the pipeline cannot use
+        (:func:`camera_info_problem`) is counted (``bad camera_info``), named with its
+        topic, stamp and field, and skipped: the side keeps the one it had."""
+        problem = camera_info_problem(side, msg)
+        if problem is not None:
+            self.rejected[side] += 1
+            self.bad("bad camera_info", f"{INFO_TOPICS[side]} at "
+                     f"{_stamp_ns(msg.header) * 1e-9:.3f} s: {problem}")
+            return False
+        self.info[side] = msg
+        return True
+
+    def missing(self) -> str:
+        """Why no pair can be read yet: the sides with no usable CameraInfo, and how many
+        of theirs were refused."""
+        parts = [f"{INFO_TOPICS[side]} ("
+                 + (f"{self.rejected[side]} refused as bad camera_info" if self.rejected[side]
+                    else "none came") + ")"
+                 for side in ("left", "right") if self.info[side] is None]
+        return "no usable CameraInfo on " + " and ".join(parts)
+
     def frame(self, stamp: int, left_msg, right_msg) -> StereoFrame | None:
-        """The pair as the pipeline sees it; None (counted) when it cannot be."""
-        left, right = decode_image(left_msg), decode_image(right_msg)
-        if left is None or right is None or left.shape != right.shape:
-            self.bad("undecodable image", f"stereo pair at {stamp * 1e-9:.3f} s "
-                     f"({images.describe(left_msg)})")
+        """The pair as the pipeline sees it; None (counted, naming the image's topic,
+        the pair's stamp and what is wrong) when it cannot be: an image that does not
+        decode, one whose size is not its CameraInfo's, a right image of another size
+        than the left."""
+        at = f"at {stamp * 1e-9:.3f} s"
+        msgs = {"left": left_msg, "right": right_msg}
+        pixels = {}
+        for side, msg in msgs.items():
+            image = decode_image(msg)
+            if image is None:
+                kind, why = why_undecodable(msg)
+                self.bad(kind, f"{image_topic(side, msg)} {at}: {why}")
+                return None
+            pixels[side] = image
+        size = {side: (image.shape[1], image.shape[0]) for side, image in pixels.items()}
+        for side, msg in msgs.items():
+            want = info_size(self.info[side])
+            if want is not None and size[side] != want:
+                self.bad("image size mismatch", f"{image_topic(side, msg)} {at}: "
+                         f"{size[side][0]}x{size[side][1]}, its {INFO_TOPICS[side]} says "
+                         f"{want[0]}x{want[1]}")
+                return None
+        if size["left"] != size["right"]:
+            self.bad("image size mismatch", f"{image_topic('right', right_msg)} {at}: "
+                     f"{size['right'][0]}x{size['right'][1]} beside the left image's "
+                     f"{size['left'][0]}x{size['left'][1]}")
             return None
-        pixels = {"left": left, "right": right}
         if self.rectifiers is not None:
             try:
                 for side in pixels:
@@ -183,6 +319,7 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
         raise FileNotFoundError(f"{bag_dir}: no rosbag2 directory (metadata.yaml) found")
     pending = images.StereoHalves(sync_tolerance_s, "stereo sync tolerance")
     maker = FrameMaker(bad, rectify, log)
+    order = StampOrder(bad)
     ready: list[tuple[int, dict]] = []
     index = 0
     mast = joints is not None and joints.has_mast
@@ -204,8 +341,10 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
                 clock = max(clock or 0.0, _stamp_ns(msg.header) * 1e-9)
             if conn.topic == JOINT_STATES:
                 joints.add(_stamp_ns(msg.header) * 1e-9, list(msg.name), list(msg.position))
+            elif not order(conn.topic, _stamp_ns(msg.header)):
+                continue
             elif conn.topic in (LEFT_INFO, RIGHT_INFO):
-                maker.info["left" if conn.topic == LEFT_INFO else "right"] = msg
+                maker.set_info("left" if conn.topic == LEFT_INFO else "right", msg)
             else:
                 stamp = _stamp_ns(msg.header)
                 key = pending.add(images.side_of(conn.topic), stamp, msg)
@@ -222,8 +361,13 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
                 for line in pending.give_up(stamp - 2_000_000_000):
                     bad("missing pair half", line)
             # CameraInfo is recorded after the images of its stamp: pairs wait for it
-            # (and, on a mast, for the joint states around their stamp).
+            # (and, on a mast, for the joint states around their stamp), INFO_WAIT_NS.
             if not maker.ready:
+                newest = _stamp_ns(msg.header)
+                while ready and ready[0][0] < newest - INFO_WAIT_NS:
+                    stamp_r, _slot = ready.pop(0)
+                    bad("no camera_info", f"stereo pair at {stamp_r * 1e-9:.3f} s: "
+                        f"{maker.missing()}")
                 continue
             while ready and decided(ready[0][0]):
                 stamp_r, slot_r = ready.pop(0)
@@ -235,7 +379,8 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
     for line in pending.give_up(2 ** 63 - 1):
         bad("missing pair half", line)
     if ready and not maker.ready:
-        bad("no camera_info", f"{len(ready)} stereo pair(s) and no CameraInfo")
+        for stamp_r, _slot in ready:
+            bad("no camera_info", f"stereo pair at {stamp_r * 1e-9:.3f} s: {maker.missing()}")
         return
     # The bag ended: no joint sample is still to come for the pairs that wait.
     for stamp_r, slot_r in ready:

@@ -124,10 +124,14 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
                                     log=lambda m: log(f"roi_detector: {m}"),
                                     sync_tolerance_s=sync_tolerance_s, keep=keep,
                                     joints=poses if poses.has_mast else None):
-        n_pairs += 1
         t0 = time.perf_counter()
         cam = camera_at.pop(frame.stamp_ns)
-        obs = detector.observe(frame, None if not poses.has_mast else cam)
+        try:
+            obs = detector.observe(frame, None if not poses.has_mast else cam)
+        except ValueError as exc:  # a calibration the camera model refuses: named field
+            bad("bad camera_info", f"stereo pair at {frame.stamp_ns * 1e-9:.3f} s: {exc}")
+            continue
+        n_pairs += 1
         pose = track.at(frame.stamp_ns * 1e-9)
         if pose is None:
             t_detect += time.perf_counter() - t0

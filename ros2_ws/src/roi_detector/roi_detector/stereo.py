@@ -47,7 +47,8 @@ class StereoCamera:
         """Build the model from CameraInfo fields and the left camera's pose.
 
         Args:
-            k: left CameraInfo ``k`` (9 values, row-major 3x3).
+            k: the left camera's rectified intrinsics (9 values, row-major 3x3: its
+                CameraInfo P's left 3x3, :class:`~roi_detector.inputs.FrameMaker`).
             right_p: right CameraInfo ``p`` (12 values); ``p[3] = -fx * baseline``.
             width, height: image size, pixels.
             base_to_left_camera: ``[x, y, z, qx, qy, qz, qw]``, left optical frame in
@@ -59,13 +60,15 @@ class StereoCamera:
         """
         k = np.asarray(k, float).reshape(3, 3)
         p = np.asarray(right_p, float).reshape(3, 4)
-        if k[0, 0] <= 0 or k[1, 1] <= 0:
-            raise ValueError(f"camera_info: field 'k' has non-positive focal lengths {k[0, 0]}, "
-                             f"{k[1, 1]}")
+        if not (k[0, 0] > 0 and k[1, 1] > 0):
+            raise ValueError(f"/stereo/left/camera_info: rectified focal lengths fx = "
+                             f"{k[0, 0]:g}, fy = {k[1, 1]:g} (its P[0], P[5]): expected "
+                             "positive")
         baseline = -p[0, 3] / p[0, 0] if p[0, 0] else 0.0
         if not baseline > 0:
-            raise ValueError("right camera_info: field 'p' has no positive baseline "
-                             f"(p[3] = {p[0, 3]}, expected -fx * baseline)")
+            raise ValueError(f"/stereo/right/camera_info: P[3] = {p[0, 3]:g} with P[0] = "
+                             f"{p[0, 0]:g}: no positive baseline (expected P[3] = -fx * "
+                             "baseline)")
         pose = np.asarray(base_to_left_camera, float)
         if pose.shape == (4, 4):
             rot, centre = pose[:3, :3].copy(), pose[:3, 3].copy()
