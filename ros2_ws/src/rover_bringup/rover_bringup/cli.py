@@ -1,5 +1,6 @@
 """The ``globloc`` command: ``play`` a bag, ``run`` the node graph on a bag, ``record`` outputs,
-``eval`` a run, ``rover-yaml`` a field bag's calibration file.
+``eval`` a run, ``rover-yaml`` a field bag's calibration file, ``camera-info`` the rectified
+CameraInfo pair of a raw stereo calibration.
 
 Only argument mapping lives here; each subcommand is a function taking an options object.
 User errors (``GloblocError``) become one ``globloc: error: ...`` line on stderr and exit
@@ -149,7 +150,9 @@ def _add_rover_yaml(sub: argparse._SubParsersAction) -> None:
         'the nodes read (DESIGN.md), from what the bag records: /tf_static (composed along '
         "the tree from the base frame to each sensor's header.frame_id), the CameraInfo "
         "(intrinsics, baseline) and the IMU's stamps (rate). The IMU noise densities are "
-        "rover_vo's defaults, flagged in the file. An existing file is not overwritten.",
+        "rover_vo's defaults, flagged in the file. Every CameraInfo is checked: an unusable "
+        'one (fx = 0, no baseline...) is skipped and named once; a topic with none usable, or '
+        'left and right of different sizes, is refused. An existing file is not overwritten.',
     )
     p.add_argument('bag', type=Path, metavar='BAG_DIR',
                    help='bag directory (holding rosbag/) or a rosbag2 directory')
@@ -164,6 +167,32 @@ def _add_rover_yaml(sub: argparse._SubParsersAction) -> None:
                        'messages)')
 
 
+def _add_camera_info(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        'camera-info',
+        help='the rectified stereo CameraInfo pair (K, D, R, P) of a raw stereo calibration',
+        description='Compute the CameraInfo pair a raw-image stereo bag needs (K and D of '
+        'the raw cameras, R into the rectified ones, the rectified P, the right one with '
+        'P[3] = -fx * baseline) from two EuRoC-style sensor.yaml files (T_BS, resolution, '
+        'intrinsics [fu, fv, cu, cv], distortion_model radial-tangential / radtan / '
+        "plumb_bob, distortion_coefficients), with OpenCV's stereoRectify. Writes "
+        'OUT_DIR/left.yaml and OUT_DIR/right.yaml in camera_calibration_parsers\' format, '
+        'or prints both; says where the rectified cameras are in the body frame of T_BS '
+        '(the pipeline takes the camera frames as the rectified cameras and ignores R).',
+    )
+    p.add_argument('left', type=Path, metavar='LEFT_SENSOR_YAML',
+                   help="the left camera's sensor.yaml (EuRoC: cam0/sensor.yaml)")
+    p.add_argument('right', type=Path, metavar='RIGHT_SENSOR_YAML',
+                   help="the right camera's sensor.yaml (EuRoC: cam1/sensor.yaml)")
+    p.add_argument('--out', type=Path, metavar='OUT_DIR',
+                   help='write OUT_DIR/left.yaml and OUT_DIR/right.yaml (default: print both '
+                   'to stdout)')
+    p.add_argument('--alpha', type=float, default=0.0,
+                   help='0: the rectified images hold valid pixels only; 1: every raw pixel, '
+                   'with black borders (default: %(default)s)')
+    p.add_argument('--force', action='store_true', help='overwrite existing files')
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``globloc`` argument parser."""
     parser = argparse.ArgumentParser(
@@ -176,6 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_eval(sub)
     _add_salvage(sub)
     _add_rover_yaml(sub)
+    _add_camera_info(sub)
     return parser
 
 
@@ -220,6 +250,18 @@ def _dispatch(args: argparse.Namespace, ros: list[str]) -> int:
         for warning in warnings:
             print(f'{PROG}: warning: {warning}', file=sys.stderr)
         print(f'{PROG}: wrote {path}', file=sys.stderr)
+        return 0
+    if args.command == 'camera-info':
+        from rover_bringup.rectify import summary_lines, write_camera_info
+
+        pair, written, text = write_camera_info(args.left, args.right, args.out, args.alpha,
+                                                args.force)
+        for line in summary_lines(pair):
+            print(f'{PROG}: {line}', file=sys.stderr)
+        if written:
+            print(f'{PROG}: wrote {", ".join(str(p) for p in written)}', file=sys.stderr)
+        else:
+            print(text, end='')
         return 0
     if args.command == 'eval':
         from rover_bringup.evaluation import summary_lines
