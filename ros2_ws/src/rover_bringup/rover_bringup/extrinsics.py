@@ -19,8 +19,13 @@ them into the parameters the nodes read:
 
 Checks, each naming the frame or topic: the camera frames must be optical (REP-103: z
 forward, x right, y down), the baseline of the tree must agree with the CameraInfo's, and
-the right camera must sit on the left camera's +x axis (a rectified pair). No rclpy, no
-tf2: the transforms are composed here with numpy and scipy.
+the right camera must sit on the left camera's +x axis (a rectified pair). Every
+CameraInfo is checked (:func:`camera_info_problem`: positive focal lengths in K and P,
+finite numbers, an image size, the right one's baseline): an unusable one among usable
+ones is skipped and named once with its topic, stamp and field; a topic with none usable,
+left and right CameraInfo of different sizes, or a first image of another size than its
+CameraInfo is refused. No rclpy, no tf2: the transforms are composed here with numpy and
+scipy.
 """
 
 from __future__ import annotations
@@ -35,7 +40,14 @@ from scipy.spatial.transform import Rotation
 
 from rover_bringup.errors import GloblocError
 from rover_bringup.topics import TF_STATIC
-from rover_bringup.urdf import JOINT_STATES, ROBOT_DESCRIPTION, UrdfError, mast_of, parse_urdf, tree_at
+from rover_bringup.urdf import (
+    JOINT_STATES,
+    ROBOT_DESCRIPTION,
+    UrdfError,
+    mast_of,
+    parse_urdf,
+    tree_at,
+)
 
 LEFT_INFO, RIGHT_INFO = '/stereo/left/camera_info', '/stereo/right/camera_info'
 IMU = '/imu/data'
@@ -62,7 +74,13 @@ class BagCalibration:
             latest of each pair).
         frames: the sensors' ``header.frame_id``: ``left``, ``right`` (their CameraInfo,
             else images), ``imu``.
-        left_info, right_info: the first CameraInfo of each side.
+        left_info, right_info: the first usable CameraInfo of each side
+            (:func:`camera_info_problem`).
+        infos_read: CameraInfo messages read, by topic.
+        infos_unusable: by topic, the first unusable CameraInfo's problem and how many
+            were unusable.
+        image_sizes: by side, the first image's topic, stamp (s), width and height (only
+            images that decode).
         imu_stamps_ns: the first IMU stamps, for the rate.
         urdf: the first ``/robot_description`` (URDF text), None when not recorded.
         joint_angles: the first ``/joint_states`` message's angles by joint name, None
@@ -74,6 +92,9 @@ class BagCalibration:
     frames: dict[str, str] = field(default_factory=dict)
     left_info: Any = None
     right_info: Any = None
+    infos_read: dict[str, int] = field(default_factory=dict)
+    infos_unusable: dict[str, tuple[str, int]] = field(default_factory=dict)
+    image_sizes: dict[str, tuple[str, float, int, int]] = field(default_factory=dict)
     imu_stamps_ns: list[int] = field(default_factory=list)
     urdf: str | None = None
     joint_angles: dict[str, float] | None = None
@@ -84,6 +105,43 @@ def _matrix(translation: Any, rotation: Any) -> np.ndarray:
     t[:3, :3] = Rotation.from_quat([rotation.x, rotation.y, rotation.z, rotation.w]).as_matrix()
     t[:3, 3] = [translation.x, translation.y, translation.z]
     return t
+
+
+def _stamp_s(msg: Any) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+#: The CameraInfo numbers a calibration cannot do without: (field, index, meaning).
+FOCAL_LENGTHS = (('k', 0, 'fx'), ('k', 4, 'fy'), ('p', 0, 'fx'), ('p', 5, 'fy'))
+
+
+def camera_info_problem(info: Any, topic: str) -> str | None:
+    """What makes one CameraInfo unusable, as ``<topic> at <stamp> s: <field> = <value>``
+    (``/stereo/left/camera_info at 1403715273.712 s: K[0] (fx) = 0``), None when it is
+    usable: finite K, D, R and P; positive focal lengths in K and P; a width and height;
+    on the right camera (``/stereo/right/...``) ``P[3] = -fx * baseline < 0``."""
+    where = f'{topic} at {_stamp_s(info):.3f} s'
+    arrays = {name: np.asarray(getattr(info, name), float).ravel() for name in 'kdrp'}
+    for name, values in arrays.items():
+        if not np.all(np.isfinite(values)):
+            i = int(np.flatnonzero(~np.isfinite(values))[0])
+            return f'{where}: {name.upper()}[{i}] = {values[i]}'
+    for name, size in (('k', 9), ('p', 12)):
+        if arrays[name].size != size:
+            return f'{where}: {name.upper()} has {arrays[name].size} numbers, not {size}'
+    for name, i, meaning in FOCAL_LENGTHS:
+        if arrays[name][i] <= 0:
+            return f'{where}: {name.upper()}[{i}] ({meaning}) = {arrays[name][i]:g}'
+    if int(info.width) <= 0 or int(info.height) <= 0:
+        return f'{where}: width x height = {int(info.width)}x{int(info.height)}'
+    tx = arrays['p'][3]
+    if topic == RIGHT_INFO and tx == 0:
+        return (f'{where}: P[3] (-fx * baseline) = 0: no baseline (a rectified pair\'s right '
+                'camera has P[3] = -fx * baseline < 0)')
+    if topic == RIGHT_INFO and tx > 0:
+        return (f'{where}: P[3] (-fx * baseline) = {tx:g} > 0: the right camera sits left of '
+                'the left one (are the left and right topics swapped?)')
+    return None
 
 
 def bag_calibration(rosbag: str | Path) -> BagCalibration:
@@ -111,8 +169,8 @@ def bag_calibration(rosbag: str | Path) -> BagCalibration:
                     continue
                 if topic in images.IMAGE_TOPICS and topic in frame_of:
                     continue
-                if topic == ROBOT_DESCRIPTION and cal.urdf is not None or \
-                        topic == JOINT_STATES and cal.joint_angles is not None:
+                if (topic == ROBOT_DESCRIPTION and cal.urdf is not None) or \
+                        (topic == JOINT_STATES and cal.joint_angles is not None):
                     continue
                 msg = reader.deserialize(raw, conn.msgtype)
                 if topic == ROBOT_DESCRIPTION:
@@ -128,14 +186,21 @@ def bag_calibration(rosbag: str | Path) -> BagCalibration:
                         cal.transforms[key] = _matrix(tf.transform.translation,
                                                       tf.transform.rotation)
                     continue
+                if topic in (LEFT_INFO, RIGHT_INFO):
+                    _read_info(cal, topic, msg)
+                    if msg is (cal.left_info if topic == LEFT_INFO else cal.right_info):
+                        frame_of.setdefault(topic, msg.header.frame_id.lstrip('/'))
+                    continue
                 frame_of.setdefault(topic, msg.header.frame_id.lstrip('/'))
                 if topic == IMU:
                     cal.imu_stamps_ns.append(msg.header.stamp.sec * 1_000_000_000
                                              + msg.header.stamp.nanosec)
-                elif topic == LEFT_INFO and cal.left_info is None:
-                    cal.left_info = msg
-                elif topic == RIGHT_INFO and cal.right_info is None:
-                    cal.right_info = msg
+                else:  # the first image of a side
+                    pixels = images.decode_image(msg)
+                    side = images.side_of(topic)
+                    if pixels is not None and side not in cal.image_sizes:
+                        cal.image_sizes[side] = (topic, _stamp_s(msg), pixels.shape[1],
+                                                 pixels.shape[0])
     except (OSError, ValueError, KeyError) as exc:  # rosbags' errors derive from these
         raise CalibrationError(f'{rosbag}: cannot read the bag ({exc})') from exc
     for side, info in (('left', LEFT_INFO), ('right', RIGHT_INFO)):
@@ -146,6 +211,61 @@ def bag_calibration(rosbag: str | Path) -> BagCalibration:
     if frame_of.get(IMU):
         cal.frames['imu'] = frame_of[IMU]
     return cal
+
+
+def _read_info(cal: BagCalibration, topic: str, msg: Any) -> None:
+    cal.infos_read[topic] = cal.infos_read.get(topic, 0) + 1
+    problem = camera_info_problem(msg, topic)
+    if problem is not None:
+        first, count = cal.infos_unusable.get(topic, (problem, 0))
+        cal.infos_unusable[topic] = (first, count + 1)
+    elif topic == LEFT_INFO and cal.left_info is None:
+        cal.left_info = msg
+    elif topic == RIGHT_INFO and cal.right_info is None:
+        cal.right_info = msg
+
+
+def camera_info_checks(cal: BagCalibration, warnings: list[str]) -> None:
+    """Refuse a bag whose CameraInfo cannot be used; name each topic's skipped ones once.
+
+    Raises:
+        CalibrationError: a CameraInfo topic with no usable message (naming the first
+            unusable one and the field), left and right of different sizes, or a first
+            image of another size than its CameraInfo.
+    """
+    src = cal.source
+    for topic, info in ((LEFT_INFO, cal.left_info), (RIGHT_INFO, cal.right_info)):
+        first, unusable = cal.infos_unusable.get(topic, (None, 0))
+        read = cal.infos_read.get(topic, 0)
+        if info is None and unusable:
+            every = 'its only message' if read == 1 else f'every one of its {read} messages'
+            raise CalibrationError(f'{src}: {first} ({every} is unusable): rover.yaml needs '
+                                   "the camera's calibration; fix the CameraInfo the bag "
+                                   'records (globloc camera-info computes the pair from the '
+                                   'stereo calibration)')
+        if info is None:
+            raise CalibrationError(f'{src}: no {topic} message: the intrinsics and the '
+                                   'baseline come from the CameraInfo')
+        if unusable:
+            more = f', with {unusable - 1} more' if unusable > 1 else ''
+            warnings.append(f'{first}: skipped{more} ({unusable} of the {read} messages of '
+                            f'{topic}); the calibration is that of the one at '
+                            f'{_stamp_s(info):.3f} s')
+    sizes = {topic: (int(info.width), int(info.height))
+             for topic, info in ((LEFT_INFO, cal.left_info), (RIGHT_INFO, cal.right_info))}
+    if sizes[LEFT_INFO] != sizes[RIGHT_INFO]:
+        (lw, lh), (rw, rh) = sizes[LEFT_INFO], sizes[RIGHT_INFO]
+        raise CalibrationError(f'{src}: {LEFT_INFO} says {lw}x{lh}, {RIGHT_INFO} {rw}x{rh}: '
+                               'a rectified pair has one image size')
+    for side, info_topic in (('left', LEFT_INFO), ('right', RIGHT_INFO)):
+        if side not in cal.image_sizes:
+            continue
+        topic, stamp, width, height = cal.image_sizes[side]
+        if (width, height) != sizes[info_topic]:
+            w, h = sizes[info_topic]
+            raise CalibrationError(f'{src}: {topic} at {stamp:.3f} s is {width}x{height}, '
+                                   f'{info_topic} says {w}x{h}: the CameraInfo is not '
+                                   "this camera's")
 
 
 #: :func:`stereo_stamp_offsets` reads at most this many times the images it needs of one
@@ -265,7 +385,7 @@ def _mast_tree(cal: BagCalibration, base_frame: str, left_frame: str,
                     f'{ROBOT_DESCRIPTION}: the camera hangs on moving joints whose origins '
                     f'and axes only the URDF states; record {ROBOT_DESCRIPTION} (what '
                     'robot_state_publisher latches), or write the mast.* parameters by hand '
-                    '(docs/bringup.md)') from None
+                    '(docs/bring_your_own_bag.md)') from None
             warnings.append(f'the bag records {JOINT_STATES} ({", ".join(names)}) but no '
                             f'{ROBOT_DESCRIPTION}: the camera is taken as fixed at its '
                             f'{TF_STATIC} pose; if it moves on those joints, record '
@@ -303,16 +423,13 @@ def rover_parameters(cal: BagCalibration, base_frame: str = 'base_link',
     if not cal.transforms and cal.urdf is None:
         raise CalibrationError(f'{src}: no {TF_STATIC} transforms: the bag does not record '
                                'its sensors\' frames; write rover.yaml by hand '
-                               '(docs/bringup.md, "A field bag\'s rover.yaml")')
+                               '(docs/bring_your_own_bag.md)')
+    warnings: list[str] = []
+    camera_info_checks(cal, warnings)
     for need, topic in (('left', LEFT_INFO), ('right', RIGHT_INFO)):
         if not frames.get(need):
             raise CalibrationError(f'{src}: no frame for the {need} camera: {topic} and '
                                    f'its images carry no header.frame_id (give --{need}-frame)')
-    if cal.left_info is None or cal.right_info is None:
-        missing = LEFT_INFO if cal.left_info is None else RIGHT_INFO
-        raise CalibrationError(f'{src}: no {missing} message: the intrinsics and the '
-                               'baseline come from the CameraInfo')
-    warnings: list[str] = []
     transforms, mast = _mast_tree(cal, base_frame, frames['left'], warnings)
     pose = {side: frame_transform(transforms, base_frame, frames[side], src)
             for side in ('left', 'right')}
@@ -327,9 +444,6 @@ def rover_parameters(cal: BagCalibration, base_frame: str = 'base_link',
                 f'; give the optical child frame (--{side}-frame)')
     p_right = np.asarray(cal.right_info.p, float)
     p_left = np.asarray(cal.left_info.p, float)
-    if not (p_right[0] > 0 and p_right[3] < 0):
-        raise CalibrationError(f'{src}: {RIGHT_INFO}: P[3] = {p_right[3]} gives no baseline '
-                               '(a rectified pair has P[3] = -fx * baseline < 0)')
     baseline = -p_right[3] / p_right[0]
     right_in_left = np.linalg.inv(pose['left']) @ pose['right']
     offset = right_in_left[:3, 3]
@@ -375,7 +489,8 @@ def rover_parameters(cal: BagCalibration, base_frame: str = 'base_link',
                           if isinstance(v, list) else v for k, v in mast.to_params().items()}
     params.update(IMU_DEFAULTS)
     warnings.append('gyro_noise_density, gyro_bias_random_walk and gravity are rover_vo\'s '
-                    'defaults, not this IMU\'s: set them from its datasheet and the site')
+                    'defaults, not this IMU\'s: set them from its datasheet and the site '
+                    '(docs/bring_your_own_bag.md, "IMU noise parameters")')
     return params, warnings
 
 
