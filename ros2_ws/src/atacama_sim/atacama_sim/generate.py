@@ -2,9 +2,9 @@
 
 Steps (docs/simulator.md, Method): 1 build the world; 2 plan the route, drive it and
 schedule the mast's panoramas at the stops; 3 synthesise the IMU; 4 render the orbital
-image; 5 stream the traverse into the bag in time order (frame tree, IMU, ground truth,
-joint states, stereo pairs rendered on demand, so memory stays bounded); 6 write truth,
-rover.yaml, world.yaml and the contact sheet.
+image and write the DTM beside it; 5 stream the traverse into the bag in time order
+(frame tree, IMU, ground truth, joint states, stereo pairs rendered on demand, so memory
+stays bounded); 6 write truth, rover.yaml, world.yaml and the contact sheet.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from atacama_sim.camera import StereoRig, mast_kinematics
 from atacama_sim.config import WorldConfig
 from atacama_sim.contact import contact_sheet
 from atacama_sim.imu import synthesize_imu
-from atacama_sim.orbital import orbital_tiles, render_orbital
+from atacama_sim.orbital import orbital_tiles, render_orbital, write_dtm
 from atacama_sim.panorama import MastMotion, mast_motion, panorama_s, panorama_stop_s
 from atacama_sim.renderer import SceneRenderer
 from atacama_sim.robot import static_transforms, urdf
@@ -145,8 +145,9 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
     ``keep_aux``: also return per-frame rendered depth/labels of the left camera
     (tests only: memory grows with the number of frames).
     ``orbital_only``: write the world's orbital products and truth (``orbital.tif``,
-    ``truth/``, ``world.yaml``, ``contact_sheet.png``) but no traverse: no ``rosbag/``, no
-    ``rover.yaml`` (training data for the orbital classifiers, at a sixth of the time).
+    ``dtm.tif``, ``truth/``, ``world.yaml``, ``contact_sheet.png``) but no traverse: no
+    ``rosbag/``, no ``rover.yaml`` (training data for the orbital classifiers, at a sixth
+    of the time).
     """
     t_start = time.perf_counter()
     out = Path(out)
@@ -184,11 +185,12 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
     n_traverse = 0 if orbital_only else len(cam_idx)
     bar = tqdm(total=orbital_tiles(world) + n_traverse, unit="step", disable=not progress,
                desc=f"atacama_sim {cfg.preset}")
-    # 4. Render the orbital image.
+    # 4. Render the orbital image; write the elevation model beside it.
     t0 = time.perf_counter()
     bar.set_postfix_str("orbital")
     orb = render_orbital(world, renderer, out / "orbital.tif", out / "truth/orbital_labels.tif",
                          progress=lambda: bar.update(1))
+    dtm = write_dtm(world, out / "dtm.tif")
     timings["orbital_s"] = time.perf_counter() - t0
 
     seen_px = np.zeros(len(cat) + 1, np.int64)
@@ -234,6 +236,7 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
                                        round(float(world.terrain.base.max()), 2)],
                     "slope_p95_deg": round(float(np.percentile(world.terrain.slope_deg(),
                                                                95)), 2)},
+        "dtm": dtm,
         "orbital_only": orbital_only,
         "messages": counts,
         "timing_s": {k: round(v, 2) for k, v in timings.items()},

@@ -130,7 +130,7 @@ def _decode(msg) -> np.ndarray:
 # -- bag contents -------------------------------------------------------------------------
 def test_bag_layout_and_topics(bag: dict, messages: dict) -> None:
     d = bag["dir"]
-    for name in ("rosbag/metadata.yaml", "orbital.tif", "rover.yaml", "world.yaml",
+    for name in ("rosbag/metadata.yaml", "orbital.tif", "dtm.tif", "rover.yaml", "world.yaml",
                  "truth/rois.geojson", "truth/trajectory.tum", "contact_sheet.png"):
         assert (d / name).exists(), name
     n = bag["stats"]["route"]["stereo_frames"]
@@ -373,6 +373,38 @@ def test_images_carry_texture(messages: dict) -> None:
 
 
 # -- orbital ------------------------------------------------------------------------------
+def test_dtm_lies_under_the_orthoimage_and_the_truth_route(bag: dict) -> None:
+    """dtm.tif: the orthoimage's CRS and footprint at 1 m posts, its datum and sigma in the
+    tags; read in map coordinates (roi_network.dtm) it gives the truth's z under the route
+    within the error it states (and within 5 cm without its stereo error field)."""
+    from atacama_sim.orbital import DTM_VERTICAL_SIGMA_M, dtm_heights
+    from roi_network.dtm import read_dtm
+    from roi_network.geojson import read_geojson
+
+    d = bag["dir"]
+    with rasterio.open(d / "orbital.tif") as ortho, rasterio.open(d / "dtm.tif") as dtm:
+        assert dtm.crs == ortho.crs and dtm.count == 1 and dtm.dtypes == ("float32",)
+        assert dtm.bounds == ortho.bounds
+        assert dtm.res == (1.0, 1.0)
+        tags = dtm.tags()
+        assert "map-frame origin" in tags["VERTICAL_DATUM"]
+        assert float(tags["VERTICAL_SIGMA_M"]) == DTM_VERTICAL_SIGMA_M
+        assert tags["VERTICAL_UNITS"] == "metre"
+    model = read_dtm(d / "dtm.tif", read_geojson(d / "truth/rois.geojson").map_frame)
+    tum = _tum(d)
+    z, _ = model.height(tum[:, 1], tum[:, 2])
+    err = z - tum[:, 3]
+    assert np.isfinite(err).all()
+    assert 0.05 < np.sqrt(np.mean(err**2)) < 1.5 * DTM_VERTICAL_SIGMA_M
+    assert np.abs(err).max() < 4 * DTM_VERTICAL_SIGMA_M
+    exact, _ = dtm_heights(bag["stats"]["_world"], error=False)
+    post = model.heights.shape[0]
+    assert exact.shape == (post, post)
+    clean = type(model)(exact.astype(float), model.x0, model.y0, model.posting, 0.0)
+    z_clean, _ = clean.height(tum[:, 1], tum[:, 2])
+    assert np.abs(z_clean - tum[:, 3]).max() < 0.05
+
+
 def test_orbital_georeference_matches_truth(bag: dict) -> None:
     d = bag["dir"]
     doc = json.loads((d / "truth/rois.geojson").read_text())
@@ -503,7 +535,7 @@ def test_same_seed_same_bag(bag: dict, tmp_path: Path) -> None:
     diff = [a[:2] for a, b in zip(first, second, strict=True) if a != b]
     assert not diff, f"{len(diff)} messages differ, first: {diff[:3]}"
     for name in ("truth/rois.geojson", "truth/trajectory.tum", "truth/orbital_labels.tif",
-                 "orbital.tif", "rover.yaml"):
+                 "orbital.tif", "dtm.tif", "rover.yaml"):
         assert (again / name).read_bytes() == (bag["dir"] / name).read_bytes(), name
 
 
@@ -519,7 +551,7 @@ def test_orbital_only_writes_the_same_orbital_products_and_no_traverse(
     stats = generate(cfg, out, progress=False, orbital_only=True)
     assert not (out / "rosbag").exists() and not (out / "rover.yaml").exists()
     for name in ("truth/rois.geojson", "truth/trajectory.tum", "truth/orbital_labels.tif",
-                 "orbital.tif"):
+                 "orbital.tif", "dtm.tif"):
         assert (out / name).read_bytes() == (bag["dir"] / name).read_bytes(), name
     assert stats["orbital_only"] is True and stats["messages"] == {}
     derived = yaml.safe_load((out / "world.yaml").read_text())["derived"]
