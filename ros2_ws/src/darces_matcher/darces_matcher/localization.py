@@ -36,11 +36,17 @@ estimate of that alignment and its covariance:
 and heading covariance is the alignment's (propagated through the lever arm): the
 alignment's covariance already holds the drift since the last fix, and the VO's own
 covariance (the drift since the start of the drive) would count the same error twice.
-Height, roll and pitch keep the odometry's covariance.
+Roll and pitch keep the odometry's covariance. Height (:func:`ground_altitude`): with an
+orbital elevation model, the model's height under the rover's x, y (base_link sits on
+the ground), with the model's vertical variance plus the horizontal covariance through
+the slope; without one (or off it) z is not estimated, and its variance says so
+(:data:`~roi_network.dtm.UNKNOWN_VARIANCE_M2`): the odometry's z is a height change since
+the start of the drive, not a map altitude.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -50,6 +56,7 @@ from scipy.spatial.transform import Rotation
 from darces_matcher.ln_drift import PLANAR
 from darces_matcher.result import MatchResult
 from darces_matcher.vote import alignment_jacobian
+from roi_network.dtm import UNKNOWN_VARIANCE_M2, ElevationModel
 from roi_network.transform import Rigid2D, wrap_angle
 
 Event = Literal["first_fix", "refined", "held", "switched", "kept", "none"]
@@ -438,6 +445,7 @@ def global_pose(
     position: np.ndarray,
     quaternion: np.ndarray,
     odom_covariance: np.ndarray,
+    dtm: ElevationModel | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The rover's pose in ``map`` from an odometry pose and the filtered alignment.
 
@@ -447,13 +455,54 @@ def global_pose(
         position: (3,) base_link position in ``odom``, metres.
         quaternion: (4,) orientation (x, y, z, w) in ``odom``.
         odom_covariance: (6, 6) odometry covariance (x, y, z, roll, pitch, yaw).
+        dtm: the orbital elevation model in ``map``, or None.
 
     Returns:
         Position (3,), quaternion (4,), (6, 6) covariance in ``map``: x, y, yaw from the
         alignment through the lever arm (the odometry's own x, y, yaw covariance, drift
-        since the start, is already in the alignment's), z, roll, pitch from the odometry.
+        since the start, is already in the alignment's), roll, pitch from the odometry,
+        z from :func:`ground_altitude`.
     """
     cov = np.array(odom_covariance, dtype=float).reshape(6, 6)
     cov[PLANAR, :] = 0.0
     cov[:, PLANAR] = 0.0
-    return compose_pose(alignment, position, quaternion, cov)
+    pos, quat, cov = compose_pose(alignment, position, quaternion, cov)
+    pos, cov = ground_altitude(pos, cov, dtm)
+    return pos, quat, cov
+
+
+def ground_altitude(position: np.ndarray, covariance: np.ndarray,
+                    dtm: ElevationModel | None) -> tuple[np.ndarray, np.ndarray]:
+    """The map pose's z and its covariance row from the elevation model under it.
+
+    base_link's origin is on the ground under the rover (DESIGN.md Frames): z is the
+    model's height at (x, y), ``z = h(x, y) + e`` with ``e`` the model's vertical error,
+    so its covariance with every other coordinate ``s`` is ``g^T cov((x, y), s)`` (``g``
+    the model's gradient) and its variance ``sigma_v^2 + g^T C_xy g``. Without a model, or
+    off it, z keeps its value (the odometry's height change since the start) and is marked
+    not estimated: variance :data:`~roi_network.dtm.UNKNOWN_VARIANCE_M2`, no correlation.
+
+    Args:
+        position: (3,) map position.
+        covariance: (6, 6) map pose covariance (x, y, z, roll, pitch, yaw).
+        dtm: the elevation model, or None.
+
+    Returns:
+        The position and covariance with z replaced (new arrays).
+    """
+    pos = np.array(position, dtype=float)
+    cov = np.array(covariance, dtype=float).reshape(6, 6)
+    cov[2, :] = 0.0
+    cov[:, 2] = 0.0
+    z = math.nan
+    if dtm is not None:
+        z, grad, var = dtm.ground_z(pos[0], pos[1], cov[:2, :2])
+    if not math.isfinite(z):
+        cov[2, 2] = UNKNOWN_VARIANCE_M2
+        return pos, cov
+    pos[2] = z
+    cross = grad @ cov[:2, :]
+    cov[2, :] = cross
+    cov[:, 2] = cross
+    cov[2, 2] = var
+    return pos, cov

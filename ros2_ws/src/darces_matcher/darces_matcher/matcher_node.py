@@ -30,6 +30,7 @@ from darces_matcher.localization import (
     yaw_quaternion,
 )
 from darces_matcher.matcher import MatchConfig, Matcher, MatchResult
+from roi_network.dtm import read_dtm, z_is_estimated
 from roi_network.geojson import read_geojson
 from roi_network.pointcloud import PointCloudFormatError, from_pointcloud2
 from roi_network.records import xy
@@ -50,6 +51,12 @@ class MatcherNode(Node):
         super().__init__("darces_matcher")
         gn_path = self.declare_parameter(
             "gn_path", "", ParameterDescriptor(description="GN GeoJSON file (map frame)")
+        ).value
+        dtm_path = self.declare_parameter(
+            "dtm_path", "",
+            ParameterDescriptor(description="orbital elevation model, a GeoTIFF in the GN's "
+                                "CRS (map z): /global_pose z from it; empty: z not "
+                                "estimated (variance 1e6 m^2)"),
         ).value
         self.ln_frame = self.declare_parameter(
             "ln_frame", "odom", ParameterDescriptor(description="expected LN header frame")
@@ -86,6 +93,21 @@ class MatcherNode(Node):
         if not gn_path:
             raise ValueError("parameter 'gn_path' is not set (the GN GeoJSON file)")
         gn = read_geojson(gn_path)
+        # A DTM that cannot be used (unreadable, another CRS than the GN's) ends the node
+        # with a line naming the file, as a bad GN does.
+        self.dtm = read_dtm(dtm_path, gn.map_frame) if dtm_path else None
+        if self.dtm is None:
+            self.get_logger().info(
+                "no DTM (parameter dtm_path): /global_pose z is not estimated, its "
+                "variance 1e6 m^2")
+        else:
+            self.get_logger().info(f"{self.dtm.describe()}: /global_pose z from it")
+            if not self.dtm.sigma_stated:
+                self.get_logger().warning(
+                    f"DTM {dtm_path} states no VERTICAL_SIGMA_M: its vertical 1-sigma is "
+                    f"taken as {self.dtm.vertical_sigma_m:g} m (HiRISE's); set the tag "
+                    f"(rio edit-info --tag VERTICAL_SIGMA_M=<m> {dtm_path}) if it differs")
+        self.z_off_dtm = 0
         self.filter = MapOdomFilter(FilterConfig(**filter_overrides))
         self.gn_xy = xy(gn.records)
         self.last_matched_size = 0
@@ -187,8 +209,16 @@ class MatcherNode(Node):
         if alignment is None:
             return
         pos, quat, cov = global_pose(
-            alignment, position, quaternion, np.array(msg.pose.covariance),
+            alignment, position, quaternion, np.array(msg.pose.covariance), self.dtm,
         )
+        if self.dtm is not None and not z_is_estimated(cov[2, 2]):
+            if self.z_off_dtm == 0:
+                self.get_logger().warning(
+                    f"/global_pose at map ({pos[0]:.1f}, {pos[1]:.1f}) m, stamp "
+                    f"{msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec:.3f} s: off "
+                    f"the DTM {self.dtm.source} (or on a nodata post): z not estimated "
+                    "there (variance 1e6 m^2); counted in /matcher/status z_off_dtm")
+            self.z_off_dtm += 1
         out = PoseWithCovarianceStamped()
         out.header.stamp = msg.header.stamp
         out.header.frame_id = "map"
@@ -224,6 +254,8 @@ class MatcherNode(Node):
             "sigma_xy_m": (f"{np.sqrt(np.linalg.eigvalsh(self.filter.p[:2, :2]).max()):.2f}"
                            if localized else "inf"),
             "time_ms": f"{r.timings_ms.get('total', 0.0):.2f}",
+            "z_source": "dtm" if self.dtm is not None else "none",
+            "z_off_dtm": self.z_off_dtm,
         }
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         msg = DiagnosticArray()

@@ -215,3 +215,66 @@ def test_bad_config_and_bad_covariance_are_errors():
     bad = MatchResult("fix", "ok", map_T_odom=Rigid2D(), covariance=None)
     with pytest.raises(ValueError, match="covariance"):
         f.update(bad, np.zeros((3, 2)))
+
+
+def _plane_dtm(sigma: float = 0.3):
+    """A DTM of the plane z = 0.2 x - 0.1 y - 5 over map [-100, 300]^2 at 1 m posts."""
+    from roi_network.dtm import ElevationModel
+
+    x = np.arange(-100.0, 300.5)
+    y = np.arange(300.0, -100.5, -1.0)
+    xx, yy = np.meshgrid(x, y)
+    return ElevationModel(0.2 * xx - 0.1 * yy - 5.0, x0=-100.0, y0=300.0, posting=1.0,
+                          vertical_sigma_m=sigma)
+
+
+def _drifted_alignment():
+    f = MapOdomFilter()
+    f.update(_fix(Rigid2D(0.5, 100.0, 50.0), sigma=0.5), np.zeros((5, 2)))
+    for x in np.arange(1.0, 61.0):
+        f.predict(np.array([x, 0.0]))
+    return f.alignment
+
+
+def test_without_a_dtm_z_is_marked_not_estimated():
+    """No elevation model: z keeps the odometry's value but its variance is 1e6 m^2 and it
+    is correlated with nothing, whatever the odometry claimed (0.1 m^2 here)."""
+    from roi_network.dtm import UNKNOWN_VARIANCE_M2, z_is_estimated
+
+    odom_cov = np.diag([0.1, 0.1, 0.1, 0.01, 0.01, 0.02])
+    odom_cov[2, 3] = odom_cov[3, 2] = 0.01
+    pos, _, cov = global_pose(_drifted_alignment(), np.array([60.0, 0.0, 4.83]),
+                              yaw_quaternion(0.0), odom_cov)
+    assert pos[2] == 4.83
+    assert cov[2, 2] == UNKNOWN_VARIANCE_M2 and not z_is_estimated(cov[2, 2])
+    assert np.count_nonzero(cov[2]) == 1 and np.count_nonzero(cov[:, 2]) == 1
+    assert cov[3, 3] == pytest.approx(0.01)  # roll, pitch: still the odometry's
+
+
+def test_with_a_dtm_z_is_the_ground_under_the_rover_with_the_slope_in_its_variance():
+    """z = the DTM's height at the published x, y (base_link on the ground), variance =
+    sigma_v^2 + g^T C_xy g, correlated with x, y and yaw through the slope; the 6x6
+    covariance stays symmetric positive semi-definite. Off the DTM: not estimated."""
+    from roi_network.dtm import UNKNOWN_VARIANCE_M2
+
+    dtm = _plane_dtm(sigma=0.3)
+    alignment = _drifted_alignment()
+    odom_cov = np.diag([0.1, 0.1, 0.1, 0.01, 0.01, 0.02])
+    pos, _, cov = global_pose(alignment, np.array([60.0, 0.0, 4.83]), yaw_quaternion(0.0),
+                              odom_cov, dtm)
+    assert pos[2] == pytest.approx(0.2 * pos[0] - 0.1 * pos[1] - 5.0, abs=1e-9)
+    g = np.array([0.2, -0.1])
+    c_xy = cov[:2, :2]
+    assert cov[2, 2] == pytest.approx(0.09 + g @ c_xy @ g, rel=1e-9)
+    assert cov[2, 2] > 0.09 + 1e-3  # the slope term is there
+    np.testing.assert_allclose(cov[2, [0, 1, 5]], g @ cov[:2][:, [0, 1, 5]], rtol=1e-9)
+    np.testing.assert_allclose(cov, cov.T)
+    assert np.linalg.eigvalsh(cov).min() > -1e-9
+    # The same pose without the DTM has the same horizontal block.
+    _, _, bare = global_pose(alignment, np.array([60.0, 0.0, 4.83]), yaw_quaternion(0.0),
+                             odom_cov)
+    np.testing.assert_allclose(bare[:2, :2], c_xy)
+    # Driven off the model (map x beyond 300 m): z not estimated.
+    far, _, cov_far = global_pose(alignment, np.array([600.0, 0.0, 4.83]),
+                                  yaw_quaternion(0.0), odom_cov, dtm)
+    assert far[0] > 300.0 and cov_far[2, 2] == UNKNOWN_VARIANCE_M2

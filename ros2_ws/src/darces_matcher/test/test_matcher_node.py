@@ -61,15 +61,37 @@ def _odometry(x, y, yaw, stamp_s):
     return msg
 
 
-@pytest.fixture
-def matcher_process(tmp_path):
+def _plane_height(x):
+    """The synthetic DTM's ground: a plane rising 0.1 m per metre east, 12 m at map 0."""
+    return 0.1 * np.asarray(x) + 12.0
+
+
+def _write_plane_dtm(path, gn, crs=None) -> None:
+    """A DTM of :func:`_plane_height` over map [-500, 2500] x [-500, 1500] at 5 m posts,
+    in the GN's CRS (or ``crs``), stating a 0.3 m vertical sigma."""
+    from roi_network.dtm import write_dtm
+
+    x = -500.0 + 5.0 * (np.arange(600) + 0.5)
+    y = 1500.0 - 5.0 * (np.arange(400) + 0.5)
+    ox, oy = gn.map_frame.origin
+    write_dtm(path, np.tile(_plane_height(x), (len(y), 1)), crs or gn.map_frame.crs,
+              west=ox - 500.0, north=oy + 1500.0, posting=5.0, vertical_sigma_m=0.3,
+              datum="test plane")
+
+
+@pytest.fixture(params=[False], ids=["no_dtm"])
+def matcher_process(request, tmp_path):
     gn = generate_gn(seed=11)
     gn_path = tmp_path / "gn.geojson"
     write_geojson(gn, gn_path)
+    args = ["-p", f"gn_path:={gn_path}"]
+    if request.param:
+        _write_plane_dtm(tmp_path / "dtm.tif", gn)
+        args += ["-p", f"dtm_path:={tmp_path / 'dtm.tif'}"]
     domain = 60 + os.getpid() % 40
     exe = shutil.which("darces_matcher")
     assert exe, "darces_matcher executable not on PATH (source env.sh)"
-    proc = subprocess.Popen([exe, "--ros-args", "-p", f"gn_path:={gn_path}"],
+    proc = subprocess.Popen([exe, "--ros-args", *args],
                             env=_ros_env(domain), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     yield gn, domain, proc
@@ -115,7 +137,14 @@ class _Driver:
         rclpy.shutdown(context=self.ctx)
 
 
-def test_node_publishes_alignment_and_global_pose(matcher_process):
+@pytest.mark.parametrize("matcher_process", [False, True], ids=["no_dtm", "dtm"],
+                         indirect=True)
+def test_node_publishes_alignment_and_global_pose(matcher_process, request):
+    """Once the LN is fixed every odometry message gives a /global_pose in map. Its z:
+    with a DTM the ground's height under the published x, y with the DTM's variance
+    (0.3 m sigma plus the slope term); without, not estimated (variance 1e6 m^2), though
+    the odometry claims 0.1 m^2."""
+    with_dtm = "[dtm]" in request.node.name
     gn, domain, proc = matcher_process
     drv = _Driver(gn, domain, proc)
     got, ln_pub, odom_pub, spin_until = drv.got, drv.ln_pub, drv.odom_pub, drv.spin_until
@@ -154,6 +183,12 @@ def test_node_publishes_alignment_and_global_pose(matcher_process):
             assert abs(np.angle(np.exp(1j * (got_yaw - th - TRUTH.yaw)))) < np.radians(0.5)
             cov = np.array(msg.pose.covariance).reshape(6, 6)
             assert cov[0, 0] > 0.1 and np.allclose(cov, cov.T)
+            if with_dtm:
+                assert p.z == pytest.approx(_plane_height(p.x), abs=1e-4)
+                slope_var = 0.1**2 * cov[0, 0]
+                assert cov[2, 2] == pytest.approx(0.3**2 + slope_var, rel=1e-6)
+            else:
+                assert cov[2, 2] == 1e6 and np.count_nonzero(cov[2]) == 1
         assert proc.poll() is None, "matcher node died"
     finally:
         drv.close()
@@ -167,6 +202,21 @@ def test_bad_gn_file_is_a_one_line_error(tmp_path):
     assert result.returncode == 1
     lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and str(missing) in lines[0], result.stderr
+
+
+def test_dtm_in_another_crs_is_a_one_line_error(tmp_path):
+    gn = generate_gn(seed=11)
+    gn_path, dtm_path = tmp_path / "gn.geojson", tmp_path / "dtm.tif"
+    write_geojson(gn, gn_path)
+    _write_plane_dtm(dtm_path, gn, crs="EPSG:32633")
+    result = subprocess.run(
+        [shutil.which("darces_matcher"), "--ros-args", "-p", f"gn_path:={gn_path}",
+         "-p", f"dtm_path:={dtm_path}"],
+        env=_ros_env(62 + os.getpid() % 40), capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1
+    lines = [ln for ln in result.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and str(dtm_path) in lines[0] and "EPSG:32719" in lines[0], \
+        result.stderr
 
 
 def test_compose_pose_propagates_alignment_uncertainty():
