@@ -136,11 +136,10 @@ def camera_info_problem(info: Any, topic: str) -> str | None:
         return f'{where}: width x height = {int(info.width)}x{int(info.height)}'
     tx = arrays['p'][3]
     if topic == RIGHT_INFO and tx == 0:
-        return (f'{where}: P[3] (-fx * baseline) = 0: no baseline (a rectified pair\'s right '
-                'camera has P[3] = -fx * baseline < 0)')
+        return f'{where}: P[3] (-fx * baseline) = 0: no baseline'
     if topic == RIGHT_INFO and tx > 0:
         return (f'{where}: P[3] (-fx * baseline) = {tx:g} > 0: the right camera sits left of '
-                'the left one (are the left and right topics swapped?)')
+                'the left one; are the left and right topics swapped?')
     return None
 
 
