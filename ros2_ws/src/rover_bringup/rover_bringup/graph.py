@@ -9,6 +9,7 @@ Graph file (YAML)::
         requires: [$BAG_DIR/gn.geojson]   # optional: input files it cannot start without
       - name: my_test_node
         command: [$PYTHON, /path/to/node.py]   # or an explicit command line
+        outputs: [/vo/odometry]   # optional: topics it must publish (DEFAULT_OUTPUTS)
 
 Params file: the standard ROS 2 layout (``node_name: {ros__parameters: {...}}``, ``/**`` for
 all nodes). String values may use ``$BAG_DIR`` (the bag's directory, holding ``rover.yaml``)
@@ -31,7 +32,19 @@ import yaml
 from rover_bringup.errors import GloblocError
 
 #: Keys a graph entry may have.
-_NODE_KEYS = {'name', 'package', 'executable', 'command', 'requires'}
+_NODE_KEYS = {'name', 'package', 'executable', 'command', 'requires', 'outputs'}
+
+#: Topics each node of the project must publish at least once in a run (``globloc run``
+#: calls the run degraded otherwise), by (package, executable). A graph entry's ``outputs``
+#: replaces this; a node found in neither is not checked.
+DEFAULT_OUTPUTS: dict[tuple[str, str], tuple[str, ...]] = {
+    ('orbital_gn', 'gn_server'): ('/global_network',),
+    ('rover_vo', 'rover_vo'): ('/vo/odometry',),
+    ('roi_detector', 'roi_detector'): ('/rois/detections', '/rois/tracks'),
+    ('roi_detector', 'ln_builder'): ('/local_network',),
+    # It runs only with a GN (its graph entry requires one): then a run must localize.
+    ('darces_matcher', 'darces_matcher'): ('/global_pose', '/matcher/status'),
+}
 
 
 @dataclass(frozen=True)
@@ -45,6 +58,7 @@ class NodeSpec:
         command: Explicit command line (argv), used instead of package/executable.
         requires: Input files the node cannot start without (``$BAG_DIR`` substituted),
             e.g. the GN file that ``orbital_gn`` prepares offline.
+        outputs: Topics the node must publish in a run (None: ``DEFAULT_OUTPUTS``).
     """
 
     name: str
@@ -52,6 +66,14 @@ class NodeSpec:
     executable: str | None = None
     command: tuple[str, ...] | None = None
     requires: tuple[str, ...] = ()
+    outputs: tuple[str, ...] | None = None
+
+    @property
+    def expected_outputs(self) -> tuple[str, ...]:
+        """The topics it must publish: its ``outputs``, else ``DEFAULT_OUTPUTS``, else ()."""
+        if self.outputs is not None:
+            return self.outputs
+        return DEFAULT_OUTPUTS.get((self.package or '', self.executable or ''), ())
 
     def describe(self) -> str:
         """``node X (package P, executable E)`` or ``node X (command C)``."""
@@ -96,6 +118,11 @@ def load_graph(path: Path) -> list[NodeSpec]:
         requires = entry.get('requires', [])
         if not isinstance(requires, list) or not all(isinstance(r, str) for r in requires):
             raise GloblocError(f'{where}: "requires" must be a list of file paths')
+        outputs = entry.get('outputs')
+        if outputs is not None and (not isinstance(outputs, list) or not all(
+                isinstance(t, str) and t.startswith('/') for t in outputs)):
+            raise GloblocError(f'{where}: "outputs" must be a list of topic names (/...)')
+        outputs = None if outputs is None else tuple(outputs)
         command = entry.get('command')
         if command is not None:
             if isinstance(command, str):
@@ -103,12 +130,12 @@ def load_graph(path: Path) -> list[NodeSpec]:
             if not command or not all(isinstance(c, str | int | float) for c in command):
                 raise GloblocError(f'{where}: "command" must be a non-empty list of strings')
             nodes.append(NodeSpec(name=entry['name'], command=tuple(str(c) for c in command),
-                                  requires=tuple(requires)))
+                                  requires=tuple(requires), outputs=outputs))
         elif isinstance(entry.get('package'), str) and isinstance(entry.get('executable'), str):
             nodes.append(
                 NodeSpec(
                     name=entry['name'], package=entry['package'], executable=entry['executable'],
-                    requires=tuple(requires),
+                    requires=tuple(requires), outputs=outputs,
                 )
             )
         else:

@@ -31,6 +31,8 @@ class ManagedProcess:
         popen: The process.
         stop_requested: Set once we asked it to stop (exits after that are not crashes).
         killed: Whether it needed SIGKILL.
+        muted: Once set, an echoed process's output goes to its log only (an interrupted
+            run says one line, not each child's farewell).
     """
 
     name: str
@@ -39,6 +41,7 @@ class ManagedProcess:
     popen: subprocess.Popen[bytes]
     stop_requested: bool = False
     killed: bool = False
+    muted: threading.Event = field(default_factory=threading.Event)
     _log: IO[bytes] | None = field(default=None, repr=False)
     _tee: threading.Thread | None = field(default=None, repr=False)
 
@@ -62,18 +65,21 @@ class ManagedProcess:
             self._log = None
 
 
-def _copy_lines(source: IO[bytes], log: IO[bytes], console: IO[str]) -> None:
-    # Runs in a thread: one line at a time to the log and to our stderr.
+def _copy_lines(source: IO[bytes], log: IO[bytes], console: IO[str],
+                muted: threading.Event) -> None:
+    # Runs in a thread: one line at a time to the log and (unless muted) to our stderr.
     for line in iter(source.readline, b''):
         log.write(line)
         log.flush()
-        console.write(line.decode(errors='replace'))
-        console.flush()
+        if not muted.is_set():
+            console.write(line.decode(errors='replace'))
+            console.flush()
     source.close()
 
 
 def start(
-    name: str, argv: Sequence[str], log_dir: Path, echo: bool = False, append: bool = False
+    name: str, argv: Sequence[str], log_dir: Path, echo: bool = False, append: bool = False,
+    muted: threading.Event | None = None,
 ) -> ManagedProcess:
     """Start a child process with stdout+stderr going to ``<log_dir>/<name>.log``.
 
@@ -83,6 +89,8 @@ def start(
         log_dir: Directory of the log files (must exist).
         echo: Also copy its output to our stderr (the player's progress lines).
         append: Append to the log instead of replacing it (a restarted node).
+        muted: With ``echo``: stop copying to our stderr once this is set (default: a new
+            event, ``ManagedProcess.muted``).
 
     Returns:
         The started process.
@@ -96,10 +104,12 @@ def start(
         stderr=subprocess.STDOUT,
     )
     proc = ManagedProcess(name=name, argv=list(argv), log_path=log_path, popen=popen, _log=log)
+    if muted is not None:
+        proc.muted = muted
     if echo:
         assert popen.stdout is not None
         proc._tee = threading.Thread(
-            target=_copy_lines, args=(popen.stdout, log, sys.stderr), daemon=True
+            target=_copy_lines, args=(popen.stdout, log, sys.stderr, proc.muted), daemon=True
         )
         proc._tee.start()
     return proc

@@ -1,4 +1,8 @@
-"""``globloc eval RUN_DIR``: evaluate a run and write report.json, report.md and plots."""
+"""``globloc eval RUN_DIR``: evaluate a run and write report.json, report.md and plots.
+
+``report.json`` carries the run's own status (``run_status``: ok, degraded, failed or
+interrupted, and why, from ``run.yaml``) beside the figures, so that a degraded run's
+numbers are never read as a clean run's."""
 
 from __future__ import annotations
 
@@ -8,6 +12,7 @@ from pathlib import Path
 
 from roi_network.files import write_atomic
 from rover_bringup.evaluation import evaluate, load_run, report_markdown
+from rover_bringup.run_outputs import run_status
 
 REPORT_JSON = 'report.json'
 REPORT_MD = 'report.md'
@@ -48,7 +53,7 @@ def evaluate_run(options: EvalOptions) -> dict:
         plot_route(ev, data, options.run_dir / PLOTS[0])
         plot_error(ev, options.run_dir / PLOTS[1])
         plots = list(PLOTS)
-    summary = ev.summary | {'plots': plots}
+    summary = ev.summary | {'plots': plots, 'run_status': run_status(options.run_dir)}
     write_atomic(options.run_dir / REPORT_JSON, report_json(summary))
     write_atomic(options.run_dir / REPORT_MD, report_markdown(summary, plots))
     return summary

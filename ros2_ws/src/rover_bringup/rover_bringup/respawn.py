@@ -4,7 +4,8 @@ A node that exits while the run still needs it (it was not asked to stop) is sta
 with the same command line, its log appended to (a marker line separates the runs), until
 it has been restarted ``max_restarts`` times; after that its exit ends the run as before.
 The recorder and the player are never restarted: a new recorder would start a new bag,
-and the player's position in the bag is not kept.
+and the player's position in the bag is not kept. Once the run is interrupted (SIGINT or
+SIGTERM, ``Respawner.stopped``) nothing is restarted: the nodes' exits are the stop.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ class Respawner:
         processes: the run's processes by name (the restarted one replaces the old).
         nodes: names of the processes that may be restarted.
         exits: per node, the exit status of each incarnation that was restarted.
+        stopped: set when the run is being stopped (an interrupt): restart nothing.
     """
 
     max_restarts: int
@@ -33,10 +35,12 @@ class Respawner:
     processes: dict[str, ManagedProcess]
     nodes: set[str]
     exits: dict[str, list[int]] = field(default_factory=dict)
+    stopped: bool = False
 
     def __call__(self, proc: ManagedProcess) -> ManagedProcess | None:
-        """Restart ``proc``; None when it may not be (not a node, or out of restarts)."""
-        if proc.name not in self.nodes:
+        """Restart ``proc``; None when it may not be (not a node, out of restarts, or the
+        run is stopping)."""
+        if self.stopped or proc.name not in self.nodes:
             return None
         codes = self.exits.setdefault(proc.name, [])
         if len(codes) >= self.max_restarts:

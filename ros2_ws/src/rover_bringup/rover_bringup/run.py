@@ -2,7 +2,10 @@
 
 Sequence: check the bag and the graph; start the recorder and every node (one process each,
 ``use_sim_time``); play the bag once all of them subscribed to /clock; let the graph drain;
-stop nodes, then the recorder, with SIGTERM; write ``run.yaml``.
+stop nodes, then the recorder, with SIGTERM; write ``run.yaml`` with the run's status:
+``ok`` (exit 0), ``degraded`` (exit 3: a node never started, exited, was restarted, or
+published nothing on a topic it must publish; ``health``), ``failed`` (exit 1: a crash, a
+playback failure) or ``interrupted`` (exit 130: SIGINT or SIGTERM; nothing is restarted).
 Steps (docs/bringup.md, Method): 1 check, 2 write, 3 start, 4 play, 5 drain and stop,
 6 export. Output layout::
 
@@ -10,14 +13,17 @@ Steps (docs/bringup.md, Method): 1 check, 2 write, 3 start, 4 play, 5 drain and 
         outputs/metadata.yaml, outputs/outputs.mcap   rosbag2 bag of every output topic
         logs/<node>.log, logs/globloc_player.log, logs/globloc_recorder.log
         params.yaml                                   params file given to the nodes
-        run.yaml                                      what ran, exit codes, message counts
+        run.yaml                                      what ran, exit codes, message counts,
+                                                      status and why
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import sys
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -40,6 +46,7 @@ from rover_bringup.graph import (
     resolve,
     substitute,
 )
+from rover_bringup.health import NodeRun, degraded_reasons, read_statuses
 from rover_bringup.launcher import ManagedProcess, start, stop, tail
 from rover_bringup.msgtypes import playable_classes
 from rover_bringup.recording import count_messages
@@ -62,8 +69,12 @@ STOP_TIMEOUT_S = 10.0
 #: Lines of a crashed node's log shown in the error.
 TAIL_LINES = 20
 _POLL_S = 0.1
-#: After an interrupt, how long children get to exit on their own SIGINT, seconds.
-_INTERRUPT_GRACE_S = 3.0
+#: Exit status of a run that failed: a node crashed after its last restart, playback failed.
+EXIT_FAILED = 1
+#: Exit status of a run that ended but is degraded (``health.degraded_reasons``).
+EXIT_DEGRADED = 3
+#: Exit status of an interrupted run (SIGINT or SIGTERM), as a shell reports SIGINT.
+EXIT_INTERRUPTED = 130
 
 
 @dataclass
@@ -271,30 +282,90 @@ def _write_params(plan: _Plan, run_dir: Path, variables: dict[str, str]) -> list
     return files
 
 
+class _Interrupt:
+    """The SIGINT/SIGTERM handler of ``globloc run``.
+
+    Installed whatever the inherited disposition: a job a non-interactive shell starts in
+    the background inherits SIGINT ignored, while the ROS children install their own
+    handlers, so that a Ctrl-C to the process group used to stop the nodes and leave the run
+    restarting them. Until the first process starts it raises ``KeyboardInterrupt`` (there
+    is nothing to stop); after that it only records the signal, and the supervision loop,
+    which looks every ``_POLL_S``, stops the graph itself: no half-started child, no
+    restart, the outputs closed. A second signal changes nothing: stopping is bounded
+    (``STOP_TIMEOUT_S``), and cutting the recorder short would lose its bag.
+
+    Attributes:
+        signum: The first signal received, None before.
+        raising: Raise ``KeyboardInterrupt`` on it (before anything started).
+        event: Set on the first signal (mutes the player's echo at once).
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self.raising = True
+        self.event = threading.Event()
+        self._previous: dict[int, Any] = {}
+
+    def __enter__(self) -> _Interrupt:
+        if threading.current_thread() is threading.main_thread():
+            self._previous = {sig: signal.signal(sig, self._handle) for sig in self.SIGNALS}
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+    def _handle(self, signum: int, _frame: object) -> None:
+        if self.signum is not None:
+            return
+        self.signum = signum
+        self.event.set()
+        if self.raising:
+            raise KeyboardInterrupt
+
+    def __call__(self) -> bool:
+        """Whether a signal came."""
+        return self.signum is not None
+
+    @property
+    def name(self) -> str:
+        """``SIGINT`` or ``SIGTERM``."""
+        return signal.Signals(self.signum).name if self.signum is not None else ''
+
+
 def _supervise(
     options: RunOptions, plan: _Plan, run_dir: Path, params_files: list[Path],
     variables: dict[str, str], processes: dict[str, ManagedProcess], errors: list[str],
-    respawn: Respawner,
+    respawn: Respawner, interrupt: _Interrupt,
 ) -> None:
     """Start recorder, nodes and player (filling ``processes``); return when the run is over.
 
-    Over means: the bag was played and the drain time passed, or a node crashed (as a
+    Over means: the bag was played and the drain time passed, a node crashed (as a
     required node does under ``ros2 launch``, a crash ends the run: the outputs of a graph
     with a dead node are not worth waiting for, and a node that dies at start-up would
-    otherwise keep the player waiting for its /clock subscription).
+    otherwise keep the player waiting for its /clock subscription), or an interrupt came
+    (then nothing more is started or restarted).
     """
     logs = run_dir / 'logs'
     python = [sys.executable, '-m', 'rover_bringup.cli']
     # 3. Start the recorder, then every node.
+    if interrupt():
+        return
     processes[RECORDER] = start(
         RECORDER,
         [*python, 'record', str(run_dir / OUTPUTS), '--ros-args', '-p', 'use_sim_time:=true'],
         logs,
     )
     for r in plan.ready:
+        if interrupt():
+            return
         argv = [substitute(a, variables) for a in node_command(r, params_files)]
         processes[r.spec.name] = start(r.spec.name, argv, logs)
     watched = list(processes.values())
+    if interrupt():
+        return
     # 4. Play the bag once every process subscribed to /clock.
     player = processes[PLAYER] = start(
         PLAYER,
@@ -308,37 +379,75 @@ def _supervise(
         ],
         logs,
         echo=True,
+        muted=interrupt.event,
     )
     reported: set[str] = set()
-    crash = _watch(watched, reported, lambda: player.returncode is not None, respawn)
+    crash = _watch(watched, reported, lambda: player.returncode is not None, respawn,
+                   interrupt)
+    if interrupt():
+        return
     if crash is None:
         if player.returncode != 0:
             errors.append(f'player exited with status {player.returncode} '
                           f'(log: {player.log_path})')
         # 5. Drain (stopping: run).
         end = time.monotonic() + options.drain_s
-        crash = _watch(watched, reported, lambda: time.monotonic() >= end, respawn)
-    if crash is not None:
+        crash = _watch(watched, reported, lambda: time.monotonic() >= end, respawn, interrupt)
+    if crash is not None and not interrupt():
         _warn(f'{crash.name} crashed: stopping the run')
+
+
+def _stop_all(plan: _Plan, processes: dict[str, ManagedProcess], respawn: Respawner,
+              interrupt: _Interrupt) -> list[ManagedProcess]:
+    """Stop every process; return the nodes' (graph order). Nodes first, so that the
+    recorder still gets what they publish while stopping; after an interrupt the player
+    goes before them (no more input), and every exit counts as the stop it is."""
+    nodes = [processes[r.spec.name] for r in plan.ready if r.spec.name in processes]
+    tools = [processes[name] for name in (PLAYER, RECORDER) if name in processes]
+    if interrupt():
+        respawn.stopped = True
+        for proc in processes.values():
+            proc.stop_requested = True
+        stop([p for p in tools if p.name == PLAYER], STOP_TIMEOUT_S)
+    stop(nodes, STOP_TIMEOUT_S)
+    stop(tools, STOP_TIMEOUT_S)
+    if interrupt():  # it came while stopping: exits from it are no crash either
+        for proc in processes.values():
+            proc.stop_requested = True
+    return nodes
 
 
 def run(options: RunOptions) -> int:
     """Run the graph on a bag; see the module docstring.
 
     Returns:
-        0 when every node ran to the end and the player delivered everything; 1 when a node
-        crashed (the error names it and shows its log tail) or playback failed; 130 when
-        interrupted.
+        ``EXIT_DEGRADED`` (3) when a node never started, exited or was restarted, or
+        published nothing on a topic it must (each named in one line, ``health``);
+        ``EXIT_FAILED`` (1) when a node crashed (the error names it and shows its log tail)
+        or playback failed; ``EXIT_INTERRUPTED`` (130) after SIGINT or SIGTERM; 0
+        otherwise.
 
     Raises:
         GloblocError: Bad bag, graph or params file, or a missing executable (before anything
             is started).
     """
-    # 1. Check everything that needs no process.
-    bag_root = locate_bag(options.bag).root
-    prepare_gn_if_missing(bag_root)
-    check_gn(bag_root, _warn)
-    plan = _prepare(options)
+    with _Interrupt() as interrupt:
+        try:
+            # 1. Check everything that needs no process.
+            bag_root = locate_bag(options.bag).root
+            prepare_gn_if_missing(bag_root)
+            check_gn(bag_root, _warn)
+            plan = _prepare(options)
+            interrupt.raising = False
+        except KeyboardInterrupt:
+            print(f'globloc: interrupted by {interrupt.name or "SIGINT"} before the graph '
+                  'started: nothing was run', file=sys.stderr, flush=True)
+            return EXIT_INTERRUPTED
+        return _run(options, plan, interrupt)
+
+
+def _run(options: RunOptions, plan: _Plan, interrupt: _Interrupt) -> int:
+    """Steps 2-6 of ``run``, the signals recorded by ``interrupt``."""
     run_dir = _new_run_dir(options.out, plan.location, options.run_id)
     variables = {
         'BAG_DIR': str(plan.location.root.resolve()),
@@ -353,29 +462,18 @@ def run(options: RunOptions) -> int:
 
     processes: dict[str, ManagedProcess] = {}
     errors: list[str] = []
-    status = 0
     respawn = Respawner(options.max_restarts, run_dir / 'logs', processes,
                         {r.spec.name for r in plan.ready})
     try:
         # 3.-5. Start, play and drain (_supervise).
         _supervise(options, plan, run_dir, params_files, variables, processes, errors,
-                   respawn)
-    except KeyboardInterrupt:
-        errors.append('interrupted')
-        status = 130
-        _info('interrupted: stopping the graph; the outputs recorded so far are kept')
-        # Ctrl-C in a terminal reaches every child too: let them finish on it (the recorder
-        # closes its bag) before SIGTERM; their exits are not crashes.
-        _wait_for_exit(list(processes.values()), _INTERRUPT_GRACE_S)
-        for proc in processes.values():
-            proc.stop_requested = True
+                   respawn, interrupt)
     finally:
         # 5. Stop.
-        nodes = [processes[r.spec.name] for r in plan.ready if r.spec.name in processes]
-        # Nodes first, so that the recorder still gets what they publish while stopping.
-        stop(nodes, STOP_TIMEOUT_S)
-        stop([p for p in processes.values() if p.name in (PLAYER, RECORDER)], STOP_TIMEOUT_S)
+        nodes = _stop_all(plan, processes, respawn, interrupt)
 
+    if interrupt():
+        errors.clear()  # the player's status, say: the interrupt's doing
     for proc in [*nodes, processes.get(RECORDER)]:
         if proc is not None and proc.crashed:
             what = 'the recorder' if proc.name == RECORDER else f'node {proc.name}'
@@ -383,12 +481,25 @@ def run(options: RunOptions) -> int:
                 f'{what} crashed (exit status {proc.returncode}); last lines of '
                 f'{proc.log_path}:\n{tail(proc.log_path, TAIL_LINES).rstrip()}'
             )
-    # 6. Export the outputs bag and write run.yaml.
+    # 6. Export the outputs bag, judge the run and write run.yaml.
+    unreadable = ''
     try:
         counts = count_messages(run_dir / OUTPUTS)
+        statuses = read_statuses(run_dir / OUTPUTS)
     except GloblocError as exc:
-        counts = {}
-        errors.append(str(exc))
+        counts, statuses, unreadable = {}, {}, str(exc)
+        errors.append(unreadable)
+    degraded = [] if interrupt() else degraded_reasons(
+        [_node_run(r, processes.get(r.spec.name), respawn) for r in plan.nodes],
+        counts, statuses)
+    if interrupt():
+        status, code = 'interrupted', EXIT_INTERRUPTED
+    elif errors:
+        status, code = 'failed', EXIT_FAILED
+    elif degraded:
+        status, code = 'degraded', EXIT_DEGRADED
+    else:
+        status, code = 'ok', 0
     report = {
         'command': ['globloc', *sys.argv[1:]],  # this process's command line
         'bag': {'dir': str(plan.location.root), 'rosbag': str(plan.location.rosbag)},
@@ -399,7 +510,7 @@ def run(options: RunOptions) -> int:
         'params_files_used': [str(p) for p in params_files],
         'started': started,
         'finished': datetime.now().isoformat(timespec='seconds'),
-        'nodes': [_node_entry(r, processes.get(r.spec.name), run_dir)
+        'nodes': [_node_entry(r, processes.get(r.spec.name), run_dir, counts)
                   | _restarts(respawn, r.spec.name) for r in plan.nodes],
         'tools': {name: _proc_entry(processes[name], run_dir)
                   for name in (PLAYER, RECORDER) if name in processes},
@@ -408,25 +519,43 @@ def run(options: RunOptions) -> int:
             'messages': {t: counts.get(t, 0) for t in OUTPUT_TOPICS}
             | {t: n for t, n in counts.items() if t not in OUTPUT_TOPICS},
         },
-        'status': 'failed' if errors else 'ok',
+        'status': status,
+        'exit_code': code,
+        **({'interrupted_by': interrupt.name} if interrupt() else {}),
+        'degraded': degraded,
         'errors': errors,
     }
     report['outputs']['files'] = _export(run_dir, counts)
     (run_dir / 'run.yaml').write_text(yaml.safe_dump(report, sort_keys=False))
     recorded = ', '.join(f'{t} {n}' for t, n in counts.items() if n) or 'nothing'
+    if interrupt():
+        kept = (f'the outputs bag is unreadable: {unreadable}' if unreadable
+                else f'recorded {recorded} -> {run_dir / OUTPUTS}')
+        _info(f'interrupted by {interrupt.name}: graph stopped, nothing restarted; {kept}')
+        return code
     _info(f'recorded {recorded} -> {run_dir / OUTPUTS}')
     for error in errors:
         print(f'globloc: error: {error}', file=sys.stderr, flush=True)
-    return (status or 1) if errors else 0
+    for reason in degraded:
+        print(f'globloc: degraded: {reason}', file=sys.stderr, flush=True)
+    _info(f'status: {status}' + (f' (exit status {code}; {run_dir / "run.yaml"})'
+                                 if code else ''))
+    return code
 
 
-def _wait_for_exit(processes: list[ManagedProcess], timeout_s: float) -> None:
-    end = time.monotonic() + timeout_s
-    while time.monotonic() < end and any(p.returncode is None for p in processes):
-        try:
-            time.sleep(_POLL_S)
-        except KeyboardInterrupt:  # a second Ctrl-C: stop waiting
-            return
+def _node_run(r: Resolved, proc: ManagedProcess | None, respawn: Respawner) -> NodeRun:
+    """A node as ``health`` judges it."""
+    outputs = r.spec.expected_outputs
+    if r.availability is Availability.NO_INPUT:
+        return NodeRun(r.spec.name)  # no input for it in this bag (a GN): not expected
+    if r.availability is not Availability.READY:
+        return NodeRun(r.spec.name, outputs, not_started=r.reason.removesuffix(': skipped'))
+    if proc is None:
+        return NodeRun(r.spec.name, outputs, not_started='the run stopped before it')
+    early = (proc.returncode if proc.returncode is not None and not proc.stop_requested
+             and not proc.crashed else None)
+    return NodeRun(r.spec.name, outputs, restart_codes=tuple(respawn.exits.get(r.spec.name, ())),
+                   exited_early=early)
 
 
 def _export(run_dir: Path, counts: dict[str, int]) -> dict[str, int]:
@@ -448,8 +577,9 @@ def _restarts(respawn: Respawner, name: str) -> dict[str, Any]:
 def _watch(
     processes: list[ManagedProcess], reported: set[str], until: Callable[[], bool],
     respawn: Callable[[ManagedProcess], ManagedProcess | None] | None = None,
+    interrupted: Callable[[], bool] = lambda: False,
 ) -> ManagedProcess | None:
-    """Poll until ``until()`` or a crash.
+    """Poll until ``until()``, a crash or ``interrupted()``.
 
     Args:
         processes: Processes that should keep running (nodes, recorder); a restarted one
@@ -458,13 +588,17 @@ def _watch(
         until: Condition that ends the watch.
         respawn: Called with a process that exited on its own; returns its restarted
             replacement, or None (then a crash ends the watch, a clean exit is reported).
+        interrupted: True once the run is interrupted: the watch ends at once, restarting
+            nothing (the children's exits are then the interrupt's).
 
     Returns:
         The first process found crashed (exited non-zero on its own) and not restarted,
         else None.
     """
-    while not until():
+    while not until() and not interrupted():
         for i, proc in enumerate(processes):
+            if interrupted():
+                return None
             if (proc.returncode is not None and not proc.stop_requested
                     and respawn is not None and (new := respawn(proc)) is not None):
                 processes[i] = new
@@ -488,7 +622,8 @@ def _proc_entry(proc: ManagedProcess, run_dir: Path) -> dict[str, Any]:
     }
 
 
-def _node_entry(r: Resolved, proc: ManagedProcess | None, run_dir: Path) -> dict[str, Any]:
+def _node_entry(r: Resolved, proc: ManagedProcess | None, run_dir: Path,
+                counts: dict[str, int]) -> dict[str, Any]:
     spec = r.spec
     entry: dict[str, Any] = {'name': spec.name}
     if spec.command is not None:
@@ -501,6 +636,8 @@ def _node_entry(r: Resolved, proc: ManagedProcess | None, run_dir: Path) -> dict
         return entry
     entry['status'] = 'crashed' if proc.crashed else 'ran'
     entry.update(_proc_entry(proc, run_dir))
+    if spec.expected_outputs:
+        entry['published'] = {t: counts.get(t, 0) for t in spec.expected_outputs}
     return entry
 
 

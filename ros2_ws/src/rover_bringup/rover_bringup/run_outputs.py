@@ -5,7 +5,8 @@
 
 =========================  ================================================================
 ``global_pose.tum``        /global_pose, TUM (t x y z qx qy qz qw, base_link in ``map``)
-``global_pose_cov.tsv``    its horizontal covariance per pose: t cov_xx cov_xy cov_yy (m^2)
+``global_pose_cov.tsv``    its covariance per pose: t cov_xx cov_xy cov_yy cov_zz (m^2;
+                           cov_zz 1e6: z not estimated, no DTM)
 ``vo.tum``                 /vo/odometry, TUM (base_link in ``odom``)
 ``vo_covariance.txt``      its pose covariance per pose: t and the 36 row-major entries
                            ([x y z rx ry rz]; m^2, rad^2), as ``rover_vo odometry`` writes
@@ -95,6 +96,46 @@ def read_records_csv(path: Path):
     return records
 
 
+RUN_YAML = 'run.yaml'
+
+
+def run_status(run_dir: Path) -> dict:
+    """The run's status as ``globloc run`` wrote it in ``run.yaml``, for ``globloc eval``.
+
+    Returns:
+        ``{'status': ok | degraded | failed | interrupted, 'exit_code': N, 'reasons':
+        [one line each]}`` (the reasons: errors, then why degraded, or the interrupting
+        signal); ``status`` is ``unknown`` when ``run.yaml`` is missing, unreadable or
+        written before runs had a status.
+    """
+    import yaml
+
+    try:
+        doc = yaml.safe_load((run_dir / RUN_YAML).read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        return {'status': 'unknown', 'exit_code': None,
+                'reasons': [f'cannot read {run_dir / RUN_YAML}: {exc}']}
+    if not isinstance(doc, dict) or doc.get('status') not in (
+            'ok', 'degraded', 'failed', 'interrupted'):
+        return {'status': 'unknown', 'exit_code': None,
+                'reasons': [f'{run_dir / RUN_YAML} records no run status']}
+    reasons = [str(e).splitlines()[0] for e in doc.get('errors') or []]
+    reasons += [str(r) for r in doc.get('degraded') or []]
+    if doc['status'] == 'interrupted':
+        reasons.insert(0, f"interrupted by {doc.get('interrupted_by', 'a signal')}: the "
+                       'outputs end where the run was stopped')
+    return {'status': doc['status'], 'exit_code': doc.get('exit_code'), 'reasons': reasons}
+
+
+def run_status_lines(status: dict | None) -> list[str]:
+    """What ``globloc eval`` prints of :func:`run_status`: nothing for an ``ok`` run, else
+    ``run status: degraded`` and one line per reason."""
+    if not status or status.get('status') == 'ok':
+        return []
+    return [f"run status: {status['status']}",
+            *(f'  {reason}' for reason in status.get('reasons', []))]
+
+
 def export_outputs(run_dir: Path) -> dict[str, int]:
     """Write the files of the module docstring from ``<run_dir>/outputs/``.
 
@@ -131,7 +172,7 @@ def export_outputs(run_dir: Path) -> dict[str, int]:
                     t = _stamp(msg.header)
                     poses.append(_tum_line(t, msg.pose.pose.position, msg.pose.pose.orientation))
                     c = msg.pose.covariance
-                    covs.append(f'{t:.9f} {c[0]:.9g} {c[1]:.9g} {c[7]:.9g}\n')
+                    covs.append(f'{t:.9f} {c[0]:.9g} {c[1]:.9g} {c[7]:.9g} {c[14]:.9g}\n')
                 elif conn.topic == '/vo/odometry':
                     vo.append(_tum_line(_stamp(msg.header), msg.pose.pose.position,
                                         msg.pose.pose.orientation))
@@ -159,7 +200,7 @@ def export_outputs(run_dir: Path) -> dict[str, int]:
     write_atomic(run_dir / GLOBAL_POSE_TUM,
                  _lines('# t x y z qx qy qz qw (/global_pose, map frame, base_link)\n', poses))
     write_atomic(run_dir / GLOBAL_POSE_COV,
-                 _lines('# t cov_xx cov_xy cov_yy (/global_pose horizontal covariance, m^2)\n',
+                 _lines('# t cov_xx cov_xy cov_yy cov_zz (/global_pose covariance, m^2)\n',
                         covs))
     write_atomic(run_dir / VO_TUM,
                  _lines('# t x y z qx qy qz qw (/vo/odometry, odom frame, base_link)\n', vo))

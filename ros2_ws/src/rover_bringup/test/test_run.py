@@ -1,9 +1,9 @@
-"""``globloc run``: nodes in their own processes, outputs recorded (crashes:
-test_reliability.py).
+"""``globloc run``: nodes in their own processes, outputs recorded, the run's status
+(crashes, restarts and interrupts: test_reliability.py).
 
 The graph is a test node (fake_pipeline_node.py, given as an explicit ``command:``) that turns
 IMU messages into /vo/odometry and /global_pose and latches a /global_network, plus a node
-whose executable is not built.
+whose executable is not built; then test nodes that publish nothing, or no /global_pose.
 """
 
 from __future__ import annotations
@@ -28,7 +28,8 @@ def _setup(tmp_path: Path, bagfactory: ModuleType, mode: str, name: str) -> tupl
     (bag_dir / 'rover.yaml').write_text('/**:\n  ros__parameters:\n    camera_height: 1.25\n')
     (tmp_path / 'graph.yaml').write_text(
         'nodes:\n'
-        f'  - {{name: {name}, command: [$PYTHON, {FAKE}]}}\n'
+        f'  - {{name: {name}, command: [$PYTHON, {FAKE}],\n'
+        '     outputs: [/vo/odometry, /global_pose, /global_network]}\n'
         '  - {name: later, package: rover_bringup, executable: no_such_node}\n'
     )
     (tmp_path / 'params.yaml').write_text(
@@ -54,15 +55,24 @@ def test_run_records_outputs(
     bag_dir, imu = _setup(tmp_path, bagfactory, 'echo', 'fake_vo')
     # Default discovery settings and default --settle: the configuration users get.
     result = _run(globloc_cmd, tmp_path, bag_dir, ros_env)
-    assert result.returncode == 0, result.stderr
+    run_dir = tmp_path / 'out' / 'tiny' / 'r1'
+    # Everything ran and published, but a node of the graph never started: degraded.
+    assert result.returncode == 3, result.stderr
     assert ('globloc: warning: node later (package rover_bringup, executable no_such_node) '
             'is not built yet: skipped') in result.stderr
-    run_dir = tmp_path / 'out' / 'tiny' / 'r1'
+    reason = ('later never started: node later (package rover_bringup, executable '
+              'no_such_node) is not built yet')
+    assert result.stderr.splitlines()[-2:] == [
+        f'globloc: degraded: {reason}',
+        f'globloc: status: degraded (exit status 3; {run_dir / "run.yaml"})']
 
     report = yaml.safe_load((run_dir / 'run.yaml').read_text())
-    assert report['status'] == 'ok' and report['errors'] == []
+    assert (report['status'], report['exit_code']) == ('degraded', 3)
+    assert report['degraded'] == [reason] and report['errors'] == []
     fake, later = report['nodes']
     assert (fake['name'], fake['status'], fake['exit_code']) == ('fake_vo', 'ran', 0)
+    assert fake['published'] == {'/vo/odometry': 200, '/global_pose': 20,
+                                 '/global_network': 1}
     assert (later['name'], later['status']) == ('later', 'not built')
     assert report['tools']['globloc_player']['exit_code'] == 0
     counts = report['outputs']['messages']
@@ -109,3 +119,40 @@ def test_run_records_outputs(
     poses = [m for t, m in decoded if t == '/global_pose']
     assert [m.header.frame_id for m in poses] == ['map'] * 20
 
+
+
+def test_silent_node_and_no_global_pose_make_the_run_degraded(
+    tmp_path: Path, bagfactory: ModuleType, ros_env: dict[str, str], globloc_cmd: list[str]
+):
+    """A node that publishes nothing but its status, a matcher that never localizes: the
+    run ends degraded (exit 3), one line each, from the nodes' own status topics."""
+    bag_dir, imu = _setup(tmp_path, bagfactory, 'echo', 'unused')
+    (tmp_path / 'graph.yaml').write_text(
+        'nodes:\n'
+        f'  - {{name: fake_vo, command: [$PYTHON, {FAKE}], outputs: [/vo/odometry]}}\n'
+        f'  - {{name: fake_matcher, command: [$PYTHON, {FAKE}],\n'
+        '     outputs: [/global_pose, /matcher/status]}\n')
+    (tmp_path / 'params.yaml').write_text(yaml.safe_dump({
+        'fake_vo': {'ros__parameters': {'mode': 'silent'}},
+        'fake_matcher': {'ros__parameters': {'mode': 'no_fix'}}}))
+    result = _run(globloc_cmd, tmp_path, bag_dir, ros_env)
+    run_dir = tmp_path / 'out' / 'tiny' / 'r1'
+    assert result.returncode == 3, result.stderr
+    assert 'Traceback' not in result.stderr
+    report = yaml.safe_load((run_dir / 'run.yaml').read_text())
+    counts = report['outputs']['messages']
+    n_vo, n_matcher = counts['/vo/status'], counts['/matcher/status']
+    assert n_vo == n_matcher == len(imu) // 10  # every status message recorded
+    reasons = [
+        f'fake_vo published nothing on /vo/odometry; its last /vo/status (of {n_vo}): '
+        f'"imu_propagation: 0 inliers", pairs 0, imu_samples {len(imu) - 9}, '
+        f'bad_input.camera_info {n_vo}',
+        f'fake_matcher published nothing on /global_pose; its last /matcher/status (of '
+        f'{n_matcher}): "not localized: none (too_few_nodes)", state searching, reason '
+        'too_few_nodes, ln_size 3',
+    ]
+    assert (report['status'], report['exit_code'], report['degraded']) == (
+        'degraded', 3, reasons)
+    assert result.stderr.splitlines()[-3:] == [
+        *(f'globloc: degraded: {r}' for r in reasons),
+        f'globloc: status: degraded (exit status 3; {run_dir / "run.yaml"})']
