@@ -20,8 +20,15 @@ associated with the truth pose of the nearest stamp (evo's ``associate_trajector
   exactly right gives 98.9 % (chi-square, 2 degrees of freedom); the target >= 99 % asks
   for a covariance that errs, if at all, on the large side.
 
-Also reported: evo's unaligned 3D APE of /global_pose and, when the run has ``vo.tum``,
-evo's SE(3)-aligned APE of the visual odometry (the drift the localization corrects).
+Vertical error, apart: ``z_est - z_true`` of the poses whose z is estimated (the matcher
+took it from an orbital DTM: its variance, ``cov_zz`` of ``global_pose_cov.tsv``, is below
+roi_network.dtm's unknown mark); ``vertical_final_error_m`` (absolute),
+``vertical_rmse_m``, ``vertical_max_error_m``, ``vertical_consistency_3sigma`` (share
+within 3 sigma_z). evo's unaligned 3D APE of /global_pose (``ape_unaligned_rmse_m``) is
+quoted only when every pose has its z estimated; otherwise it is null and ``z_note`` says
+why (a z not estimated would make it the odometry's height error). When the run has
+``vo.tum``: evo's SE(3)-aligned APE of the visual odometry (the drift the localization
+corrects).
 """
 
 from __future__ import annotations
@@ -33,6 +40,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from roi_network.dtm import UNKNOWN_THRESHOLD_M2
 from roi_network.trajectory import TUM_FIELDS, numeric_table
 from rover_bringup.errors import GloblocError
 from rover_bringup.gn_check import check_truth_frame
@@ -114,6 +122,8 @@ class RunData:
         bag_dir: The bag directory (holds ``truth/``, ``orbital.tif``, ``gn.geojson``).
         estimate: (N, 8) /global_pose, TUM rows (map).
         covariance: (N, 2, 2) horizontal covariance per pose, or None (not recorded).
+        z_variance: (N,) variance of each pose's z (m^2; 1e6: not estimated), or None
+            (not recorded: a cov file of 4 columns).
         truth: (M, 8) ground-truth base_link poses, TUM rows (map).
         vo: (K, 8) /vo/odometry, TUM rows (odom), or None.
         events: (stamp s, event, received s or None) from /matcher/status
@@ -131,6 +141,7 @@ class RunData:
     events: list[tuple[float, str, float | None]] = field(default_factory=list)
     alignment: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     not_run: list[str] = field(default_factory=list)
+    z_variance: np.ndarray | None = None
 
 
 def bag_dir_of(run_dir: Path) -> Path:
@@ -166,6 +177,8 @@ def load_run(run_dir: Path, bag_dir: Path | None = None) -> RunData:
         if not (run_dir / OUTPUTS).is_dir():
             raise GloblocError(f'{run_dir}: neither {GLOBAL_POSE_TUM} nor {OUTPUTS}/')
         export_outputs(run_dir)
+    elif _cov_columns(run_dir / GLOBAL_POSE_COV) == 4 and (run_dir / OUTPUTS).is_dir():
+        export_outputs(run_dir)  # exported before the files had cov_zz: export again
     truth_path = bag_dir / 'truth' / 'trajectory.tum'
     if not truth_path.is_file():
         raise GloblocError(f'no ground truth for this run: {truth_path} not found')
@@ -174,23 +187,39 @@ def load_run(run_dir: Path, bag_dir: Path | None = None) -> RunData:
     if len(truth) < 2:
         raise GloblocError(f'{truth_path}: fewer than 2 poses')
     estimate = read_tum(run_dir / GLOBAL_POSE_TUM)
-    covariance = None
+    covariance = z_variance = None
     if (cov_path := run_dir / GLOBAL_POSE_COV).is_file():
-        cov = _read_table(cov_path, 4, 't cov_xx cov_xy cov_yy')
+        columns = _cov_columns(cov_path) or 5
+        cov = _read_table(cov_path, columns, 't cov_xx cov_xy cov_yy cov_zz'
+                          if columns == 5 else 't cov_xx cov_xy cov_yy')
         if len(cov) == len(estimate) and np.allclose(cov[:, 0], estimate[:, 0], atol=1e-6):
             covariance = np.stack([np.c_[cov[:, 1], cov[:, 2]], np.c_[cov[:, 2], cov[:, 3]]],
                                   axis=1)
+            z_variance = cov[:, 4] if columns == 5 else None
         elif len(estimate):
             raise GloblocError(f'{cov_path}: stamps do not match {GLOBAL_POSE_TUM}')
     # Recorded in arrival order; a restarted matcher can interleave stamps: sort by stamp.
     order = np.argsort(estimate[:, 0], kind='stable')
     estimate = estimate[order]
     covariance = covariance[order] if covariance is not None else None
+    z_variance = z_variance[order] if z_variance is not None else None
     vo = read_tum(run_dir / VO_TUM) if (run_dir / VO_TUM).is_file() else None
     alignment = (_read_table(run_dir / ALIGNMENT, 4, 't tx ty yaw')
                  if (run_dir / ALIGNMENT).is_file() else np.zeros((0, 4)))
     return RunData(run_dir, bag_dir, estimate, covariance, truth, vo,
-                   read_events(run_dir / EVENTS), alignment, _not_run(run_dir))
+                   read_events(run_dir / EVENTS), alignment, _not_run(run_dir), z_variance)
+
+
+def _cov_columns(path: Path) -> int | None:
+    """Columns of the first data row of ``global_pose_cov.tsv`` (None: no file, no row)."""
+    try:
+        with path.open() as f:
+            for line in f:
+                if line.strip() and not line.startswith('#'):
+                    return len(line.split())
+    except OSError:
+        return None
+    return None
 
 
 def _not_run(run_dir: Path) -> list[str]:
@@ -219,6 +248,8 @@ class Evaluation:
         t: (N,) stamps of the associated /global_pose, s.
         distance_m: (N,) distance driven at each, along the true route, m.
         error_m: (N,) horizontal error, m.
+        vertical_error_m: (N,) signed vertical error z_est - z_true, m; NaN where z is
+            not estimated.
         sigma3_m: (N,) 3-sigma bound (3 x the largest horizontal standard deviation), m;
             NaN without covariance.
         estimate_xy: (N, 2) estimated positions (map).
@@ -236,6 +267,7 @@ class Evaluation:
     truth_xy: np.ndarray
     truth_route: np.ndarray
     fixes: list[tuple[float, float, str]]
+    vertical_error_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def _cumulative_distance(xy: np.ndarray) -> np.ndarray:
@@ -327,7 +359,9 @@ def evaluate(data: RunData) -> Evaluation:
                          np.zeros((0, 2)), route_xy, [])
     keys = ('distance_before_first_fix_m', 'first_fix_t', 'final_error_m', 'final_pose_gap_m',
             'rmse_after_first_fix_m', 'median_error_m', 'max_error_m', 'false_fixes',
-            'poses_over_10m', 'consistency_3sigma', 'ape_unaligned_rmse_m')
+            'poses_over_10m', 'consistency_3sigma', 'ape_unaligned_rmse_m', 'z_estimated',
+            'vertical_final_error_m', 'vertical_rmse_m', 'vertical_max_error_m',
+            'vertical_consistency_3sigma', 'z_note')
     summary.update(dict.fromkeys(keys))
     if len(data.estimate) == 0:
         summary['localized'] = False
@@ -368,6 +402,11 @@ def evaluate(data: RunData) -> Evaluation:
         consistency = float(np.mean(m2 <= THREE_SIGMA_CHI2)) if valid.any() else None
         summary['poses_with_covariance'] = int(valid.sum())
 
+    vertical = _vertical(data, est_i, est.positions_xyz[:, 2] - ref.positions_xyz[:, 2])
+    summary.update(vertical.pop('summary'))
+    if summary['z_estimated'] == 'all':
+        summary['ape_unaligned_rmse_m'] = float(ape.get_statistic(metrics.StatisticsType.rmse))
+
     fixes: list[tuple[float, float, str]] = []
     false_fixes = 0
     for stamp, event, received in data.events:
@@ -401,7 +440,6 @@ def evaluate(data: RunData) -> Evaluation:
         poses_over_10m=int(over.sum()),
         associated_poses=len(t),
         consistency_3sigma=consistency,
-        ape_unaligned_rmse_m=float(ape.get_statistic(metrics.StatisticsType.rmse)),
     )
     summary['meets_targets'] = {
         'final_error_m': summary['final_error_m'] <= TARGETS['final_error_m'],
@@ -413,7 +451,49 @@ def evaluate(data: RunData) -> Evaluation:
         'consistency_3sigma': consistency is not None
         and consistency >= TARGETS['consistency_3sigma'],
     }
-    return Evaluation(summary, t, distance, error, sigma3, est_xy, true_xy, route_xy, fixes)
+    return Evaluation(summary, t, distance, error, sigma3, est_xy, true_xy, route_xy, fixes,
+                      vertical['error'])
+
+
+def _vertical(data: RunData, est_i: np.ndarray, dz: np.ndarray) -> dict[str, Any]:
+    """The vertical error of the associated poses whose z is estimated.
+
+    Returns:
+        ``summary``: ``z_estimated`` (``all``, ``some``, ``none``, or None when the run
+        did not record z's variance), the ``vertical_*`` metrics (null without an
+        estimated z) and ``z_note`` (why z, or the 3D APE, is not judged); ``error``:
+        (N,) signed error, NaN where z is not estimated.
+    """
+    out: dict[str, Any] = dict.fromkeys(('vertical_final_error_m', 'vertical_rmse_m',
+                                         'vertical_max_error_m',
+                                         'vertical_consistency_3sigma'))
+    error = np.full(len(dz), np.nan)
+    if data.z_variance is None:
+        out.update(z_estimated=None, z_note=(
+            f'z not judged: {GLOBAL_POSE_COV} has no cov_zz column (exported before it; '
+            f'no {OUTPUTS}/ to export it again); evo\'s 3D APE not quoted'))
+        return {'summary': out, 'error': error}
+    var = data.z_variance[est_i]
+    known = np.isfinite(var) & (var >= 0.0) & (var < UNKNOWN_THRESHOLD_M2)
+    if not known.any():
+        out.update(z_estimated='none', z_note=(
+            'z not estimated: /global_pose z variance >= 1e4 m^2 (no DTM beside the bag, '
+            'BAG/dtm.tif); evo\'s 3D APE not quoted (it would be the odometry\'s height '
+            'since the start against the map\'s altitude)'))
+        return {'summary': out, 'error': error}
+    error[known] = dz[known]
+    e = dz[known]
+    out.update(
+        z_estimated='all' if known.all() else 'some',
+        vertical_final_error_m=float(abs(e[-1])),
+        vertical_rmse_m=float(np.sqrt(np.mean(e**2))),
+        vertical_max_error_m=float(np.max(np.abs(e))),
+        vertical_consistency_3sigma=float(np.mean(e**2 <= THREE_SIGMA_CHI2 * var[known])),
+        z_note=None if known.all() else (
+            f'z estimated for {int(known.sum())} of {len(known)} poses (the others off the '
+            'DTM); the vertical figures are over those; evo\'s 3D APE not quoted'),
+    )
+    return {'summary': out, 'error': error}
 
 
 def _fmt(value: Any, unit: str = '', digits: int = 2) -> str:
@@ -432,13 +512,30 @@ def summary_lines(s: dict[str, Any]) -> list[str]:
     return [
         f"first fix after {_fmt(s['distance_before_first_fix_m'], ' m', 1)} of "
         f"{_fmt(s['route_length_m'], ' m', 0)}",
-        f"final error {_fmt(s['final_error_m'], ' m')} (paper: {PAPER_FINAL_ERROR_M} m at "
-        'the end of its 1 km route)',
-        f"RMSE after first fix {_fmt(s['rmse_after_first_fix_m'], ' m')}, "
-        f"max {_fmt(s['max_error_m'], ' m')}",
+        f"final error: horizontal {_fmt(s['final_error_m'], ' m')} (paper: "
+        f"{PAPER_FINAL_ERROR_M} m at the end of its 1 km route), vertical "
+        f"{_vertical_fmt(s, 'vertical_final_error_m')}",
+        f"RMSE after first fix: horizontal {_fmt(s['rmse_after_first_fix_m'], ' m')} (max "
+        f"{_fmt(s['max_error_m'], ' m')}), vertical {_vertical_fmt(s, 'vertical_rmse_m')}",
         f"false fixes (> 10 m) {s['false_fixes']}",
-        f"3-sigma consistency {_fmt(None if cons is None else 100 * cons, ' %', 1)}",
+        f"3-sigma consistency {_fmt(None if cons is None else 100 * cons, ' %', 1)} "
+        "(horizontal)",
+        _ape_3d_text(s),
     ]
+
+
+def _vertical_fmt(s: dict[str, Any], key: str) -> str:
+    """A vertical figure, or why there is none."""
+    if s.get(key) is None:
+        return 'n/a (z not estimated)' if s.get('z_estimated') == 'none' else 'n/a'
+    return _fmt(s[key], ' m')
+
+
+def _ape_3d_text(s: dict[str, Any]) -> str:
+    """evo's 3D APE when z is estimated at every pose, else why it is not quoted."""
+    if s.get('ape_unaligned_rmse_m') is not None:
+        return f"evo unaligned APE (3D) RMSE {_fmt(s['ape_unaligned_rmse_m'], ' m')}"
+    return s.get('z_note') or "evo's 3D APE not quoted"
 
 
 def report_markdown(s: dict[str, Any], plots: list[str]) -> str:
@@ -454,21 +551,26 @@ def report_markdown(s: dict[str, Any], plots: list[str]) -> str:
              '<= 200 m', meets['distance_before_first_fix_m']),
             ('final horizontal error', _fmt(s['final_error_m'], ' m'),
              f'<= 1 m (paper {PAPER_FINAL_ERROR_M} m)', meets['final_error_m']),
-            ('RMSE after the first fix', _fmt(s['rmse_after_first_fix_m'], ' m'), '<= 1 m',
+            ('horizontal RMSE after the first fix', _fmt(s['rmse_after_first_fix_m'], ' m'),
+             '<= 1 m',
              meets['rmse_after_first_fix_m']),
             ('false fixes (> 10 m)', str(s['false_fixes']), '0', meets['false_fixes']),
-            ('3-sigma consistency', _fmt(None if cons is None else 100 * cons, ' %', 1),
-             '>= 99 %', meets['consistency_3sigma']),
+            ('3-sigma consistency (horizontal)',
+             _fmt(None if cons is None else 100 * cons, ' %', 1), '>= 99 %',
+             meets['consistency_3sigma']),
+            ('final vertical error', _vertical_fmt(s, 'vertical_final_error_m'), '-', None),
+            ('vertical RMSE after the first fix', _vertical_fmt(s, 'vertical_rmse_m'), '-',
+             None),
         ]
         out += ['| metric | value | target | met |', '|---|---|---|---|']
-        out += [f'| {a} | {b} | {c} | {"yes" if d else "no"} |' for a, b, c, d in rows]
+        out += [f'| {a} | {b} | {c} | {"-" if d is None else "yes" if d else "no"} |'
+                for a, b, c, d in rows]
         out += ['', f"Route {_fmt(s['route_length_m'], ' m', 0)}; "
                 f"{s['global_poses']} /global_pose; the last one "
                 f"{_fmt(s['final_pose_gap_m'], ' m', 1)} before the end of the route; "
                 f"median error {_fmt(s['median_error_m'], ' m')}, max "
-                f"{_fmt(s['max_error_m'], ' m')}; evo unaligned APE (3D) RMSE "
-                f"{_fmt(s['ape_unaligned_rmse_m'], ' m')}. False fixes counted as: "
-                f"{s['false_fix_rule']}."]
+                f"{_fmt(s['max_error_m'], ' m')}; {_ape_3d_text(s)}. False fixes counted "
+                f"as: {s['false_fix_rule']}."]
     if s.get('matcher_events'):
         out += ['', 'Matcher events: ' + ', '.join(f'{k} {v}' for k, v in
                                                    sorted(s['matcher_events'].items()))]

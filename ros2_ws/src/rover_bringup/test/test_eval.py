@@ -20,8 +20,11 @@ T0 = 1_700_000_000.0
 ORIGIN = (403446.0, 7334375.0)
 
 
-def _tum(path: Path, t: np.ndarray, xy: np.ndarray, header: str = '# t x y z qx qy qz qw\n'):
-    rows = [f'{ti:.9f} {x:.6f} {y:.6f} 0.0 0 0 0 1\n' for ti, (x, y) in zip(t, xy, strict=True)]
+def _tum(path: Path, t: np.ndarray, xy: np.ndarray, header: str = '# t x y z qx qy qz qw\n',
+         z: np.ndarray | None = None):
+    z = np.zeros(len(t)) if z is None else z
+    rows = [f'{ti:.9f} {x:.6f} {y:.6f} {zi:.6f} 0 0 0 1\n'
+            for ti, (x, y), zi in zip(t, xy, z, strict=True)]
     path.write_text(header + ''.join(rows))
 
 
@@ -59,10 +62,18 @@ def _run_dir(tmp_path: Path, bag: Path) -> Path:
     return run
 
 
-def _write_estimate(run: Path, t, xy, sigma: np.ndarray):
-    _tum(run / 'global_pose.tum', t, xy)
-    rows = [f'{ti:.9f} {s**2:.9g} 0 {s**2:.9g}\n' for ti, s in zip(t, sigma, strict=True)]
-    (run / 'global_pose_cov.tsv').write_text('# t cov_xx cov_xy cov_yy\n' + ''.join(rows))
+def _write_estimate(run: Path, t, xy, sigma: np.ndarray, z=None, var_z=None):
+    """global_pose.tum and global_pose_cov.tsv; ``var_z`` None: the file of a run exported
+    before it had a cov_zz column (4 columns)."""
+    _tum(run / 'global_pose.tum', t, xy, z=z)
+    if var_z is None:
+        rows = [f'{ti:.9f} {s**2:.9g} 0 {s**2:.9g}\n' for ti, s in zip(t, sigma, strict=True)]
+        (run / 'global_pose_cov.tsv').write_text('# t cov_xx cov_xy cov_yy\n' + ''.join(rows))
+        return
+    var_z = np.broadcast_to(var_z, len(t))
+    rows = [f'{ti:.9f} {s**2:.9g} 0 {s**2:.9g} {vz:.9g}\n'
+            for ti, s, vz in zip(t, sigma, var_z, strict=True)]
+    (run / 'global_pose_cov.tsv').write_text('# t cov_xx cov_xy cov_yy cov_zz\n' + ''.join(rows))
 
 
 def test_metrics_of_a_run_with_known_errors(tmp_path: Path):
@@ -110,6 +121,71 @@ def test_metrics_of_a_run_with_known_errors(tmp_path: Path):
     assert '| false fixes (> 10 m) | 1 | 0 | no |' in md
     for png in ('route.png', 'error.png'):
         assert (run / png).read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+
+
+def _sloped_bag(tmp_path: Path) -> tuple[Path, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_bag` with a truth route that climbs 5 m from -5.6 m (map z)."""
+    bag, t, xy = _bag(tmp_path)
+    z = -5.6 + 5.0 * (t - t[0]) / (t[-1] - t[0])
+    _tum(bag / 'truth' / 'trajectory.tum', t, xy, z=z)
+    return bag, t, xy, z
+
+
+def test_vertical_error_apart_and_the_3d_ape_only_with_z_estimated(tmp_path: Path):
+    """With z from a DTM (variance 0.09 m^2) the vertical error is reported apart from
+    the horizontal one and evo's 3D APE is quoted; with z not estimated (variance 1e6 m^2,
+    the odometry's z 10.5 m off) neither is, and the summary says why."""
+    from rover_bringup.evaluation import report_markdown, summary_lines
+
+    bag, t, xy, z = _sloped_bag(tmp_path)
+    run = _run_dir(tmp_path, bag)
+    k = t >= T0 + 50.0
+    est_xy = xy[k] + [0.0, 0.5]
+    dz = np.where(np.arange(k.sum()) % 2 == 0, 0.3, -0.3)  # 0.3 m either way
+    _write_estimate(run, t[k], est_xy, np.full(k.sum(), 0.3), z=z[k] + dz, var_z=0.09)
+    s = evaluate(load_run(run)).summary
+    assert s['final_error_m'] == pytest.approx(0.5, abs=1e-5)  # horizontal only
+    assert s['rmse_after_first_fix_m'] == pytest.approx(0.5, abs=1e-5)
+    assert s['z_estimated'] == 'all' and s['z_note'] is None
+    assert s['vertical_final_error_m'] == pytest.approx(0.3, abs=1e-5)
+    assert s['vertical_rmse_m'] == pytest.approx(0.3, abs=1e-5)
+    assert s['vertical_consistency_3sigma'] == 1.0
+    assert s['ape_unaligned_rmse_m'] == pytest.approx(np.hypot(0.5, 0.3), abs=1e-4)
+    lines = summary_lines(s)
+    assert 'final error: horizontal 0.50 m' in lines[1] and 'vertical 0.30 m' in lines[1]
+    assert lines[2].startswith('RMSE after first fix: horizontal 0.50 m')
+    assert lines[2].endswith('vertical 0.30 m')
+    assert lines[-1] == 'evo unaligned APE (3D) RMSE 0.58 m'
+    md = report_markdown(s, [])
+    assert '| final vertical error | 0.30 m | - | - |' in md
+    assert 'evo unaligned APE (3D) RMSE 0.58 m' in md
+
+    # No DTM: the odometry's z, 10.5 m off, published as not estimated.
+    _write_estimate(run, t[k], est_xy, np.full(k.sum(), 0.3), z=z[k] + 10.5, var_z=1e6)
+    s = evaluate(load_run(run)).summary
+    assert s['final_error_m'] == pytest.approx(0.5, abs=1e-5)
+    assert s['z_estimated'] == 'none'
+    assert s['vertical_final_error_m'] is None and s['vertical_rmse_m'] is None
+    assert s['ape_unaligned_rmse_m'] is None
+    assert 'no DTM beside the bag' in s['z_note'] and '3D APE not quoted' in s['z_note']
+    lines = summary_lines(s)
+    assert lines[1].endswith('vertical n/a (z not estimated)')
+    assert lines[-1] == s['z_note'] and '10.5' not in '\n'.join(lines)
+    assert '| final vertical error | n/a (z not estimated) | - | - |' in report_markdown(s, [])
+
+    # Part of the route off the DTM: judged where z is estimated, no 3D APE.
+    var_z = np.where(np.arange(k.sum()) < k.sum() // 2, 0.09, 1e6)
+    _write_estimate(run, t[k], est_xy, np.full(k.sum(), 0.3), z=z[k] + dz, var_z=var_z)
+    s = evaluate(load_run(run)).summary
+    assert s['z_estimated'] == 'some' and s['ape_unaligned_rmse_m'] is None
+    assert s['vertical_rmse_m'] == pytest.approx(0.3, abs=1e-5)
+    assert f'z estimated for {k.sum() // 2} of {k.sum()} poses' in s['z_note']
+
+    # A file of a run exported before cov_zz: z not judged, said so.
+    _write_estimate(run, t[k], est_xy, np.full(k.sum(), 0.3), z=z[k] + dz)
+    s = evaluate(load_run(run)).summary
+    assert s['z_estimated'] is None and 'no cov_zz column' in s['z_note']
+    assert s['ape_unaligned_rmse_m'] is None and s['final_error_m'] == pytest.approx(0.5)
 
 
 def test_a_fix_is_judged_by_the_poses_after_it_reached_the_graph(tmp_path: Path):
@@ -220,7 +296,7 @@ def _write_outputs_bag(run: Path, t: np.ndarray, xy: np.ndarray, corrupt_one: bo
         cs = w.add_connection('/matcher/status', 'diagnostic_msgs/msg/DiagnosticArray',
                               typestore=ts)
         cov = np.zeros(36)
-        cov[0], cov[1], cov[6], cov[7] = 0.04, 0.01, 0.01, 0.09
+        cov[0], cov[1], cov[6], cov[7], cov[14] = 0.04, 0.01, 0.01, 0.09, 1e6
         for i, (ti, (x, y)) in enumerate(zip(t, xy, strict=True)):
             pose = m['geometry_msgs/msg/Pose'](position=point(x=x, y=y, z=0.0), orientation=quat)
             pwc = m['geometry_msgs/msg/PoseWithCovariance'](pose=pose, covariance=cov)
@@ -261,8 +337,15 @@ def test_run_outputs_bag_is_exported_and_evaluated(tmp_path: Path):
     assert s['distance_before_first_fix_m'] == pytest.approx(60.0, abs=0.11)
     assert s['matcher_events'] == {'first_fix': 1}
     assert s['fix_lag_s'] == pytest.approx({'median': 2.5, 'max': 2.5})
-    cov = load_run(run).covariance
-    np.testing.assert_allclose(cov[0], [[0.04, 0.01], [0.01, 0.09]])
+    data = load_run(run)
+    np.testing.assert_allclose(data.covariance[0], [[0.04, 0.01], [0.01, 0.09]])
+    assert data.z_variance is not None and np.all(data.z_variance == 1e6)
+    assert s['z_estimated'] == 'none' and s['ape_unaligned_rmse_m'] is None
+    # A cov file of four columns (exported before cov_zz) is exported again from outputs/.
+    (run / 'global_pose_cov.tsv').write_text(
+        '# t cov_xx cov_xy cov_yy\n' + ''.join(f'{ti:.9f} 0.04 0.01 0.09\n'
+                                               for ti in data.estimate[:, 0]))
+    assert load_run(run).z_variance is not None
     written = export_outputs(run)
     assert written['undecodable'] == 1 and written['vo.tum'] == 600
     # The odometry's covariance beside vo.tum, a row per pose at the same stamps (what
