@@ -35,6 +35,9 @@ _FLOAT_PROPERTIES: Final = ("area_m2", "major_m", "minor_m", "angle_rad", "score
                             "height_m", "cov_xx", "cov_xy", "cov_yy")
 _INT_PROPERTIES: Final = ("id", "n_obs")
 _MAP_XY_TOLERANCE_M: Final = 1e-3
+#: Values of a GN's ``metadata.domain_check.status`` (orbital_gn's check of the orthoimage
+#: against the model's training images), in increasing doubt.
+DOMAIN_STATUSES: Final = ("ok", "warn", "out_of_distribution")
 
 
 class GeoJsonFormatError(ValueError):
@@ -180,8 +183,36 @@ def from_geojson_dict(doc: Any, source: str = "<GeoJSON>") -> RoiNetwork:
             x, y = mx, my
         rec["x"], rec["y"] = x, y
         rec["z"] = coords[2] if len(coords) == 3 else 0.0
+    _check_domain_field(metadata.get("domain_check"), source)
     extra = {k: v for k, v in metadata.items() if k not in ("crs", "map_origin", "frame_id")}
     return RoiNetwork(records, metadata.get("frame_id", "map"), MapFrame(crs, (ox, oy)), extra)
+
+
+def _check_domain_field(check: Any, source: str) -> None:
+    if check is None:
+        return
+    where = f"{source}: field 'metadata.domain_check"
+    if not isinstance(check, dict):
+        raise GeoJsonFormatError(f"{where}' must be an object")
+    if check.get("status") not in DOMAIN_STATUSES:
+        raise GeoJsonFormatError(f"{where}.status' is {check.get('status')!r}, expected one "
+                                 f"of {list(DOMAIN_STATUSES)}")
+    if not isinstance(check.get("reasons", []), list):
+        raise GeoJsonFormatError(f"{where}.reasons' must be a list")
+
+
+def domain_status(network: RoiNetwork) -> str:
+    """A GN's ``metadata.domain_check.status``, or ``"unknown"`` when it has none (a GN
+    not written by ``orbital_gn prepare``, or an older one)."""
+    check = network.metadata.get("domain_check")
+    return check.get("status", "unknown") if isinstance(check, dict) else "unknown"
+
+
+def domain_reasons(network: RoiNetwork) -> list[str]:
+    """The messages of a GN's domain-check reasons (empty when it has none)."""
+    check = network.metadata.get("domain_check")
+    reasons = check.get("reasons", []) if isinstance(check, dict) else []
+    return [str(r.get("message", r)) if isinstance(r, dict) else str(r) for r in reasons]
 
 
 def read_geojson(path: str | os.PathLike[str]) -> RoiNetwork:

@@ -5,7 +5,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from roi_strategies import roi_records
 
-from roi_network.geojson import GeoJsonFormatError, read_geojson, write_geojson
+from roi_network.geojson import (
+    GeoJsonFormatError,
+    domain_reasons,
+    domain_status,
+    read_geojson,
+    write_geojson,
+)
 from roi_network.network import MapFrame, RoiNetwork
 from roi_network.records import empty_records
 
@@ -86,6 +92,9 @@ def _broken(tmp_path, edit):
         (lambda d: d["metadata"].update(map_origin=[1.0]), "'metadata.map_origin'"),
         (lambda d: d["features"][0].update(geometry={"type": "LineString"}), "'geometry'"),
         (lambda d: d.update(type="Feature"), "'type'"),
+        (lambda d: d["metadata"].update(domain_check={"status": "fine"}),
+         "'metadata.domain_check.status'"),
+        (lambda d: d["metadata"].update(domain_check="ok"), "'metadata.domain_check'"),
     ],
 )
 def test_invalid_input_names_the_field(tmp_path, edit, match):
@@ -118,3 +127,15 @@ def test_failed_write_keeps_previous_file(tmp_path):
 def test_network_without_crs_cannot_be_written(tmp_path):
     with pytest.raises(GeoJsonFormatError, match="'map_frame'"):
         write_geojson(RoiNetwork(_gn().records, "odom"), tmp_path / "x.geojson")
+
+
+def test_domain_check_status_round_trips(tmp_path):
+    path = tmp_path / "gn.geojson"
+    assert domain_status(_gn()) == "unknown" and domain_reasons(_gn()) == []
+    net = _gn()
+    net.metadata["domain_check"] = {"status": "warn", "reasons": [
+        {"check": "gsd_m", "level": "warn", "message": "ground sample distance 0.4 ..."}]}
+    write_geojson(net, path)
+    back = read_geojson(path)
+    assert domain_status(back) == "warn"
+    assert domain_reasons(back) == ["ground sample distance 0.4 ..."]
