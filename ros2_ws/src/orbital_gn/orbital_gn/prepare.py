@@ -22,6 +22,13 @@ from typing import Any
 import numpy as np
 
 from orbital_gn.detect import classify
+from orbital_gn.domain import (
+    check_domain,
+    check_gsd,
+    detection_profile,
+    image_profile,
+    rock_abundance,
+)
 from orbital_gn.raster import (
     SUN_TAGS,
     OrthoImageError,
@@ -37,6 +44,9 @@ from roi_detector.classifier import BinaryClassifier, load_classifiers
 from roi_network import LABEL_NAMES, OUTCROP, ROCK, MapFrame, RoiNetwork, empty_records
 
 log = logging.getLogger("orbital_gn")
+
+#: Below this share of valid pixels, ``prepare`` says how much of the image is nodata.
+NODATA_WARN_FRACTION = 0.5
 
 
 def default_model_path() -> Path:
@@ -181,6 +191,7 @@ def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None =
                         f"(recipe without the sun) instead of {model.path}")
         model = load_model(model.without_sun)
     recipe = model.recipe
+    check_gsd(info, recipe)
     sun, sun_source = resolve_sun(info, recipe, sun)
     origin = origin if origin is not None else map_origin_of(info)
     metadata = _metadata(info, model, origin)
@@ -190,6 +201,8 @@ def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None =
     min_side_m = min(info.width, info.height) * info.gsd_m
     smallest = min(r.min_area_m2 for r in recipe.rules.rules)
     records = empty_records(0)
+    n_cands: dict[int, int] = {}
+    profile: dict[str, Any] = {}
     if min_side_m**2 < smallest:
         warnings.append(f"{info.path}: the raster covers {info.width} x {info.height} px "
                         f"({min_side_m:.2f} m across): smaller than the smallest ROI "
@@ -200,6 +213,13 @@ def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None =
         if n_valid == 0:
             warnings.append(f"{info.path}: no valid pixel (all nodata); the GN is empty")
         else:
+            profile = image_profile(info, scheduler, workers, progress)
+            if profile["valid_fraction"] < NODATA_WARN_FRACTION:
+                notes.append(
+                    f"{info.path}: {100 * (1 - profile['valid_fraction']):.0f} % of the image "
+                    "is nodata (nodata value, alpha band or mask): the GN covers "
+                    f"{profile['area_km2'] * profile['valid_fraction']:.3g} of its "
+                    f"{profile['area_km2']:.3g} km^2")
             if _flat(stats):
                 warnings.append(f"{info.path}: the image has no texture (constant values); "
                                 "the GN is empty")
@@ -213,6 +233,7 @@ def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None =
                 records = np.concatenate(kept) if kept else empty_records(0)
                 # 8. Merge: rocks on an accepted outcrop dropped, ids assigned.
                 records = assign_ids(suppress_rocks_on_outcrops(records))
+                n_cands = {c.label: int(c.records.size) for c in cands}
                 metadata["candidates"] = {LABEL_NAMES[c.label]: int(c.records.size)
                                           for c in cands}
             metadata["metric_stats"] = {
@@ -221,7 +242,35 @@ def prepare_gn(path: str | os.PathLike[str], model: Model, tile_px: int | None =
     if records.size == 0 and not warnings:
         warnings.append(f"{info.path}: no ROI found; the GN is empty")
     metadata["tile_px"] = tile_px
+    # The domain check: the image and its GN against the model's training images, and
+    # the rocks against a rock-abundance model.
+    domain = domain_check_of(model, profile, records, n_cands)
+    metadata["domain_check"] = domain
+    notes += [f"{info.path}: domain check {r['level']}: {r['message']}"
+              for r in domain["reasons"]]
     return RoiNetwork(records, "map", MapFrame(info.crs, origin), metadata), notes + warnings
+
+
+def training_profiles(model: Model) -> list[dict[str, Any]] | None:
+    """The per-image profiles a model stores (None: a model without them)."""
+    images = (model.meta.get("provenance", {}).get("domain") or {}).get("images")
+    return images or None
+
+
+def domain_check_of(model: Model, profile: dict[str, Any], records: np.ndarray,
+                    n_candidates: dict[int, int]) -> dict[str, Any]:
+    """``metadata.domain_check`` of a GN: :func:`orbital_gn.domain.check_domain` of the
+    image's profile, its GN's densities and scores, and its rocks' abundance."""
+    if not model.classifiers:
+        return check_domain(profile, None, None, "candidates only (no model): neither "
+                            "compared with training images nor checked for physical sense")
+    area_km2 = profile.get("area_km2", 0.0) * profile.get("valid_fraction", 0.0)
+    scores = {lab: records["score"][records["label"] == lab] for lab in (ROCK, OUTCROP)}
+    full = dict(profile)
+    if n_candidates:
+        full |= detection_profile(n_candidates, scores, area_km2)
+    rocks = rock_abundance(records["area_m2"][records["label"] == ROCK], area_km2 * 1e6)
+    return check_domain(full, training_profiles(model), rocks)
 
 
 def _flat(stats) -> bool:

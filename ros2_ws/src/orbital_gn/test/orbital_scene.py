@@ -113,3 +113,52 @@ def make_bag(root: Path, seed: int, size: int = 320) -> Path:
     write_geojson(truth, bag / "truth" / "rois.geojson")
     (bag / "world.yaml").write_text(f"config:\n  preset: test\n  seed: {seed}\n")
     return bag
+
+
+def label_features(truth: RoiNetwork, crs: str = "OGC:CRS84", polygons: bool = True,
+                   n_vertices: int = 16) -> list[dict]:
+    """The truth as a person's labels: footprint ellipses (or points) in ``crs``, with
+    a ``class`` property."""
+    from pyproj import Transformer
+
+    tr = Transformer.from_crs(truth.map_frame.crs, crs, always_xy=True)
+    ox, oy = truth.map_frame.origin
+    t = np.linspace(0, 2 * np.pi, n_vertices, endpoint=False)
+    feats = []
+    for r in truth.records:
+        x, y = float(r["x"]) + ox, float(r["y"]) + oy
+        cls = {ROCK: "rock", OUTCROP: "outcrop"}[int(r["label"])]
+        if polygons:
+            a, b, th = r["major_m"] / 2, r["minor_m"] / 2, float(r["angle_rad"])
+            ex = x + a * np.cos(t) * np.cos(th) - b * np.sin(t) * np.sin(th)
+            ey = y + a * np.cos(t) * np.sin(th) + b * np.sin(t) * np.cos(th)
+            u, v = tr.transform(ex, ey)
+            ring = [[float(p), float(q)] for p, q in zip(u, v, strict=True)]
+            geom = {"type": "Polygon", "coordinates": [ring + ring[:1]]}
+        else:
+            u, v = tr.transform(x, y)
+            geom = {"type": "Point", "coordinates": [float(u), float(v)]}
+        feats.append({"type": "Feature", "geometry": geom, "properties": {"class": cls}})
+    return feats
+
+
+def write_labels(path: Path, features: list[dict], crs: str | None = None) -> Path:
+    """A label GeoJSON as QGIS saves it (``crs`` member only for a non-default CRS)."""
+    import json
+
+    doc: dict = {"type": "FeatureCollection", "features": features}
+    if crs is not None:
+        doc["crs"] = {"type": "name", "properties": {"name": crs}}
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def make_labelled_image(root: Path, seed: int, size: int = 320,
+                        crs: str = "OGC:CRS84") -> tuple[Path, Path]:
+    """An orthoimage and its labels (polygons, lon/lat), no truth/ nor world.yaml."""
+    rgb, truth = scene(seed, size)
+    root.mkdir(parents=True, exist_ok=True)
+    image = write_tif(root / f"site_{seed}.tif", rgb, tags=SUN_TAGS)
+    labels = write_labels(root / f"site_{seed}_labels.geojson",
+                          label_features(truth, crs), None if crs == "OGC:CRS84" else crs)
+    return image, labels
