@@ -2,15 +2,18 @@
 
 /global_network is a sensor_msgs/PointCloud2 of ROI records (roi_network's codec) in the
 ``map`` frame, reliable and transient local, so that a late subscriber (the matcher, a
-Foxglove session) gets it. A missing or malformed GN file makes the node exit with status 2
-and a one-line error naming the file and the reason.
+Foxglove session) gets it. The GN's domain check (``metadata.domain_check``, written by
+``orbital_gn prepare``) is passed on: logged (a warning per reason when it is not ``ok``)
+and published once on /gn_server/status (diagnostic_msgs/DiagnosticArray, transient local).
+A missing or malformed GN file makes the node exit with status 2 and a one-line error
+naming the file and the reason.
 """
 
 from __future__ import annotations
 
 import sys
 
-from roi_network.geojson import GeoJsonFormatError, read_geojson
+from roi_network.geojson import GeoJsonFormatError, domain_reasons, domain_status, read_geojson
 
 #: Exit status of a bad GN file.
 EXIT_BAD_GN = 2
@@ -33,7 +36,17 @@ def load_gn(path: str):
     return gn
 
 
+def domain_summary(gn, path: str) -> tuple[str, list[str]]:
+    """(status, one line per reason) of a GN's domain check, for the log and the status."""
+    status = domain_status(gn)
+    if status == "unknown":
+        return status, [f"{path}: the GN carries no domain check (not written by orbital_gn "
+                        "prepare, or by an older one)"]
+    return status, [f"{path}: domain check {status}: {m}" for m in domain_reasons(gn)]
+
+
 def main(args=None) -> int:
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from rcl_interfaces.msg import ParameterDescriptor
     from rclpy.node import Node
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -58,10 +71,28 @@ def main(args=None) -> int:
             msg = to_pointcloud2(self.gn.records, "map", self.get_clock().now().to_msg())
             self.pub.publish(msg)
             origin = self.gn.map_frame.origin if self.gn.map_frame else (0.0, 0.0)
+            status, reasons = domain_summary(self.gn, path)
             self.get_logger().info(
                 f"/global_network: {len(self.gn)} ROIs from {path} "
                 f"(CRS {self.gn.map_frame.crs if self.gn.map_frame else '?'}, "
-                f"map origin {origin[0]:.1f}, {origin[1]:.1f})")
+                f"map origin {origin[0]:.1f}, {origin[1]:.1f}; domain check {status})")
+            if status != "ok":
+                for line in reasons:
+                    self.get_logger().warning(line)
+            diag = DiagnosticStatus(
+                name="gn_server", hardware_id="global_network",
+                level=DiagnosticStatus.OK if status == "ok" else DiagnosticStatus.WARN,
+                message=f"GN {path}: domain check {status}")
+            diag.values = [KeyValue(key="domain_check", value=status),
+                           KeyValue(key="gn_path", value=path),
+                           KeyValue(key="rois", value=str(len(self.gn)))]
+            diag.values += [KeyValue(key=f"reason_{i}", value=r)
+                            for i, r in enumerate(domain_reasons(self.gn))]
+            self.status_pub = self.create_publisher(DiagnosticArray, "/gn_server/status",
+                                                    latched)
+            arr = DiagnosticArray(status=[diag])
+            arr.header.stamp = msg.header.stamp
+            self.status_pub.publish(arr)
 
     return run_node(GnServer, "gn_server", args, error_status=EXIT_BAD_GN)
 

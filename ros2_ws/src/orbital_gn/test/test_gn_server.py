@@ -11,6 +11,7 @@ import time
 import numpy as np
 import pytest
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from orbital_scene import scene
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import PointCloud2
@@ -67,6 +68,9 @@ def test_malformed_gn_file_exits_2_naming_it(tmp_path):
 
 def test_publishes_global_network_latched(tmp_path):
     _, gn = scene(4, size=200, n_rocks=12, n_outcrops=2)
+    gn.metadata["domain_check"] = {"status": "out_of_distribution", "reasons": [
+        {"check": "gsd_m", "level": "out_of_distribution", "message": "ground sample "
+         "distance 0.6 is 2.4 times above the training images' 0.25-0.25"}]}
     path = tmp_path / "gn.geojson"
     write_geojson(gn, path)
     domain = 73 + os.getpid() % 20
@@ -80,11 +84,18 @@ def test_publishes_global_network_latched(tmp_path):
         executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
         executor.add_node(node)
         got: list[PointCloud2] = []
+        status: list[DiagnosticArray] = []
         node.create_subscription(PointCloud2, "/global_network", got.append, LATCHED)
+        node.create_subscription(DiagnosticArray, "/gn_server/status", status.append, LATCHED)
         end = time.monotonic() + 20
-        while not got and time.monotonic() < end and proc.poll() is None:
+        while (not got or not status) and time.monotonic() < end and proc.poll() is None:
             executor.spin_once(timeout_sec=0.1)
         assert got, f"no /global_network (node output: {proc.stdout and proc.poll()})"
+        # The GN's domain check is passed on.
+        assert status, "no /gn_server/status"
+        values = {kv.key: kv.value for kv in status[0].status[0].values}
+        assert values["domain_check"] == "out_of_distribution"
+        assert "ground sample distance" in values["reason_0"]
         msg = got[0]
         assert msg.header.frame_id == "map"
         records = from_pointcloud2(msg)
@@ -102,3 +113,5 @@ def test_publishes_global_network_latched(tmp_path):
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)
             proc.wait(timeout=10)
+    out = proc.stdout.read()
+    assert "domain check out_of_distribution: ground sample distance" in out, out
