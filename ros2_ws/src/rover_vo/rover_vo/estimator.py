@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from roi_network.images import StereoHalves, StereoRectifiers, describe
+from roi_network.images import RAW_ENCODINGS, StereoHalves, StereoRectifiers, describe
 from roi_network.mast import (
     NO_JOINT_STATES,
     STALE_JOINT_STATES,
@@ -34,12 +34,13 @@ from roi_network.mast import (
     same_pose,
 )
 from rover_vo import messages as m
+from rover_vo.arrivals import WAIT_FRAMES, Arrivals
 from rover_vo.config import ROVER_PARAMETERS, VoConfig
 from rover_vo.features import stereo_match, track
 from rover_vo.keyframes import Keyframe, make_keyframe
 from rover_vo.motion import estimate_motion, refine_motion
 from rover_vo.propagator import ImuInterval, Propagator
-from rover_vo.rig import RigError, StereoRig, rig_from_camera_info
+from rover_vo.rig import RigError, StereoRig, camera_info_problem, rig_from_camera_info
 from rover_vo.state import N_ERR, OdomState, step_noise, systematic_prior
 from rover_vo.zero_velocity import image_motion_px, is_stationary
 
@@ -50,9 +51,8 @@ SNAPSHOT_VERSION = 1
 GYRO_BIAS_SIGMA0 = 5.0e-3
 #: Accelerometer samples this long before a frame are averaged for gravity (s).
 TILT_WINDOW_S = 0.5
-#: A pair waits for its other half, the camera infos and the IMU until images this much
-#: newer (stamp time) arrive; then it is processed with what it has (s).
-INPUT_WAIT_S = 5.0
+#: The period of /joint_states assumed until two have come (s): the simulator's 10 Hz.
+JOINT_STATE_PERIOD_S = 0.1
 #: The reference frame is replaced when fewer than this fraction of its points are still
 #: tracked.
 REFERENCE_MIN_TRACKED = 0.3
@@ -70,7 +70,8 @@ MAST_SETTLE_FRAMES = 3
 
 #: Kinds of bad input counted in /vo/status (``bad_input.<kind>``).
 BAD_INPUT_KINDS = (
-    "corrupt_image", "bad_image_size", "missing_left", "missing_right", "missing_camera_info",
+    "corrupt_image", "unsupported_encoding", "bad_image_size", "missing_left",
+    "missing_right", "missing_camera_info",
     "bad_camera_info", "imu_gap", "imu_nan", "imu_duplicate", "imu_out_of_order",
     "stereo_duplicate", "stereo_out_of_order", "textureless", "overexposed", "vision_failed",
     NO_JOINT_STATES, STALE_JOINT_STATES, "bad_joint_state", "internal_error",
@@ -162,8 +163,6 @@ class VoEstimator:
         self._last_camera: np.ndarray | None = None  # last pose from a joint state
         self._settling: tuple[np.ndarray, int] | None = None  # new pose, pairs at it
         self._after_mast = False  # the last pair was a mast frame: the rover stood
-        self._first_input_s: float | None = None
-        self._newest_input_s: float | None = None
         self.use_imu = config.use_imu
         # The IMU's constants: rover.yaml's, else the defaults.
         rover = {k: float(self.params.get(k, ROVER_PARAMETERS[k])) for k in (
@@ -172,9 +171,13 @@ class VoEstimator:
         self.gyro_bias_random_walk = rover["gyro_bias_random_walk"]
         self.gravity = rover["gravity"]
         self.imu_rate = rover["imu_rate_hz"]
+        # The newest stamp and the rate of each input: how long a pair waits for each.
+        self.arrivals = Arrivals({"imu": 1.0 / self.imu_rate, "joints": JOINT_STATE_PERIOD_S})
         self._log = log or (lambda level, text: logging.getLogger("rover_vo").log(level, text))
         self.rig: StereoRig | None = None
         self.info: dict[str, Any] = {"left": None, "right": None}
+        # Why the last CameraInfo of a side was not taken (None: it was).
+        self.info_problem: dict[str, str | None] = {"left": None, "right": None}
         self.propagator: Propagator | None = None
         self._imu_prebuffer: list[tuple[float, np.ndarray, np.ndarray]] = []
         # Images waiting for their other half, then pairs waiting for the IMU (by stamp).
@@ -196,6 +199,10 @@ class VoEstimator:
         self.source = "initializing"
         self.stats = FrameStats()
         self.counts = Counters()
+        #: The first and the last bad input said, by kind (what /vo/status and the
+        #: offline CLI's errors quote).
+        self.first_bad: dict[str, str] = {}
+        self.last_bad = ""
         self._imu_gap_open = False
         self.max_speed = 0.0  # fastest horizontal speed output so far (m/s)
         self.max_turn_rate = 0.0  # fastest turn (yaw rate) output so far (rad/s)
@@ -260,57 +267,88 @@ class VoEstimator:
     def bad(self, kind: str, detail: str) -> None:
         """Count a bad input; log the first of each kind."""
         self.counts.bad[kind] += 1
+        self.last_bad = detail
+        self.first_bad.setdefault(kind, detail)
         if self.counts.bad[kind] == 1:
             self._log(logging.WARNING, f"{detail} (first '{kind}'; further ones are counted in "
                       "/vo/status, not logged)")
 
     def feed(self, topic: str, msg: Any) -> list[VoOutput]:
-        """Take one message of an input topic; returns the odometry outputs it completes."""
+        """Take one message of an input topic; returns the odometry outputs it completes.
+
+        A message that cannot be used (a non-finite IMU value, a stamp going back in time,
+        a CameraInfo without a focal length...) is counted, named the first time with its
+        topic, stamp and field, and skipped: the odometry goes on.
+        """
         # 1. Pair and order: halves paired here, filed by _file_pairs, released in time
         # order by _drain, rectified by _decode.
         if topic == m.TOPIC_IMU:
             self._feed_imu(msg)
-            return self._drain(force=False)
-        if topic == m.TOPIC_JOINT_STATES:
+        elif topic == m.TOPIC_JOINT_STATES:
             self._feed_joint_state(msg)
-            return self._drain(force=False)
-        if topic in (m.TOPIC_LEFT_INFO, m.TOPIC_RIGHT_INFO):
-            self.info["left" if topic == m.TOPIC_LEFT_INFO else "right"] = msg
+        elif topic in (m.TOPIC_LEFT_INFO, m.TOPIC_RIGHT_INFO):
+            self._feed_camera_info(topic, msg)
+        elif topic in m.IMAGE_TOPICS:
+            self._feed_image(topic, msg)
+        else:
             return []
-        if topic in m.IMAGE_TOPICS:
-            side = m.side_of(topic)
-            self.image_topics[side] = topic
-            t_ns = m.stamp_ns(msg)
-            self._seen(t_ns * 1e-9)
-            if self.last_pair_ns is not None and t_ns <= self.last_pair_ns:
-                kind = "stereo_duplicate" if t_ns == self.last_pair_ns else "stereo_out_of_order"
-                self.bad(kind, f"{topic}: stamp {t_ns * 1e-9:.3f} s not after the last "
-                         "processed pair: image dropped")
-                return []
-            key = self.halves.add(side, t_ns, msg)
-            if key is None:
-                self.bad("stereo_duplicate", f"{topic}: two images with stamp "
-                         f"{t_ns * 1e-9:.3f} s: the second dropped")
-                return []
-            self._file_pairs(t_ns - int(INPUT_WAIT_S * 1e9))
-            return self._drain(force=False)
-        return []
+        self._file_pairs(force=False)
+        return self._drain(force=False)
 
     def finish(self) -> list[VoOutput]:
         """Process whatever is still waiting (end of a bag)."""
-        self._file_pairs(None)
+        self._file_pairs(force=True)
         return self._drain(force=True)
 
-    def _file_pairs(self, give_up_ns: int | None) -> None:
+    def _feed_image(self, topic: str, msg: Any) -> None:
+        side = m.side_of(topic)
+        self.image_topics[side] = topic
+        t_ns = m.stamp_ns(msg)
+        t = m.seconds(t_ns)
+        previous = self.arrivals.newest(side)
+        if previous is not None and t < previous:
+            self.bad("stereo_out_of_order", f"{topic} at {t:.3f} s: stamp before the "
+                     f"previous {side} image's ({previous:.3f} s): image skipped")
+            return
+        if self.last_pair_ns is not None and t_ns <= self.last_pair_ns:
+            kind = "stereo_duplicate" if t_ns == self.last_pair_ns else "stereo_out_of_order"
+            self.bad(kind, f"{topic} at {t:.3f} s: stamp not after the last processed pair's "
+                     f"({self.last_pair_ns * 1e-9:.3f} s): image skipped")
+            return
+        key = self.halves.add(side, t_ns, msg)
+        if key is None:
+            self.bad("stereo_duplicate", f"{topic} at {t:.3f} s: a second image of this "
+                     "stamp: skipped")
+            return
+        self.arrivals.note(side, t)
+
+    def _feed_camera_info(self, topic: str, msg: Any) -> None:
+        side = "left" if topic == m.TOPIC_LEFT_INFO else "right"
+        problem = camera_info_problem(msg, side)
+        if problem is not None:
+            self.info_problem[side] = f"{topic} at {m.stamp_s(msg):.3f} s: {problem}"
+            self.bad("bad_camera_info", f"{self.info_problem[side]}: message skipped")
+            return
+        self.info_problem[side] = None
+        self.info[side] = msg
+
+    def _file_pairs(self, force: bool) -> None:
         """Move pairs, oldest first, from :attr:`halves` to :attr:`pairs`: the complete
-        ones, and a half whose partner has not come once images ``INPUT_WAIT_S`` newer
-        have (``give_up_ns``; None: all, the end of the bag). A waiting half holds the
-        pairs after it back, so that pairs are processed in time order; a lone half is
-        processed as it is (counted missing, the IMU carries the odometry)."""
+        ones, and a half whose partner will not come: the other camera's images have gone
+        past its stamp, or its own camera has taken ``WAIT_FRAMES`` newer images since
+        (``force``: all, the end of the bag). A waiting half holds the pairs after it
+        back, so that pairs are processed in time order; a lone half is processed as it
+        is (counted missing, the IMU carries the odometry)."""
+        tolerance_s = self.halves.tolerance_in_use_ns() * 1e-9 if self.halves.tolerance_ns else 0
         for key in sorted(self.halves.slots):
             slot = self.halves.slots[key]
             if len(slot) == 1:
-                if give_up_ns is not None and key >= give_up_ns:
+                side = next(iter(slot))
+                other = "right" if side == "left" else "left"
+                t = m.seconds(key)
+                partner = self.arrivals.newest(other)
+                passed = partner is not None and partner > t + tolerance_s
+                if not (force or passed or self.arrivals.newer(side, t) >= WAIT_FRAMES):
                     break
                 self.lone_detail[key] = self.halves.lone_detail(key)
             self.halves.pop(key)
@@ -320,13 +358,6 @@ class VoEstimator:
     def has_mast(self) -> bool:
         """Whether the camera moves on a mast (rover.yaml ``mast.*``; reads /joint_states)."""
         return self.poser is not None
-
-    def _seen(self, t: float) -> None:
-        """Note a sensor stamp (IMU, image): how long /joint_states has been silent."""
-        if self._first_input_s is None:
-            self._first_input_s = t
-        if self._newest_input_s is None or t > self._newest_input_s:
-            self._newest_input_s = t
 
     def _feed_joint_state(self, msg: Any) -> None:
         if self.poser is None:
@@ -339,58 +370,75 @@ class VoEstimator:
                 raise
             self.bad("bad_joint_state", f"{exc}: message at {t:.3f} s left out")
             return
+        self.arrivals.note("joints", t)
         self.counts.joint_states += 1
 
     def _joints_ready(self, t: float) -> bool:
-        """A pair at ``t`` waits for a joint state at or after it, unless /joint_states
-        has been silent for ``INPUT_WAIT_S`` of sensor time (never came, or stopped)."""
+        """A pair at ``t`` waits for a joint state at or after it, unless the other inputs
+        have run ``WAIT_PERIODS`` joint-state periods past it (/joint_states never came,
+        or stopped)."""
         if self.poser is None:
             return True
-        last = self.poser.last_stamp
-        if last is not None and last >= t:
+        return self.arrivals.covers("joints", t) or self.arrivals.overdue("joints", t)
+
+    def _imu_ready(self, t: float) -> bool:
+        """A pair at ``t`` waits for an IMU sample at or after it (the gyro covers its
+        interval), unless the other inputs have run ``WAIT_PERIODS`` IMU periods past it
+        (the IMU is silent)."""
+        if not self.use_imu:
             return True
-        since = last if last is not None else self._first_input_s
-        return (since is not None and self._newest_input_s is not None
-                and self._newest_input_s - since > INPUT_WAIT_S)
+        return self.arrivals.covers("imu", t) or self.arrivals.overdue("imu", t)
+
+    def _infos_ready(self, t: float) -> bool:
+        """A pair at ``t`` waits for both camera infos until its camera has taken
+        ``WAIT_FRAMES`` newer images."""
+        if self.info["left"] is not None and self.info["right"] is not None:
+            return True
+        return max(self.arrivals.newer(side, t) for side in ("left", "right")) >= WAIT_FRAMES
 
     def _feed_imu(self, msg: Any) -> None:
         t = m.stamp_s(msg)
-        self._seen(t)
         gyro, accel = m.imu_sample(msg)
+        problem = m.imu_problem(msg)
+        if problem is not None:
+            self.bad("imu_nan", f"{m.TOPIC_IMU} at {t:.3f} s: {problem}: sample skipped")
+            return
+        previous = self.arrivals.newest("imu")
+        if previous is not None and t <= previous:
+            if t == previous:
+                self.bad("imu_duplicate", f"{m.TOPIC_IMU} at {t:.3f} s: stamp repeats the "
+                         "previous sample's: sample skipped")
+            else:
+                self.bad("imu_out_of_order", f"{m.TOPIC_IMU} at {t:.3f} s: stamp before the "
+                         f"previous sample's ({previous:.3f} s): sample skipped")
+            return
+        self.arrivals.note("imu", t)
         if self.propagator is None:
             # Extrinsics of the IMU come with the rig; hold samples until then.
-            if np.all(np.isfinite(gyro)) and np.all(np.isfinite(accel)):
-                self._imu_prebuffer.append((t, gyro, accel))
-                del self._imu_prebuffer[:-int(self.imu_rate * 30)]
-            else:
-                self.bad("imu_nan", f"{m.TOPIC_IMU}: non-finite sample at {t:.3f} s: dropped")
+            self._imu_prebuffer.append((t, gyro, accel))
+            del self._imu_prebuffer[:-int(self.imu_rate * 30)]
             return
         kind = self.propagator.add(t, gyro, accel)
         if kind is not None:
-            self.bad(kind, f"{m.TOPIC_IMU}: {kind.replace('imu_', '').replace('_', ' ')} "
-                     f"sample at {t:.3f} s: dropped")
+            self.bad(kind, f"{m.TOPIC_IMU} at {t:.3f} s: {kind.replace('imu_', '')}: "
+                     "sample skipped")
         else:
             self.counts.imu += 1
 
     def _drain(self, force: bool) -> list[VoOutput]:
-        """Process pairs in time order once each is ready: both images, the camera infos and
-        the IMU up to its stamp. A pair that images ``INPUT_WAIT_S`` newer have overtaken is
-        processed as it is (its partner, infos or IMU are lost), so a dead sensor delays the
-        odometry by that much and no more; over DDS, topics arrive in any interleaving.
+        """Process pairs in time order once each is ready: both images, the camera infos,
+        the IMU up to its stamp and, on a mast, a joint state at or after it; each input
+        waited for a few of its own periods at most (:mod:`rover_vo.arrivals`), so that
+        the first pose comes with the first pair's IMU and a dead sensor costs no more
+        than that wait. Over DDS, topics arrive in any interleaving.
         """
         out: list[VoOutput] = []
-        wait_ns = int(INPUT_WAIT_S * 1e9)
         while self.pairs:
             t_ns = min(self.pairs)
             pair = self.pairs[t_ns]
-            latest = self.propagator.latest if self.propagator else None
-            ready = (pair.left is not None and pair.right is not None
-                     and self.info["left"] is not None and self.info["right"] is not None
-                     and (not self.use_imu
-                          or (latest is not None and latest >= t_ns * 1e-9))
-                     and self._joints_ready(t_ns * 1e-9))
-            stale = max(self.pairs) - t_ns > wait_ns
-            if not (ready or stale or force):
+            t = m.seconds(t_ns)
+            ready = (self._infos_ready(t) and self._imu_ready(t) and self._joints_ready(t))
+            if not (ready or force):
                 break
             del self.pairs[t_ns]
             result = self._process_pair(pair)
@@ -414,8 +462,8 @@ class VoEstimator:
         self.propagator = Propagator(self.rig.base_R_imu, self.gyro_noise_density,
                                      self.gyro_bias_random_walk, GYRO_BIAS_SIGMA0)
         for t, g, a in self._imu_prebuffer:
-            self.propagator.add(t, g, a)
-            self.counts.imu += 1
+            if self.propagator.add(t, g, a) is None:
+                self.counts.imu += 1
         self._imu_prebuffer = []
         if self._resume is not None and "gyro_bias" in self._resume:
             self.propagator.bias = self._resume["gyro_bias"].copy()
@@ -429,25 +477,35 @@ class VoEstimator:
         if pair.left is None or pair.right is None:
             side = "left" if pair.left is None else "right"
             other = "right" if side == "left" else "left"
-            self.bad(f"missing_{side}", f"{self.image_topics[side]}: no {side} image for "
-                     f"the {other} one at {t:.3f} s{self.lone_detail.pop(pair.t_ns, '')}")
+            self.bad(f"missing_{side}", f"{self.image_topics[side]} at {t:.3f} s: no {side} "
+                     f"image beside the {other} one{self.lone_detail.pop(pair.t_ns, '')}: "
+                     "pair not used")
             return None
         if not self._ensure_rig():
-            self.bad("missing_camera_info", "/stereo/{left,right}/camera_info: no valid "
-                     f"CameraInfo yet at {t:.3f} s: pair not used")
+            self.bad("missing_camera_info", self._no_camera_info(t))
             return None
-        images = []
+        decoded = {}
         for side, msg in (("left", pair.left), ("right", pair.right)):
             topic = self.image_topics[side]
+            encoding = getattr(msg, "encoding", None)
+            if encoding is not None and str(encoding) not in RAW_ENCODINGS:
+                self.bad("unsupported_encoding", f"{topic} at {t:.3f} s: encoding "
+                         f"'{encoding}' is not one rover_vo reads ({', '.join(RAW_ENCODINGS)})"
+                         ": pair not used")
+                return None
             img = m.decode_image(msg)
             if img is None:
-                self.bad("corrupt_image", f"{topic}: image at {t:.3f} s does not decode "
-                         f"({describe(msg)})")
+                self.bad("corrupt_image", f"{topic} at {t:.3f} s: image does not decode "
+                         f"({describe(msg)}): pair not used")
                 return None
-            if img.shape != (self.rig.height, self.rig.width):
-                self.bad("bad_image_size", f"{topic}: image at {t:.3f} s is {img.shape[1]}x"
-                         f"{img.shape[0]}, CameraInfo says {self.rig.width}x{self.rig.height}")
-                return None
+            decoded[side] = img
+        problem = self._size_problem(t, decoded)
+        if problem is not None:
+            self.bad("bad_image_size", f"{problem}: pair not used")
+            return None
+        images = []
+        for side in ("left", "right"):
+            img = decoded[side]
             if self.cfg.features.rectify:
                 try:
                     img = self.rectifiers(side, self.info[side], img)
@@ -458,12 +516,47 @@ class VoEstimator:
         left = images[0]
         small = left[::4, ::4]
         if np.mean(small >= 250) > 0.5:
-            self.bad("overexposed", f"{left_topic}: image at {t:.3f} s is over-exposed")
+            self.bad("overexposed", f"{left_topic} at {t:.3f} s: image is over-exposed "
+                     "(more than half its pixels saturated): pair not used")
             return None
         if float(small.std()) < 2.0:
-            self.bad("textureless", f"{left_topic}: image at {t:.3f} s has no texture")
+            self.bad("textureless", f"{left_topic} at {t:.3f} s: image has no texture (grey "
+                     "level sigma < 2): pair not used")
             return None
         return images[0], images[1]
+
+    def _no_camera_info(self, t: float) -> str:
+        """Why a pair at ``t`` has no rig: the sides without a usable CameraInfo, and what
+        was wrong with the last one of each."""
+        topics = {"left": m.TOPIC_LEFT_INFO, "right": m.TOPIC_RIGHT_INFO}
+        lacking = [s for s in ("left", "right") if self.info[s] is None] or ["left", "right"]
+        said = []
+        for side in lacking:
+            why = self.info_problem[side]
+            said.append(f"{topics[side]} ({'the last one: ' + why if why else 'none came'})")
+        return (f"no usable CameraInfo by the pair at {t:.3f} s: {'; '.join(said)}: pair "
+                "not used")
+
+    def _size_problem(self, t: float, decoded: dict[str, np.ndarray]) -> str | None:
+        """What is wrong with the sizes of a pair's images, naming the image that is off:
+        against its own CameraInfo, against the other half, against the rig's (the first
+        CameraInfo's) size; None when they agree."""
+        infos = {"left": m.TOPIC_LEFT_INFO, "right": m.TOPIC_RIGHT_INFO}
+        for side in ("left", "right"):
+            h, w = decoded[side].shape[:2]
+            info = self.info[side]
+            if (h, w) != (int(info.height), int(info.width)):
+                return (f"{self.image_topics[side]} at {t:.3f} s: image is {w}x{h}, its "
+                        f"CameraInfo ({infos[side]}) says {info.width}x{info.height}")
+        (hl, wl), (hr, wr) = decoded["left"].shape[:2], decoded["right"].shape[:2]
+        if (hl, wl) != (hr, wr):
+            return (f"{self.image_topics['right']} at {t:.3f} s: image is {wr}x{hr} beside "
+                    f"the left one's {wl}x{hl} (the two images of a pair must be of one size)")
+        if (hl, wl) != (self.rig.height, self.rig.width):
+            return (f"{self.image_topics['left']} at {t:.3f} s: image is {wl}x{hl}, the "
+                    f"first CameraInfo (the rig's calibration) {self.rig.width}x"
+                    f"{self.rig.height}")
+        return None
 
     def _process_pair(self, pair: _Pair) -> VoOutput | None:
         t = pair.t_ns * 1e-9
@@ -883,4 +976,10 @@ class VoEstimator:
             out["gyro_bias_rad_s"] = [round(float(b), 6) for b in self.propagator.bias]
         for kind in BAD_INPUT_KINDS:
             out[f"bad_input.{kind}"] = c.bad.get(kind, 0)
+        out["last_bad_input"] = self.last_bad
         return out
+
+    def bad_input_summary(self) -> str:
+        """One line of the bad input so far: each kind's count and the first one said."""
+        return "; ".join(f"{kind} x{n} (first: {self.first_bad.get(kind, '?')})"
+                         for kind, n in sorted(self.counts.bad.items()))

@@ -34,6 +34,12 @@ def stamp_s(msg: Any) -> float:
     return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
 
 
+def seconds(t_ns: int) -> float:
+    """A stamp in ns as :func:`stamp_s` gives it in seconds (the same float: stamps of two
+    topics compare equal when their headers do)."""
+    return t_ns // 1_000_000_000 + 1e-9 * (t_ns % 1_000_000_000)
+
+
 def stamp_ns(msg: Any) -> int:
     """Header stamp in integer nanoseconds (exact: used to pair left and right)."""
     return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
@@ -43,6 +49,22 @@ def imu_sample(msg: Any) -> tuple[np.ndarray, np.ndarray]:
     """``(gyro rad/s, specific force m/s^2)`` of a sensor_msgs/Imu, in its frame."""
     w, a = msg.angular_velocity, msg.linear_acceleration
     return np.array([w.x, w.y, w.z], float), np.array([a.x, a.y, a.z], float)
+
+
+#: The sensor_msgs/Imu fields the estimator reads, in the order they are checked.
+IMU_FIELDS = tuple(f"{part}.{axis}" for part in ("angular_velocity", "linear_acceleration")
+                   for axis in "xyz")
+
+
+def imu_problem(msg: Any) -> str | None:
+    """The first field of a sensor_msgs/Imu the estimator reads that is not finite
+    (``angular_velocity.y = nan``), None when all are. The orientation is not read."""
+    for name in IMU_FIELDS:
+        part, axis = name.split(".")
+        value = float(getattr(getattr(msg, part), axis))
+        if not np.isfinite(value):
+            return f"{name} = {value}"
+    return None
 
 
 def joint_state(msg: Any) -> tuple[float, list[str], list[float]]:

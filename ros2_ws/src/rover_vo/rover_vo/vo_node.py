@@ -128,6 +128,7 @@ class VoNode(Node):
         if self.state_path and resume_from_file(self.estimator, self.state_path, logger.error):
             logger.warning(f"resuming the odom frame saved in {self.state_path}")
         self._save_failed = False
+        self._pairs_said = 0  # the estimator's pair count at the last /vo/status
         self.odom_pub = self.create_publisher(Odometry, "/vo/odometry", RELIABLE)
         self.status_pub = self.create_publisher(DiagnosticArray, "/vo/status", RELIABLE)
         # The IMU first: a stereo pair's callback takes every IMU message already queued
@@ -138,21 +139,30 @@ class VoNode(Node):
             self.create_subscription(CameraInfo, topic,
                                      lambda msg, t=topic: self.on_message(t, msg), sensor_qos(10))
         waiting = m.TOPIC_IMU
+        self.joint_sub = None
         if self.estimator.has_mast:
-            self.create_subscription(
-                JointState, m.TOPIC_JOINT_STATES,
-                lambda msg: self.on_message(m.TOPIC_JOINT_STATES, msg), sensor_qos(200))
+            self.joint_sub = self.create_subscription(
+                JointState, m.TOPIC_JOINT_STATES, self.on_joint_state, sensor_qos(200))
             waiting += f" and {m.TOPIC_JOINT_STATES} (mast {', '.join(self.estimator.mast.joints)})"
         logger.info(f"mode {config.mode}; waiting for stereo images "
                     f"({' or '.join(self.transports.subscribed())}) and {waiting}")
 
     def on_imu(self, msg: Any) -> None:
-        """One IMU message, then every other one already queued (:meth:`drain_imu`)."""
+        """One IMU message, after the joint states queued, then every other IMU message
+        already queued (:meth:`drain_imu`)."""
+        self.drain(self.joint_sub, m.TOPIC_JOINT_STATES)
         self.on_message(m.TOPIC_IMU, msg)
         self.drain_imu()
 
+    def on_joint_state(self, msg: Any) -> None:
+        """One joint state, then every other one already queued."""
+        self.on_message(m.TOPIC_JOINT_STATES, msg)
+        self.drain(self.joint_sub, m.TOPIC_JOINT_STATES)
+
     def on_image(self, topic: str, msg: Any) -> None:
-        """A stereo image, after the IMU messages queued before it (:meth:`drain_imu`)."""
+        """A stereo image, after the joint states and IMU messages queued before it
+        (:meth:`drain_imu`)."""
+        self.drain(self.joint_sub, m.TOPIC_JOINT_STATES)
         self.drain_imu()
         self.on_message(topic, msg)
 
@@ -166,14 +176,19 @@ class VoNode(Node):
         (``imu_gap``), which loses sharp turns. Taking the queue in one callback keeps up,
         and a pair fed after its IMU is not released before the gyro arrives.
         """
+        return self.drain(self.imu_sub, m.TOPIC_IMU, limit)
+
+    def drain(self, sub: Any, topic: str, limit: int = 4000) -> int:
+        """Feed every message waiting in ``sub``'s queue as ``topic``; returns how many.
+        Joint states are taken before the IMU: the IMU's stamps running ahead of joint
+        states still queued would end a pair's wait for them (:mod:`rover_vo.arrivals`)."""
         n = 0
-        sub = self.imu_sub
-        while n < limit:
+        while sub is not None and n < limit:
             with sub.handle:
                 taken = sub.handle.take_message(sub.msg_type, sub.raw)
             if taken is None:
                 break
-            self.on_message(m.TOPIC_IMU, taken[0])
+            self.on_message(topic, taken[0])
             n += 1
         return n
 
@@ -189,6 +204,11 @@ class VoNode(Node):
             self.publish_status(out)
         if outputs and self.state_path:
             self.save_state()
+        pairs = self.estimator.counts.pairs
+        if pairs != self._pairs_said and not outputs and self.estimator.state is None:
+            # A pair was read and gave no pose (no usable CameraInfo, images...): say why.
+            self.publish_status(None)
+        self._pairs_said = pairs
 
     def save_state(self) -> None:
         """Write the estimator's snapshot to ``state_path`` (what a restart resumes)."""
@@ -200,19 +220,26 @@ class VoNode(Node):
                                         "restart will start a new odom frame")
             self._save_failed = True
 
-    def publish_status(self, out: VoOutput) -> None:
-        """/vo/status: features, stereo matches, inliers, state and bad-input counts."""
+    def publish_status(self, out: VoOutput | None) -> None:
+        """/vo/status: features, stereo matches, inliers, state and bad-input counts; with
+        no ``out`` (a pair gave no pose, and none has come yet), level ERROR and why."""
         values = self.estimator.status()
         status = DiagnosticStatus()
         status.name = "rover_vo"
         status.hardware_id = "stereo_imu"
-        status.level = (DiagnosticStatus.OK if out.source in ("vision", "zero_velocity",
-                                                              "initial", "resumed")
-                        else DiagnosticStatus.WARN)
-        status.message = f"{out.source}: {values['inliers']} inliers"
-        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         msg = DiagnosticArray()
-        msg.header.stamp = odometry_message(out, "", "").header.stamp
+        if out is None:
+            status.level = DiagnosticStatus.ERROR
+            status.message = f"no pose yet: {self.estimator.last_bad or 'no usable pair'}"
+            stamp_ns = self.estimator.last_pair_ns or 0
+        else:
+            status.level = (DiagnosticStatus.OK if out.source in ("vision", "zero_velocity",
+                                                                  "initial", "resumed")
+                            else DiagnosticStatus.WARN)
+            status.message = f"{out.source}: {values['inliers']} inliers"
+            stamp_ns = out.stamp_ns
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
         msg.status = [status]
         self.status_pub.publish(msg)
 

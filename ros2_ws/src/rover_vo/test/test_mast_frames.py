@@ -19,8 +19,9 @@ from roi_network.mast import MastError, same_pose
 from roi_network.trajectory import read_tum_rows
 from rover_vo import cli
 from rover_vo import messages as m
+from rover_vo.arrivals import WAIT_PERIODS
 from rover_vo.config import VoConfig
-from rover_vo.estimator import INPUT_WAIT_S, MAST_SETTLE_FRAMES, VoEstimator
+from rover_vo.estimator import JOINT_STATE_PERIOD_S, MAST_SETTLE_FRAMES, VoEstimator
 from rover_vo.evaluation import stop_drift
 from rover_vo.testing import run
 
@@ -196,15 +197,18 @@ def test_no_joint_states_at_all_the_drive_pose_is_used(drive_stream, drive_run):
 
 
 def test_pairs_do_not_wait_for_joint_states_that_never_come(drive_stream):
-    """Fed as a node is, without the end of a bag: a silent /joint_states holds pairs back
-    for INPUT_WAIT_S of sensor time at most."""
+    """Fed as a node is, without the end of a bag: a silent /joint_states holds a pair back
+    for WAIT_PERIODS joint-state periods (10 Hz until two have come: 0.5 s) of the other
+    inputs' stamps at most."""
     est = VoEstimator(VoConfig(), fw.rover_params(), lambda *_: None)
-    released = []
+    waits = []
     for topic, msg in drive_stream:
         if topic != m.TOPIC_JOINT_STATES:
-            released += [o.stamp_ns for o in est.feed(topic, msg)]
-    last = m.stamp_ns(drive_stream[-1][1])
-    assert released and (last - released[-1]) * 1e-9 <= INPUT_WAIT_S
+            waits += [(m.stamp_ns(msg) - o.stamp_ns) * 1e-9 for o in est.feed(topic, msg)]
+    pairs = [f for f in PANO.frames if _stamp(f.t) <= m.stamp_ns(drive_stream[-1][1]) - 6e8]
+    assert len(waits) == len(pairs)
+    limit = WAIT_PERIODS * JOINT_STATE_PERIOD_S + 0.02  # and the IMU sample that shows it
+    assert max(waits) <= limit, waits
 
 
 def _renamed(stream, names):

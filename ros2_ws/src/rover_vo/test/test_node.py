@@ -224,3 +224,74 @@ def test_one_imu_callback_takes_every_queued_imu_message(tiny_bag, tiny_messages
     finally:
         rclpy.try_shutdown(context=ctx)
 
+
+
+def test_node_gives_the_first_pose_at_once_and_skips_a_bad_camera_info(ros_env, tmp_path):
+    """A 4.5 s bag (4 pairs 1 s apart, one left CameraInfo with fx = 0) played at its
+    rate: every pair gets its pose, the first within 0.5 s of bag time of the first pair
+    (the bag time of its arrival: the listener's clock less the least offset of an IMU
+    message's arrival from its stamp), and /vo/status counts the skipped CameraInfo,
+    which the log names once."""
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Imu
+
+    schedule = fw.Schedule(period_s=1.0).drive(4)
+    second = fw.START_NS + round(schedule.frames[1].t * 1e9)
+    messages = []
+    for topic, msg in fw.stream(schedule):
+        if topic == m.TOPIC_LEFT_INFO and m.stamp_ns(msg) == second:
+            msg.k = np.array(msg.k, float)
+            msg.k[0] = 0.0
+        messages.append((topic, msg))
+    bag = fw.write_bag(messages, tmp_path / "short")
+    node = subprocess.Popen([_exe("rover_vo"), "--ros-args", "--params-file",
+                             str(bag / "rover.yaml")], env=ros_env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=int(ros_env["ROS_DOMAIN_ID"]))
+    player = None
+    try:
+        listener = rclpy.create_node("vo_start_listener", context=ctx)
+        executor = rclpy.executors.SingleThreadedExecutor(context=ctx)
+        executor.add_node(listener)
+        imu: list[tuple[int, int]] = []  # (stamp, arrival), ns
+        odom: list[tuple[Odometry, int]] = []  # (message, arrival), ns
+        status: list[DiagnosticArray] = []
+        listener.create_subscription(
+            Imu, m.TOPIC_IMU, lambda msg: imu.append((m.stamp_ns(msg), time.time_ns())),
+            QoSProfile(depth=500, reliability=qos_profile_sensor_data.reliability))
+        listener.create_subscription(Odometry, "/vo/odometry",
+                                     lambda msg: odom.append((msg, time.time_ns())), RELIABLE)
+        listener.create_subscription(DiagnosticArray, "/vo/status", status.append, RELIABLE)
+        deadline = time.monotonic() + 60
+        while (min(listener.count_publishers(t) for t in ("/vo/odometry", "/vo/status")) < 1
+               and time.monotonic() < deadline and node.poll() is None):
+            executor.spin_once(timeout_sec=0.1)
+        player = subprocess.Popen(
+            [_exe("globloc"), "play", str(bag), "--rate", "1", "--wait-subscribers", "30",
+             "--topics", *_played(m.INPUT_TOPICS, messages)], env=ros_env,
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        deadline = time.monotonic() + 90
+        while len(odom) < len(schedule.frames) and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        player.wait(timeout=60)
+        assert node.poll() is None, node.stdout.read()
+        assert len(odom) == len(schedule.frames), len(odom)
+        first, arrival = odom[0]
+        stamp = first.header.stamp.sec * 1_000_000_000 + first.header.stamp.nanosec
+        assert stamp == fw.START_NS
+        assert len(imu) > 100, len(imu)
+        bag_time = arrival - min(wall - t for t, wall in imu)
+        assert (bag_time - stamp) * 1e-9 < 0.5, (bag_time - stamp) * 1e-9
+        values = {kv.key: kv.value for kv in status[-1].status[0].values}
+        assert values["bad_input.bad_camera_info"] == "1"
+    finally:
+        if player is not None and player.poll() is None:
+            player.send_signal(signal.SIGINT)
+            player.wait(timeout=10)
+        node.send_signal(signal.SIGINT)
+        node.wait(timeout=15)
+        rclpy.try_shutdown(context=ctx)
+    log = node.stdout.read()
+    t = m.seconds(second)
+    assert log.count(f"/stereo/left/camera_info at {t:.3f} s: K[0] (fx) = 0") == 1, log
