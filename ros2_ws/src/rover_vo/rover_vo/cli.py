@@ -74,7 +74,9 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--out", required=True, help="output directory")
     o.add_argument("--params", help="ROS params YAML (rover_vo: ros__parameters: ...)")
     o.add_argument("--mode", choices=MODES, help="overrides the params (default: paper)")
-    o.add_argument("--progress", action="store_true", help="print progress to stderr")
+    o.add_argument("--progress", action="store_true",
+                   help="print a line to stderr every 100 poses or 10 s of bag time, "
+                        "whichever comes first, and a final one")
     o.add_argument("--threads", type=int, default=0,
                    help="OpenCV threads (0: OpenCV's default); set OMP_NUM_THREADS too")
     o.set_defaults(func=cmd_odometry)

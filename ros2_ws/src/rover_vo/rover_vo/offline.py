@@ -46,13 +46,52 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+#: ``--progress`` prints a line every this many pairs or this much bag time, whichever
+#: comes first, and a final line.
+PROGRESS_PAIRS = 100
+PROGRESS_BAG_S = 10.0
+
+
+class Progress:
+    """``--progress`` lines on stderr: pairs, bag time since the first pose, distance."""
+
+    def __init__(self, est: VoEstimator) -> None:
+        self.est = est
+        self.pairs = 0
+        self.t0: float | None = None
+        self.last_t: float | None = None
+
+    def _line(self, outputs: list, prefix: str = "") -> str:
+        est = self.est
+        span = outputs[-1].state.t - outputs[0].state.t if outputs else 0.0
+        dist = est.state.distance_m if est.state is not None else 0.0
+        bad = sum(est.counts.bad.values())
+        return (f"  {prefix}{len(outputs)} poses, {span:.1f} s of bag, {dist:.1f} m"
+                + (f", {bad} bad inputs" if bad else ""))
+
+    def update(self, outputs: list) -> None:
+        """A line when 100 poses or 10 s of bag time passed since the last one."""
+        if not outputs or len(outputs) == self.pairs:
+            return
+        t = outputs[-1].state.t
+        if self.last_t is None:
+            self.last_t = outputs[0].state.t
+        if len(outputs) - self.pairs >= PROGRESS_PAIRS or t - self.last_t >= PROGRESS_BAG_S:
+            print(self._line(outputs), file=sys.stderr)
+            self.pairs, self.last_t = len(outputs), t
+
+    def final(self, outputs: list) -> None:
+        """The end of the bag."""
+        print(self._line(outputs, "done: "), file=sys.stderr)
+
+
 def run_odometry(bag_dir: str | Path, config: VoConfig, progress: bool = False) -> dict:
     """Run the estimator over a bag; returns the outputs and figures for the report.
 
     Returns:
         ``{"outputs": [VoOutput], "status": {...}, "seconds": float, "cpu_seconds": float,
         "estimator_cpu_seconds": float, "rss_mb": [(pair index, MB)], "config": {...},
-        "mast": bool}``.
+        "mast": bool, "bad_input": one line of the bad input (counts, the first of each)}``.
 
     Raises:
         BagError: the bag cannot be read, its rover.yaml's mast is malformed, or a
@@ -70,6 +109,7 @@ def run_odometry(bag_dir: str | Path, config: VoConfig, progress: bool = False) 
     rss = []
     t0, c0 = time.perf_counter(), time.process_time()
     feed_cpu = 0.0
+    said = Progress(est) if progress else None
     for topic, msg in read_messages(bag_dir):
         c = time.process_time()
         try:
@@ -80,12 +120,15 @@ def run_odometry(bag_dir: str | Path, config: VoConfig, progress: bool = False) 
         outputs += new
         if new and len(outputs) % 100 == 0:
             rss.append((len(outputs), proc.memory_info().rss / 2**20))
-            if progress:
-                print(f"  {len(outputs)} pairs, {est.state.distance_m:.0f} m", file=sys.stderr)
+        if said is not None:
+            said.update(outputs)
     outputs += est.finish()
+    if said is not None:
+        said.final(outputs)
     return {"outputs": outputs, "status": est.status(), "seconds": time.perf_counter() - t0,
             "cpu_seconds": time.process_time() - c0, "estimator_cpu_seconds": feed_cpu,
-            "rss_mb": rss, "config": flat_parameters(est.cfg), "mast": est.has_mast}
+            "rss_mb": rss, "config": flat_parameters(est.cfg), "mast": est.has_mast,
+            "bad_input": est.bad_input_summary()}
 
 
 def odometry(bag_dir: str | Path, config: VoConfig, out: str | Path,
@@ -101,7 +144,10 @@ def odometry(bag_dir: str | Path, config: VoConfig, out: str | Path,
     result = run_odometry(bag, config, progress=progress)
     outputs = result["outputs"]
     if not outputs:
-        raise BagError(f"{bag}: no stereo pair gave a pose (see the warnings above)")
+        est_status = result["status"]
+        why = result["bad_input"] or "no bad input counted"
+        raise BagError(f"{bag}: no stereo pair gave a pose ({est_status['pairs']} pairs "
+                       f"read): {why}")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     write_tum(out / TUM_FILE, [o.state for o in outputs],
