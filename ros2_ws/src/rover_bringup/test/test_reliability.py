@@ -275,6 +275,7 @@ def test_interrupt_stops_the_graph_without_restarts_and_keeps_the_outputs(
     assert (report['status'], report['interrupted_by'], report['errors']) == (
         'interrupted', name, [])
     assert all(n['status'] == 'ran' and 'restarts' not in n for n in report['nodes'])
+    assert [n['exit_code'] for n in report['nodes']] == [0]  # stopped, not killed
     # The TUM export of what was recorded.
     rows = [ln for ln in (run_dir / 'vo.tum').read_text().splitlines() if ln[0] != '#']
     assert len(rows) == counts['/vo/odometry']
