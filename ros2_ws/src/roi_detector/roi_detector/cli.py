@@ -57,6 +57,9 @@ def _cmd_ln(args) -> int:
     if stats.get("pairs_not_placed"):
         spaced += (f" ({stats['pairs_not_placed']} not placed: no /joint_states within "
                    "the tolerance of their stamps)")
+    if stats["not_a_rock"]:
+        spaced += " (rock regions not a rock: " + ", ".join(
+            f"{k} {v}" for k, v in sorted(stats["not_a_rock"].items())) + ")"
     print(f"roi_detector ln: {stats['pairs']} stereo pairs{spaced}, "
           f"{stats['detections']} detections, "
           f"{stats['tracks']} tracks -> {len(ln)} LN nodes in {args.out} "

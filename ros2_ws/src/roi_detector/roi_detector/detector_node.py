@@ -352,7 +352,8 @@ class RoiDetectorNode(Node):
                   "pairs_spaced_out": self.spacing.skipped,
                   "stereo_sync_max_offset_ms": round(self.halves.max_offset_ns * 1e-6, 3),
                   **({"joint_states": self.poses.joint_samples} if self.poses.has_mast
-                     else {}), **{f"skipped: {k}": v for k, v in self.bad.counts.items()}}
+                     else {}), **{f"skipped: {k}": v for k, v in self.bad.counts.items()},
+                  **{f"not a rock: {k}": v for k, v in self.mapper.map.rejected.items()}}
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         msg = DiagnosticArray()
         msg.header.stamp = stamp

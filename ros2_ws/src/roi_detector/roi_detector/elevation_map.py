@@ -20,8 +20,9 @@ footprint area, and height above the ground around them.
   to ``ROCK_GROW_HEIGHT_M`` over dark cells (hysteresis), one region per peak; kept when
   the region's height above the
   ring of ground around it exceeds the paper's 0.25 m and the convex hull of its cells
-  (a rock's far side is seen late or never) exceeds the paper's 0.6 m^2; the map rocks'
-  Rock Rover of the rover model decides which are rocks.
+  (a rock's far side is seen late or never) exceeds the paper's 0.6 m^2, and its shape is
+  a rock's (:func:`rock_shape_reason`: not taller than wide, as a wall or a box is, and
+  not a strip); the map rocks' Rock Rover of the rover model decides which are rocks.
 - **Outcrops**: grey tabular slabs. Each pair's colour saturation and value are
   normalised by the pair's medians (auto-exposure and sun cancel) and mapped like the
   height, averaged over a small neighbourhood (``OUTCROP_COLOUR_SIGMA_M``); connected
@@ -47,6 +48,7 @@ Pure numpy/scipy/OpenCV: no ROS, no truth.
 from __future__ import annotations
 
 import functools
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -108,6 +110,46 @@ MAX_CELL_SD_M = 0.4
 MAX_PAIR_WEIGHT = 2500.0
 #: 1-sigma error of a map ROI's centre (cell size, partial views), m.
 CENTRE_SIGMA_M = 0.15
+
+# What a rock is not (:func:`rock_shape_reason`), tested on each rock region that passed
+# the paper's area and height and the relief ratio, before the Rock Rover. A boulder is a
+# compact blob (the paper's Hessian blobs), about half as high as it is wide (height over
+# diameter 0.3-0.8 on Mars, Golombek et al. 2008); a wall, a post, a box or a board on its
+# edge is a vertical face, and the map's mean heights halve it: its cells hold points
+# from its foot to its top. On the demo drive (quick, truth odometry) the regions of true
+# rocks measured top over width 0.39-1.80 and minor over major axis 0.33-0.95.
+#: A rock's top (:data:`TOP_SIGMAS`) is at most this many times its width (the
+#: footprint's minor axis, which the stereo smear widens by 0.3-0.4 m at 10-15 m).
+ROCK_MAX_TOP_OVER_WIDTH = 2.0
+#: A rock's footprint is a blob: its minor axis is at least this fraction of its major
+#: axis (a wall or a fence seen along its length maps as a strip).
+ROCK_MIN_MINOR_OVER_MAJOR = 0.25
+#: A cell's top: its mean height plus this many within-cell spreads (points spread evenly
+#: from the foot of a face to its top reach sqrt(3) sigma above their mean).
+TOP_SIGMAS = float(np.sqrt(3.0))
+#: The reasons :func:`rock_shape_reason` gives (counted per reason in ``rejected``).
+SHAPE_REASONS = ("taller than wide", "elongated")
+
+
+def rock_shape_reason(top_m: float, major_m: float, minor_m: float) -> str | None:
+    """Why a rock region is not a rock by its shape, or None when it is a rock's.
+
+    Args:
+        top_m: the region's top above the ground around it (95th percentile of its
+            cells' mean heights plus :data:`TOP_SIGMAS` within-cell spreads), m.
+        major_m, minor_m: the footprint's full axes, m.
+
+    Returns:
+        ``"taller than wide"`` (top over minor axis above
+        :data:`ROCK_MAX_TOP_OVER_WIDTH`: a wall, a post, a tall box, a board on its
+        edge), ``"elongated"`` (minor over major axis below
+        :data:`ROCK_MIN_MINOR_OVER_MAJOR`: a low wall, a fence, a ridge), or None.
+    """
+    if top_m > ROCK_MAX_TOP_OVER_WIDTH * max(minor_m, 1e-6):
+        return "taller than wide"
+    if minor_m < ROCK_MIN_MINOR_OVER_MAJOR * major_m:
+        return "elongated"
+    return None
 
 # The outcrop rule: a map outcrops' Outcrop Rover is trained on its candidates, and a
 # rover model records it (MAP_OUTCROP_RULE) so that a map with another rule refuses it.
@@ -263,6 +305,9 @@ class ElevationMap:
         self.w = np.zeros((self.n, self.n), np.float32)
         self.wz = np.zeros((self.n, self.n), np.float32)
         self.wzz = np.zeros((self.n, self.n), np.float32)
+        # ... and of weight * the spread (variance) of the heights within the cell in
+        # each pair (a vertical face's cells hold points from its foot to its top).
+        self.wvv = np.zeros((self.n, self.n), np.float32)
         self.npairs = np.zeros((self.n, self.n), np.float32)
         # Appearance samples per cell and the sums of their relative saturation and value.
         self.nb = np.zeros((self.n, self.n), np.float32)
@@ -274,9 +319,11 @@ class ElevationMap:
         self._touched: list[np.ndarray] = []  # cell index boxes touched since last round
         #: Diagnostics: if set, called for every rock region a detection round examines,
         #: ``trace(verdict, centre_xy_odom, measured)``, verdict one of ``small``,
-        #: ``ring_unseen``, ``low``, ``area``, ``flat`` (the test that rejected it) or
-        #: ``rock``.
+        #: ``ring_unseen``, ``low``, ``area``, ``flat``, a :data:`SHAPE_REASONS` (the
+        #: test that rejected it) or ``rock``.
         self.trace: Callable[[str, np.ndarray, dict], None] | None = None
+        #: Rock regions rejected by their shape, per reason (:func:`rock_shape_reason`).
+        self.rejected: Counter[str] = Counter()
 
     # -- integration -----------------------------------------------------------------
 
@@ -291,7 +338,7 @@ class ElevationMap:
             return
         new_origin = np.floor((xy - half) / CELL_M) * CELL_M
         shift = np.round((new_origin - self.origin) / CELL_M).astype(int)
-        for name in ("w", "wz", "wzz", "npairs", "nb", "bs", "bv"):
+        for name in ("w", "wz", "wzz", "wvv", "npairs", "nb", "bs", "bv"):
             setattr(self, name, _shifted(getattr(self, name), shift))
         self.origin = new_origin
 
@@ -339,9 +386,10 @@ class ElevationMap:
         pw = np.bincount(flat, wt, size)
         hit = pw > 0
         pz = np.bincount(flat, wt * z, size)[hit] / pw[hit]
+        pv = np.clip(np.bincount(flat, wt * z * z, size)[hit] / pw[hit] - pz * pz, 0.0, None)
         pw = np.minimum(pw[hit], MAX_PAIR_WEIGHT)
         for acc, v in ((self.w, pw), (self.wz, pw * pz), (self.wzz, pw * pz * pz),
-                       (self.npairs, 1.0)):
+                       (self.wvv, pw * pv), (self.npairs, 1.0)):
             acc.ravel()[hit] += v
         if appearance is not None:
             a = appearance.reshape(-1, 2)[ok][keep][inside]
@@ -439,6 +487,12 @@ class ElevationMap:
         sat = ndimage.gaussian_filter(self.bs[si, sj], s) / np.maximum(n, 1e-6)
         val = ndimage.gaussian_filter(self.bv[si, sj], s) / np.maximum(n, 1e-6)
         return n > 0.5, sat, val
+
+    def _cell_spread(self, ij: np.ndarray) -> np.ndarray:
+        """The spread of the heights within each of the cells ``ij`` (indices in the
+        whole map) in the pairs that saw them (weighted mean variance, its root), m."""
+        i, j = ij.T
+        return np.sqrt(self.wvv[i, j] / np.maximum(self.w[i, j], 1e-9))
 
     def _cell_xy(self, ij: np.ndarray) -> np.ndarray:
         """Odom x, y of the centres of cells ``ij`` (indices in the whole map)."""
@@ -553,6 +607,16 @@ class ElevationMap:
                 r.xy = self._cell_xy(cells[upper] + corner + off).mean(axis=0)
             half = max(int(np.count_nonzero(upper)), 1) * CELL_M**2
             relief = height / np.sqrt(4 * half / np.pi)
+            # 5b. What a rock is not: a region taller than wide, or a strip.
+            spread = self._cell_spread(cells + corner + off)
+            top = float(np.percentile(above + TOP_SIGMAS * spread, 95))
+            reason = rock_shape_reason(top, r.major_m, r.minor_m) \
+                if relief >= ROCK_MIN_RELIEF_RATIO else None
+            if reason is not None:
+                self.rejected[reason] += 1
+                trace(reason, height_m=height, top_m=top, area_m2=r.area_m2,
+                      major_m=r.major_m, minor_m=r.minor_m)
+                continue
             if relief >= ROCK_MIN_RELIEF_RATIO:
                 r.features = self._rock_features(
                     r, lab == k, ring_seen, pad, plane, above, rel, rel_low, seen, off,
@@ -561,7 +625,8 @@ class ElevationMap:
                     r.score = float(self.rock_classifier(r.features[None])[0])
                 out.append(r)
             trace("rock" if relief >= ROCK_MIN_RELIEF_RATIO else "flat", height_m=height,
-                  area_m2=r.area_m2, relief=float(relief))
+                  area_m2=r.area_m2, relief=float(relief), top_m=top, major_m=r.major_m,
+                  minor_m=r.minor_m)
         return out
 
     def _rock_features(self, r: MapRoi, reg_full: np.ndarray, ring_seen: np.ndarray,

@@ -151,5 +151,6 @@ def build_ln(bag_dir: str, odometry: str, model: str | None, cfg: RoverConfig | 
                  "pairs_not_placed": sum(bad.counts[k] for k in NOT_PLACED)}
                 if poses.has_mast else {}),
              "ln_nodes": len(mapper.ln), "bad_input": dict(bad.counts),
+             "not_a_rock": dict(mapper.map.rejected),
              "detect_s_per_pair": t_detect / max(n_pairs, 1)}
     return mapper.ln, stats
