@@ -44,6 +44,7 @@ from roi_network.dtm import UNKNOWN_THRESHOLD_M2
 from roi_network.trajectory import TUM_FIELDS, numeric_table
 from rover_bringup.errors import GloblocError
 from rover_bringup.gn_check import check_truth_frame
+from rover_bringup.run_outputs import run_status_lines
 from rover_bringup.run_outputs import (
     ALIGNMENT,
     EVENTS,
@@ -506,10 +507,11 @@ def _fmt(value: Any, unit: str = '', digits: int = 2) -> str:
 
 def summary_lines(s: dict[str, Any]) -> list[str]:
     """The few lines ``globloc eval`` (and ``make demo``) print."""
+    status = run_status_lines(s.get('run_status'))
     if not s.get('localized'):
-        return [s['message']]
+        return [*status, s['message']]
     cons = s['consistency_3sigma']
-    return [
+    return [*status,
         f"first fix after {_fmt(s['distance_before_first_fix_m'], ' m', 1)} of "
         f"{_fmt(s['route_length_m'], ' m', 0)}",
         f"final error: horizontal {_fmt(s['final_error_m'], ' m')} (paper: "

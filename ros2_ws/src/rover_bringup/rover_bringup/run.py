@@ -277,10 +277,15 @@ def node_parameter(files: list[Any], node: str, key: str, default: Any) -> Any:
 
 def _write_params(plan: _Plan, run_dir: Path, variables: dict[str, str]) -> list[Path]:
     """Write ``<run>/params.yaml``; return the params files every node gets, in order."""
+    params = substitute(plan.params, variables)
+    if (dtm := plan.location.root / 'dtm.tif').is_file():  # /global_pose z from the DTM
+        node = params.setdefault('darces_matcher', {}).setdefault('ros__parameters', {})
+        node.setdefault('dtm_path', str(dtm))  # a user's own value (even '') stays
     params_run = run_dir / 'params.yaml'
     params_run.write_text(
-        f'# {plan.params_path} with $BAG_DIR/$RUN_DIR substituted, as given to every node\n'
-        + yaml.safe_dump(substitute(plan.params, variables), sort_keys=False)
+        f'# {plan.params_path} with $BAG_DIR/$RUN_DIR substituted (and dtm_path set to the '
+        'bag\'s dtm.tif, if any), as given to every node\n'
+        + yaml.safe_dump(params, sort_keys=False)
     )
     files = [params_run]
     if (rover := plan.location.root / 'rover.yaml').is_file():

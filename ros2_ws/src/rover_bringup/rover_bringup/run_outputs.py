@@ -128,9 +128,10 @@ def run_status(run_dir: Path) -> dict:
 
 
 def run_status_lines(status: dict | None) -> list[str]:
-    """What ``globloc eval`` prints of :func:`run_status`: nothing for an ``ok`` run, else
-    ``run status: degraded`` and one line per reason."""
-    if not status or status.get('status') == 'ok':
+    """What ``globloc eval`` prints of :func:`run_status`: nothing for an ``ok`` run (or
+    one whose run.yaml records no status: ``unknown`` stays in report.json), else ``run
+    status: degraded`` and one line per reason."""
+    if not status or status.get('status') in ('ok', 'unknown'):
         return []
     return [f"run status: {status['status']}",
             *(f'  {reason}' for reason in status.get('reasons', []))]

@@ -402,3 +402,24 @@ def test_stop_drift_measures_the_odometry_while_the_truth_stands_still():
     assert out['stop_drift_max_m'] == pytest.approx(0.18, abs=1e-9)  # 21 s .. 39 s
     assert out['stop_yaw_drift_max_deg'] == pytest.approx(0.0, abs=1e-9)
     assert stop_drift(vo[:10], truth) == {}  # no odometry over the stop
+
+
+def test_eval_prints_a_degraded_runs_status_first(tmp_path: Path):
+    """The reasons globloc run wrote in run.yaml come before the figures; an ok run adds
+    no line."""
+    import yaml
+
+    from rover_bringup.evaluation import summary_lines
+    from rover_bringup.run_outputs import run_status
+
+    run = tmp_path / 'run'
+    run.mkdir()
+    (run / 'run.yaml').write_text(yaml.safe_dump({
+        'status': 'degraded', 'exit_code': 3,
+        'degraded': ['rover_vo published nothing on /vo/odometry']}))
+    s = {'localized': False, 'message': 'not localized', 'run_status': run_status(run)}
+    assert summary_lines(s) == ['run status: degraded',
+                                '  rover_vo published nothing on /vo/odometry',
+                                'not localized']
+    (run / 'run.yaml').write_text(yaml.safe_dump({'status': 'ok', 'exit_code': 0}))
+    assert summary_lines(s | {'run_status': run_status(run)}) == ['not localized']

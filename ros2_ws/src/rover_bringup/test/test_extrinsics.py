@@ -419,3 +419,26 @@ def test_a_moving_head_without_its_urdf_or_joints_is_named(tmp_path):
     cal.urdf = '<robot><joint name="x"'
     with pytest.raises(CalibrationError, match='not a URDF document'):
         rover_parameters(cal)
+
+
+def test_run_gives_the_matcher_the_bags_dtm_unless_the_params_set_one(tmp_path):
+    """A dtm.tif beside the bag becomes darces_matcher's dtm_path in <run>/params.yaml; a
+    params file's own dtm_path (even '', no DTM) is kept."""
+    from rover_bringup.run import RunOptions, _prepare, _write_params
+
+    bag = write_field_bag(tmp_path / 'bag')
+    main(['rover-yaml', str(bag)])
+    run = tmp_path / 'run'
+    run.mkdir()
+
+    def matcher_params(options):
+        _write_params(_prepare(options), run, {'BAG_DIR': str(bag), 'RUN_DIR': str(run)})
+        return yaml.safe_load((run / 'params.yaml').read_text()).get(
+            'darces_matcher', {}).get('ros__parameters', {})
+
+    assert 'dtm_path' not in matcher_params(RunOptions(bag=bag))
+    (bag / 'dtm.tif').write_bytes(b'')  # only its presence is read here
+    assert matcher_params(RunOptions(bag=bag))['dtm_path'] == str(bag / 'dtm.tif')
+    (tmp_path / 'params.yaml').write_text(yaml.safe_dump(
+        {'darces_matcher': {'ros__parameters': {'dtm_path': ''}}}))
+    assert matcher_params(RunOptions(bag=bag, params=tmp_path / 'params.yaml'))['dtm_path'] == ''
