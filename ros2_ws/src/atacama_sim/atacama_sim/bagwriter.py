@@ -4,7 +4,8 @@ Topics, types, frames and QoS follow DESIGN.md. Each connection records its offe
 (sensor data: best effort / volatile / keep last 5; ground truth: reliable / keep last 10;
 ``/tf_static`` and ``/robot_description``: reliable / transient local / keep last 1, as
 robot_state_publisher latches them), so a player can re-offer the same profiles. Header
-stamps equal bag time.
+stamps equal bag time, POSIX UTC (the bag starts at the epoch of :mod:`atacama_sim.sky`);
+the site and epoch go into the metadata's ``custom_data`` (:meth:`BagWriter.set_site`).
 """
 
 from __future__ import annotations
@@ -24,10 +25,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
 from atacama_sim.camera import StereoRig
-from atacama_sim.robot import FRAME_IMU, FRAME_LEFT, FRAME_RIGHT
-
-#: Bag time of the first sample, ns since the Unix epoch (fixed: the bag is deterministic).
-BAG_EPOCH_NS = 1_700_000_000_000_000_000
+from atacama_sim.robot import FRAME_IMU, FRAME_LEFT, FRAME_RIGHT, FRAME_SUN_SENSOR
 
 FRAME_MAP = "map"
 
@@ -40,6 +38,9 @@ T_GT = "/ground_truth/pose"
 T_JOINTS = "/joint_states"
 T_TF_STATIC = "/tf_static"
 T_ROBOT = "/robot_description"
+T_SUN = "/sun_sensor"
+#: Prefix of the site's keys in the rosbag2 metadata's ``custom_data``.
+CUSTOM_DATA_PREFIX = "site."
 
 _ZERO = QosTime(0, 0)
 _INF = QosTime(2147483647, 4294967295)  # rmw "infinite" duration as rosbag2 stores it
@@ -78,6 +79,7 @@ class BagWriter:
                 (T_IMU, "sensor_msgs/msg/Imu", SENSOR_QOS),
                 (T_GT, "geometry_msgs/msg/PoseStamped", RELIABLE_QOS),
                 (T_JOINTS, "sensor_msgs/msg/JointState", SENSOR_QOS),
+                (T_SUN, "geometry_msgs/msg/Vector3Stamped", SENSOR_QOS),
                 (T_TF_STATIC, "tf2_msgs/msg/TFMessage", LATCHED_QOS),
                 (T_ROBOT, "std_msgs/msg/String", LATCHED_QOS)):
             self.conn[topic] = self.writer.add_connection(
@@ -87,6 +89,12 @@ class BagWriter:
 
     def __exit__(self, *exc: object) -> None:
         self.writer.close()
+
+    def set_site(self, site: dict[str, object]) -> None:
+        """Record the site and epoch (:meth:`atacama_sim.sky.Sky.metadata`) in the
+        metadata's ``custom_data``, each as ``site.<key>``: its text."""
+        for key, value in site.items():
+            self.writer.set_custom_data(f"{CUSTOM_DATA_PREFIX}{key}", str(value))
 
     # -- message builders ---------------------------------------------------------------
     def _header(self, t_ns: int, frame: str):
@@ -143,6 +151,16 @@ class BagWriter:
             linear_acceleration=v3(x=float(accel[0]), y=float(accel[1]), z=float(accel[2])),
             linear_acceleration_covariance=np.diag([accel_sigma ** 2] * 3).ravel())
         self._write(T_IMU, "sensor_msgs/msg/Imu", msg, t_ns)
+
+    def write_sun_sensor(self, t: float, v: np.ndarray) -> None:
+        """One ``/sun_sensor`` sample: the unit sun vector in the sensor frame."""
+        t_ns = self.stamp(t)
+        ts = self.ts
+        msg = ts.types["geometry_msgs/msg/Vector3Stamped"](
+            header=self._header(t_ns, FRAME_SUN_SENSOR),
+            vector=ts.types["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]),
+                                                         z=float(v[2])))
+        self._write(T_SUN, "geometry_msgs/msg/Vector3Stamped", msg, t_ns)
 
     def write_pose(self, t: float, p: np.ndarray, q: np.ndarray) -> None:
         t_ns = self.stamp(t)

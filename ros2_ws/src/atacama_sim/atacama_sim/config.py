@@ -10,6 +10,7 @@ them (:data:`CONSTANT_FIELDS` lists them).
 from __future__ import annotations
 
 import dataclasses
+import datetime
 import importlib
 from dataclasses import dataclass, field
 from typing import Any
@@ -77,16 +78,63 @@ class RockConfig:
 
 @dataclass
 class SunConfig:
-    """Sun direction (light levels are :mod:`atacama_sim.renderer`'s constants).
+    """A fixed sun direction: the orbital image's at acquisition (light levels are
+    :mod:`atacama_sim.renderer`'s constants).
 
     Attributes:
         elevation_deg: sun elevation above the horizon, degrees.
-        azimuth_deg: sun azimuth clockwise from north, degrees (NNE: a southern-hemisphere
-            morning).
+        azimuth_deg: sun azimuth clockwise from grid north, degrees (NNE: a
+            southern-hemisphere morning).
     """
 
     elevation_deg: float = 42.0
     azimuth_deg: float = 35.0
+
+
+@dataclass
+class SolarTimeConfig:
+    """When the traverse starts; the sun's direction over it follows from the site, on the
+    body the map CRS lies on (:mod:`atacama_sim.sky`, through ``roi_network.sun``).
+
+    The default puts the Atacama site's sun at 35 deg grid azimuth and 42 deg elevation
+    half way through the ``quick`` bag (about 31 min in), the orbital image's sun and the
+    lighting the rover detector is tuned on: 42.8 / 37.4 deg at the start, 26.2 / 45.5 deg
+    at its end.
+
+    Attributes:
+        date: local date of the start, YYYY-MM-DD (Earth: the site's calendar date; Mars:
+            the sol under way there at 12:00 UTC of that date).
+        local_solar_time_h: local true solar time at the map-frame origin when the bag
+            starts, h (12: the sun on the meridian).
+    """
+
+    date: str = "2023-05-05"
+    local_solar_time_h: float = 9.70
+
+
+@dataclass
+class SunSensorConfig:
+    """Digital two-axis fine sun sensor on the deck, looking up (:mod:`atacama_sim.sunsensor`).
+
+    Source: Solar MEMS SSOC-D60 datasheet (SSOCD60-14-MAN-119 rev 1.19): two orthogonal
+    axes, field of view +-60 deg, accuracy 0.3 deg, precision 0.05 deg. The accuracy is
+    taken as the 3-sigma bound of a constant bias per axis, the precision as the 1-sigma
+    white noise per axis; the rate is the NewSpace NFSS-411's (same class) 5 Hz.
+
+    Attributes:
+        rate_hz: sample rate, Hz (divides the IMU's rate).
+        noise_deg: 1-sigma white noise of each measured angle, degrees.
+        bias_deg: 1-sigma of each angle's constant bias (drawn once per bag), degrees.
+        fov_half_angle_deg: half-angle of the field of view's cone about the boresight
+            (base_link z), degrees.
+        position_m: the sensor in base_link (x forward, y left, z up), m.
+    """
+
+    rate_hz: float = 5.0
+    noise_deg: float = 0.05
+    bias_deg: float = 0.1
+    fov_half_angle_deg: float = 60.0
+    position_m: tuple[float, float, float] = (-0.40, 0.30, 0.75)
 
 
 @dataclass
@@ -239,7 +287,8 @@ class WorldConfig:
         site: georeference and size of the world.
         terrain: large relief.
         rocks: major ROIs and clutter.
-        sun: sun direction over the traverse.
+        sun: when the traverse starts (the sun follows from it and the site).
+        sun_sensor: the rover's sun sensor.
         camera: stereo rig.
         mast: pan-tilt motion and panoramas.
         imu: IMU noise model.
@@ -252,7 +301,8 @@ class WorldConfig:
     site: SiteConfig = field(default_factory=SiteConfig)
     terrain: TerrainConfig = field(default_factory=TerrainConfig)
     rocks: RockConfig = field(default_factory=RockConfig)
-    sun: SunConfig = field(default_factory=SunConfig)
+    sun: SolarTimeConfig = field(default_factory=SolarTimeConfig)
+    sun_sensor: SunSensorConfig = field(default_factory=SunSensorConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     mast: MastConfig = field(default_factory=MastConfig)
     imu: ImuConfig = field(default_factory=ImuConfig)
@@ -277,7 +327,6 @@ def _plain(v: Any) -> Any:
 #: no code reads). A world.yaml that carries such a key loads when its value equals it.
 CONSTANT_FIELDS: dict[str, dict[str, Any]] = {
     "WorldConfig": {
-        "start_time_ns": "bagwriter.BAG_EPOCH_NS",
         "albedo": {
             "res_m": "terrain.TERRAIN_RES_M",
             "soil_rgb": "texture.SOIL_RGB",
@@ -420,6 +469,8 @@ def _override(obj: Any, values: dict[str, Any]) -> None:
         if isinstance(current, bool) and not isinstance(value, bool):
             raise TypeError(f"{type(obj).__name__}.{key}: expected true or false, got "
                             f"{value!r}")
+        if isinstance(current, str) and isinstance(value, datetime.date):
+            value = value.isoformat()  # YAML reads 2023-05-05 as a date
         if isinstance(current, tuple) and not isinstance(value, list | tuple):
             raise TypeError(f"{type(obj).__name__}.{key}: expected a list, got {value!r}")
         if isinstance(current, tuple | int | float) and not isinstance(current, bool):

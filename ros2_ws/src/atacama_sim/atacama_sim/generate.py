@@ -1,10 +1,11 @@
 """Make one bag directory (DESIGN.md, Files) from a configuration.
 
-Steps (docs/simulator.md, Method): 1 build the world; 2 plan the route, drive it and
-schedule the mast's panoramas at the stops; 3 synthesise the IMU; 4 render the orbital
-image and write the DTM beside it; 5 stream the traverse into the bag in time order
-(frame tree, IMU, ground truth, joint states, stereo pairs rendered on demand, so memory
-stays bounded); 6 write truth, rover.yaml, world.yaml and the contact sheet.
+Steps (docs/simulator.md, Method): 1 build the world and place its sun (site, epoch);
+2 plan the route, drive it and schedule the mast's panoramas at the stops; 3 synthesise
+the IMU and the sun sensor; 4 render the orbital image and write the DTM beside it;
+5 stream the traverse into the bag in time order (frame tree, IMU, sun sensor, ground
+truth, joint states, stereo pairs rendered on demand under the sun of their stamp, so
+memory stays bounded); 6 write truth, rover.yaml, world.yaml and the contact sheet.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from atacama_sim.bagwriter import BAG_EPOCH_NS, BagWriter
+from atacama_sim.bagwriter import BagWriter
 from atacama_sim.camera import StereoRig, mast_kinematics
 from atacama_sim.config import WorldConfig
 from atacama_sim.contact import contact_sheet
@@ -29,6 +30,8 @@ from atacama_sim.renderer import SceneRenderer
 from atacama_sim.robot import static_transforms, urdf
 from atacama_sim.route import camera_indices, drive, plan_route
 from atacama_sim.sensor import develop, developer_pool
+from atacama_sim.sky import Sky
+from atacama_sim.sunsensor import SunSensorData, base_T_sensor, simulate_sun_sensor
 from atacama_sim.texture import MATERIAL_RGB
 from atacama_sim.truth import write_rover_yaml, write_truth_rois, write_tum, write_world_yaml
 from atacama_sim.world import World
@@ -66,20 +69,22 @@ def _contact_choice(rig: StereoRig, kin, motion: MastMotion, traj, cam_idx: np.n
     return chosen
 
 
-def _traverse(cfg: WorldConfig, rig: StereoRig, renderer, traj, motion: MastMotion, imu,
-              cam_idx: np.ndarray, gt_idx: np.ndarray, js_idx: np.ndarray, cat, out: Path,
-              bar, keep_aux: bool, seen_px: np.ndarray, frames_contact: list, aux: list,
-              timings: dict[str, float]) -> dict[str, int]:
-    """Drive the route: write the frame tree, IMU, ground truth, joint states and stereo
-    pairs to ``out/rosbag`` in time order (at a pair's stamp the joint state before the
-    images); fill ``seen_px`` (per ROI, most pixels in one left view), ``frames_contact``,
-    ``aux`` and ``timings``; return the message counts per topic."""
+def _traverse(cfg: WorldConfig, rig: StereoRig, renderer, sky: Sky, traj, motion: MastMotion,
+              imu, sun: SunSensorData, cam_idx: np.ndarray, gt_idx: np.ndarray,
+              js_idx: np.ndarray, cat, out: Path, bar, keep_aux: bool, seen_px: np.ndarray,
+              frames_contact: list, aux: list, timings: dict[str, float]) -> dict[str, int]:
+    """Drive the route: write the frame tree, IMU, sun sensor, ground truth, joint states
+    and stereo pairs to ``out/rosbag`` in time order (at a pair's stamp the joint state
+    before the images), each pair lit by the sun of its stamp at its camera; fill
+    ``seen_px`` (per ROI, most pixels in one left view), ``frames_contact``, ``aux`` and
+    ``timings``; return the message counts per topic."""
     kin = mast_kinematics(cfg.camera)
     contact = _contact_choice(rig, kin, motion, traj, cam_idx, cat)
     rot = traj.rotations()
     cam_set = {int(k): i for i, k in enumerate(cam_idx)}
     gt_set = set(gt_idx.tolist())
     js_set = set(js_idx.tolist())
+    sun_out = {int(sun.idx[j]): sun.measured[j] for j in np.flatnonzero(sun.reason == 0)}
     t0 = time.perf_counter()
     render_s = 0.0
     bar.set_postfix_str("traverse")
@@ -95,8 +100,9 @@ def _traverse(cfg: WorldConfig, rig: StereoRig, renderer, traj, motion: MastMoti
         b_t_l = _base_T_left(kin, motion, k)
         poses = [rig.camera_pose(rot[k].as_matrix(), traj.p[k], right=r, base_T_left=b_t_l)
                  for r in (False, True)]
+        light, _ = sky.sun_map(float(traj.t[k]), poses[0][1][:2])
         tr = time.perf_counter()
-        views = renderer.render_views(rig, poses, cfg.sun, want_label=True,
+        views = renderer.render_views(rig, poses, light, want_label=True,
                                       want_depth=keep_aux, half=True)
         render_s += time.perf_counter() - tr
         lab = views[0]["label"]
@@ -105,17 +111,21 @@ def _traverse(cfg: WorldConfig, rig: StereoRig, renderer, traj, motion: MastMoti
                       lab)
         if keep_aux:
             aux.append({"k": k, "t": float(traj.t[k]), "z": views[0]["z"], "label": lab,
-                        "base_T_left": b_t_l})
+                        "base_T_left": b_t_l, "sun": light})
         n_rendered += 1
 
     with developer_pool(cfg.camera, rig.fx, cfg.seed) as pool, \
-            BagWriter(out / "rosbag", BAG_EPOCH_NS) as bag:
+            BagWriter(out / "rosbag", sky.start_ns) as bag:
+        bag.set_site(sky.metadata())
         t0_bag = float(traj.t[0])
-        bag.write_tf_static(t0_bag, static_transforms(kin, cfg.camera.baseline_m))
-        bag.write_robot_description(t0_bag, urdf(kin, cfg.camera.baseline_m))
+        b_t_sun = base_T_sensor(cfg.sun_sensor)
+        bag.write_tf_static(t0_bag, static_transforms(kin, cfg.camera.baseline_m, b_t_sun))
+        bag.write_robot_description(t0_bag, urdf(kin, cfg.camera.baseline_m, b_t_sun))
         for k in range(len(traj.t)):
             t = float(traj.t[k])
             bag.write_imu(t, imu.gyro[k], imu.accel[k], imu.gyro_sigma, imu.accel_sigma)
+            if k in sun_out:
+                bag.write_sun_sensor(t, sun_out[k])
             if k in gt_set:
                 bag.write_pose(t, traj.p[k], traj.q[k])
             if k in js_set:
@@ -159,8 +169,9 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
     timings: dict[str, float] = {}
 
     t0 = time.perf_counter()
-    # 1. Build the world.
+    # 1. Build the world; place its sun (the site, the epoch).
     world = World.build(cfg)
+    sky = Sky.from_config(cfg, world.origin)
     cat = world.rocks.catalogue
     # 2. Plan the route, drive it (stops long enough for a panorama), schedule the mast.
     route = plan_route(cfg.route, cat, world.terrain.extent, cfg.seed)
@@ -168,8 +179,10 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
     traj = drive(route, cfg.route, world.terrain, rate, cfg.seed,
                  min_stop_s=panorama_stop_s(cfg.mast, cfg.camera, rate))
     motion = mast_motion(traj, cfg.mast, cfg.camera, rate)
-    # 3. Synthesise the IMU.
+    # 3. Synthesise the IMU and the sun sensor.
     imu = synthesize_imu(traj, cfg.imu, cfg.seed)
+    sun = simulate_sun_sensor(cfg.sun_sensor, sky, traj, motion, mast_kinematics(cfg.camera),
+                              rate, cfg.seed)
     cam_idx = np.union1d(camera_indices(traj, cfg.route.frame_spacing_m,
                                         cfg.route.stop_frame_period_s, rate, motion.busy),
                          motion.frames)
@@ -199,18 +212,19 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
     counts: dict[str, int] = {}
     # 5. Stream the traverse into the bag (_traverse).
     if not orbital_only:
-        counts = _traverse(cfg, rig, renderer, traj, motion, imu, cam_idx, gt_idx, js_idx,
-                           cat, out, bar, keep_aux, seen_px, frames_contact, aux, timings)
+        counts = _traverse(cfg, rig, renderer, sky, traj, motion, imu, sun, cam_idx, gt_idx,
+                           js_idx, cat, out, bar, keep_aux, seen_px, frames_contact, aux,
+                           timings)
     bar.close()
     renderer.release()
 
     # 6. Write the files.
     write_truth_rois(cat, cfg, world.origin, out / "truth/rois.geojson")
     # TUM stamps are bag time in seconds (= header stamps), like the pipeline's outputs
-    t_abs = BAG_EPOCH_NS * 1e-9 + traj.t[gt_idx]
+    t_abs = sky.start_ns * 1e-9 + traj.t[gt_idx]
     write_tum(out / "truth/trajectory.tum", t_abs, traj.p[gt_idx], traj.q[gt_idx])
     if not orbital_only:
-        write_rover_yaml(out / "rover.yaml", rig, cfg)
+        write_rover_yaml(out / "rover.yaml", rig, cfg, sky)
     sheet = contact_sheet(orb["rgb"], world.terrain.extent, route.path, cat, frames_contact,
                           f"{cfg.preset} seed {cfg.seed}: {len(cat)} ROIs, "
                           f"route {route.length:.0f} m, net {route.net:.0f} m")
@@ -232,6 +246,8 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
                   "stereo_frames": n_frames,
                   "mean_frame_spacing_m": round(route.length / max(1, n_frames - 1), 3)},
         "panoramas": _panorama_stats(cfg, traj, motion, rate),
+        "site": sky.metadata(),
+        "sun": _sun_stats(sky, traj, sun, cfg.sun_sensor.rate_hz),
         "terrain": {"height_range_m": [round(float(world.terrain.base.min()), 2),
                                        round(float(world.terrain.base.max()), 2)],
                     "slope_p95_deg": round(float(np.percentile(world.terrain.slope_deg(),
@@ -252,7 +268,30 @@ def generate(cfg: WorldConfig, out: Path, progress: bool = True,
         stats["_traj"] = traj
         stats["_cam_idx"] = cam_idx
         stats["_motion"] = motion
+        stats["_sky"] = sky
+        stats["_sun_sensor"] = sun
     return stats
+
+
+def _sun_stats(sky: Sky, traj, sun: SunSensorData, rate_hz: float) -> dict[str, Any]:
+    """world.yaml's sun figures: its path over the bag (grid azimuth, apparent elevation at
+    the start, middle and end) and the sun sensor's outcomes."""
+    from roi_network.sun import local_solar_time_h
+
+    path = {}
+    for name, k in (("start", 0), ("middle", len(traj.t) // 2), ("end", len(traj.t) - 1)):
+        v, el = sky.sun_map(float(traj.t[k]), traj.p[k][:2])
+        path[name] = {"azimuth_deg": round(float(np.degrees(np.arctan2(v[0], v[1]))) % 360.0,
+                                           3),
+                      "elevation_deg": round(el, 3)}
+    counts = sun.counts()
+    n = max(1, len(sun.idx))
+    return {"local_solar_time_h_start": round(local_solar_time_h(
+                sky.body, sky.lon_deg, sky.utc_s(float(traj.t[0]))), 4),
+            "path": path,
+            "sensor": {"rate_hz": float(rate_hz), "samples": len(sun.idx),
+                       **counts, "output_share": round(counts["output"] / n, 4),
+                       "bias_deg": [round(float(b), 4) for b in np.degrees(sun.bias_rad)]}}
 
 
 def _panorama_stats(cfg: WorldConfig, traj, motion: MastMotion, rate: float) -> dict[str, Any]:

@@ -5,7 +5,8 @@ The URDF holds base_link, the IMU, the pan and tilt joints of the mast
 ``/tf_static`` holds its fixed joints, what robot_state_publisher latches from it:
 base_link -> imu_link, base_link -> mast_pan_base (the pan joint's origin),
 mast_tilt_link -> left_camera_optical (the head), left_camera_optical ->
-right_camera_optical (the baseline along x). The moving links follow ``/joint_states``.
+right_camera_optical (the baseline along x), and base_link -> sun_sensor (the sun sensor's
+mount). The moving links follow ``/joint_states``.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ FRAME_BASE = "base_link"
 FRAME_IMU = "imu_link"
 FRAME_LEFT = "left_camera_optical"
 FRAME_RIGHT = "right_camera_optical"
+FRAME_SUN_SENSOR = "sun_sensor"
 #: The pan joint's origin, fixed to base_link (robot_state_publisher's static frame).
 FRAME_PAN_BASE = "mast_pan_base"
 FRAME_PAN_LINK = "mast_pan_link"
@@ -33,14 +35,19 @@ def _translation(x: float, y: float = 0.0, z: float = 0.0) -> np.ndarray:
 
 
 def static_transforms(kin: MastKinematics, baseline_m: float,
+                      base_T_sun: np.ndarray | None = None,
                       ) -> list[tuple[str, str, np.ndarray]]:
-    """``(parent, child, 4x4 child pose in parent)`` of every fixed joint."""
+    """``(parent, child, 4x4 child pose in parent)`` of every fixed joint (the sun
+    sensor's when ``base_T_sun`` gives its mount)."""
     pan_base = np.eye(4)
     pan_base[:3, 3] = kin.pan_origin[:3, 3]
-    return [(FRAME_BASE, FRAME_IMU, np.eye(4)),
-            (FRAME_BASE, FRAME_PAN_BASE, pan_base),
-            (FRAME_TILT_LINK, FRAME_LEFT, kin.head_to_left_camera),
-            (FRAME_LEFT, FRAME_RIGHT, _translation(baseline_m))]
+    out = [(FRAME_BASE, FRAME_IMU, np.eye(4)),
+           (FRAME_BASE, FRAME_PAN_BASE, pan_base),
+           (FRAME_TILT_LINK, FRAME_LEFT, kin.head_to_left_camera),
+           (FRAME_LEFT, FRAME_RIGHT, _translation(baseline_m))]
+    if base_T_sun is not None:
+        out.append((FRAME_BASE, FRAME_SUN_SENSOR, np.asarray(base_T_sun, float)))
+    return out
 
 
 def _origin(m: np.ndarray) -> str:
@@ -53,11 +60,13 @@ def _vec(v: np.ndarray) -> str:
     return " ".join(f"{x:.9g}" for x in 0.0 + np.asarray(v, float))
 
 
-def urdf(kin: MastKinematics, baseline_m: float) -> str:
-    """The URDF text of the rover's frames and mast joints."""
-    pan_in_base = np.linalg.inv(static_transforms(kin, baseline_m)[1][2]) @ kin.pan_origin
+def urdf(kin: MastKinematics, baseline_m: float,
+         base_T_sun: np.ndarray | None = None) -> str:
+    """The URDF text of the rover's frames and mast joints (and the sun sensor's)."""
+    fixed_joints = static_transforms(kin, baseline_m, base_T_sun)
+    pan_in_base = np.linalg.inv(fixed_joints[1][2]) @ kin.pan_origin
     links = [FRAME_BASE, FRAME_IMU, FRAME_PAN_BASE, FRAME_PAN_LINK, FRAME_TILT_LINK,
-             FRAME_LEFT, FRAME_RIGHT]
+             FRAME_LEFT, FRAME_RIGHT] + ([FRAME_SUN_SENSOR] if base_T_sun is not None else [])
     lines = ['<?xml version="1.0"?>', f'<robot name="{ROBOT_NAME}">']
     lines += [f'  <link name="{name}"/>' for name in links]
 
@@ -74,7 +83,7 @@ def urdf(kin: MastKinematics, baseline_m: float) -> str:
                       f'    <limit lower="{limits[0]:.12g}" upper="{limits[1]:.12g}" '
                       f'effort="10" velocity="1"/>', "  </joint>"])
 
-    for parent, child, m in static_transforms(kin, baseline_m):
+    for parent, child, m in fixed_joints:
         if child == FRAME_LEFT:
             revolute(kin.pan_joint, FRAME_PAN_BASE, FRAME_PAN_LINK, pan_in_base,
                      kin.pan_axis, kin.pan_limits)

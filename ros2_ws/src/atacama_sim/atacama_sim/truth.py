@@ -11,6 +11,10 @@ import yaml
 
 from atacama_sim.camera import StereoRig, mast_kinematics, quat_xyzw
 from atacama_sim.config import WorldConfig
+from atacama_sim.robot import FRAME_SUN_SENSOR
+from atacama_sim.sky import Sky
+from atacama_sim.sunsensor import base_T_sensor
+from atacama_sim.world import map_origin
 from roi_network.geojson import write_geojson
 from roi_network.network import MapFrame, RoiNetwork
 from roi_network.records import ROI_DTYPE
@@ -43,8 +47,9 @@ def write_tum(path: Path, t: np.ndarray, p: np.ndarray, q: np.ndarray) -> None:
     write_tum_file(path, t, p, q, header="t x y z qx qy qz qw (map frame, base_link)")
 
 
-def rover_params(rig: StereoRig, cfg: WorldConfig) -> dict[str, Any]:
-    """Extrinsics and sensor constants as ROS 2 node parameters (params-file layout)."""
+def rover_params(rig: StereoRig, cfg: WorldConfig, sky: Sky | None = None) -> dict[str, Any]:
+    """Extrinsics and sensor constants as ROS 2 node parameters (params-file layout); the
+    site and epoch of ``sky`` (default: that of ``cfg``'s site and start time)."""
     def pose(t: np.ndarray, r: np.ndarray) -> list[float]:
         # 12 decimals: the mast's chain of products leaves 1e-17 residues
         return [round(float(v), 12) + 0.0 for v in (*t, *quat_xyzw(r))]
@@ -70,8 +75,23 @@ def rover_params(rig: StereoRig, cfg: WorldConfig) -> dict[str, Any]:
         "accel_bias_random_walk": float(ic.accel_bias_rw),
         "gravity": float(ic.gravity),
         "mast": mast_params(cfg),
+        "sun_sensor": sun_sensor_params(cfg),
+        "site": (sky or Sky.from_config(cfg, map_origin(cfg.site.crs, cfg.site.site_lonlat))
+                 ).metadata(),
     }
     return {"/**": {"ros__parameters": params}}
+
+
+def sun_sensor_params(cfg: WorldConfig) -> dict[str, Any]:
+    """The sun sensor's ``sun_sensor.*`` parameters, nested as a params file holds them."""
+    from roi_network.mast import pose_list
+
+    sc = cfg.sun_sensor
+    return {"frame": FRAME_SUN_SENSOR,
+            "base_to_sensor": [round(v, 12) + 0.0 for v in pose_list(base_T_sensor(sc))],
+            "rate_hz": float(sc.rate_hz), "noise_deg": float(sc.noise_deg),
+            "bias_deg": float(sc.bias_deg),
+            "fov_half_angle_deg": float(sc.fov_half_angle_deg)}
 
 
 def mast_params(cfg: WorldConfig) -> dict[str, Any]:
@@ -104,13 +124,24 @@ ROVER_YAML_HEADER = """\
 #   CameraInfo K (no distortion).
 # imu_*: IMU rate, white-noise densities (rad/s/sqrt(Hz), m/s^2/sqrt(Hz)) and bias
 #   random walks (rad/s^2/sqrt(Hz), m/s^3/sqrt(Hz)); gravity in m/s^2.
+# sun_sensor.*: the two-axis sun sensor of /sun_sensor (Vector3Stamped: the unit sun
+#   vector in frame sun_sensor.frame, z = boresight): base_to_sensor its pose in
+#   base_link; rate_hz; noise_deg and bias_deg the 1-sigma white noise and constant bias
+#   of each of its two angles atan2(x, z), atan2(y, z); fov_half_angle_deg the half-angle
+#   of its field of view about z (no output outside it, at night or in the mast's shadow).
+# site.*: where and when: body (earth | mars), crs (the map's), latitude_deg and
+#   longitude_deg of the map-frame origin (east positive; Mars planetocentric), epoch_utc
+#   and epoch_ns the bag's first stamp. Header stamps are POSIX UTC: the sun at a stamp
+#   is roi_network.sun.sun_position(body, latitude_deg, longitude_deg, stamp).
 """
 
 
-def write_rover_yaml(path: Path, rig: StereoRig, cfg: WorldConfig) -> None:
+def write_rover_yaml(path: Path, rig: StereoRig, cfg: WorldConfig,
+                     sky: Sky | None = None) -> None:
     with path.open("w") as f:
         f.write(ROVER_YAML_HEADER)
-        yaml.safe_dump(rover_params(rig, cfg), f, sort_keys=False, default_flow_style=None)
+        yaml.safe_dump(rover_params(rig, cfg, sky), f, sort_keys=False,
+                       default_flow_style=None)
 
 
 def write_world_yaml(path: Path, cfg: WorldConfig, derived: dict[str, Any]) -> None:

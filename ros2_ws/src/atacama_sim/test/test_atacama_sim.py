@@ -14,7 +14,6 @@ import rasterio
 import yaml
 from scipy.spatial.transform import Rotation
 
-from atacama_sim.bagwriter import BAG_EPOCH_NS
 from atacama_sim.camera import StereoRig
 from atacama_sim.config import CONSTANT_FIELDS, constant_value, make_config
 from atacama_sim.generate import generate
@@ -22,10 +21,11 @@ from atacama_sim.panorama import panorama_stop_s
 from atacama_sim.renderer import SceneRenderer
 from atacama_sim.rocks import INST, generate_rocks
 from atacama_sim.route import drive, plan_route
+from atacama_sim.sky import Sky
 from atacama_sim.terrain import Terrain
 from atacama_sim.texture import MATERIAL_RGB
 from atacama_sim.truth import write_truth_rois
-from atacama_sim.world import World
+from atacama_sim.world import World, map_origin
 
 SEED = 3
 #: The test bag's lens: MER's 45 deg Navcam (fx B = 154.5 px m), the bench these image
@@ -40,6 +40,15 @@ LENS = {"camera": {"hfov_deg": 45.0}}
 #: view sees the ground from 2.7 m to the horizon).
 TINY = {**LENS, "route": {"stop_every_m": (6.0, 6.0)},
         "mast": {"overlap_deg": 5.0, "tilt_deg": 12.0}}
+
+
+def _start_ns(cfg) -> int:
+    """The bag's first stamp: the site's local solar time of ``cfg.sun`` (atacama_sim.sky)."""
+    return Sky.from_config(cfg, map_origin(cfg.site.crs, cfg.site.site_lonlat)).start_ns
+
+
+#: The test bag's first stamp, ns (POSIX UTC).
+START_NS = _start_ns(make_config("tiny", SEED, TINY))
 
 
 @pytest.fixture(scope="module")
@@ -88,7 +97,7 @@ class _Poser:
         self.angles = {t: tuple(m.position) for t, m in messages["/joint_states"]}
 
     def joints(self, t: float) -> tuple[float, float]:
-        return self.angles[BAG_EPOCH_NS + round(t * 1e9)]
+        return self.angles[START_NS + round(t * 1e9)]
 
     def base_T_left(self, t: float) -> np.ndarray:  # noqa: N802
         return self.kin.base_T_left(*self.joints(t))
@@ -117,7 +126,7 @@ def _tum(bag_dir: Path) -> np.ndarray:
 
 def _pose_at(tum: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
     """Truth pose at ``t`` seconds after the bag start (TUM stamps are bag time)."""
-    t = BAG_EPOCH_NS * 1e-9 + t
+    t = START_NS * 1e-9 + t
     i = int(np.argmin(np.abs(tum[:, 0] - t)))
     assert abs(tum[i, 0] - t) < 1e-4, "camera stamps are ground-truth stamps"
     return Rotation.from_quat(tum[i, 4:8]).as_matrix(), tum[i, 1:4]
@@ -250,7 +259,7 @@ def test_rendered_depth_lies_on_terrain(bag: dict, messages: dict) -> None:
     poser = _poser(bag["dir"], messages)
     aux = bag["stats"]["_aux"]
     pano = set(_pano_stamps(messages))
-    views = [a for a in aux if BAG_EPOCH_NS + round(a["t"] * 1e9) in pano]
+    views = [a for a in aux if START_NS + round(a["t"] * 1e9) in pano]
     assert len(views) == 9
     for a in [aux[len(aux) // 4], *views]:
         r_wb, p_wb = _pose_at(tum, a["t"])
@@ -333,7 +342,7 @@ def test_rock_is_raised_in_stereo(bag: dict, messages: dict) -> None:
         row = cat[cat["id"] == rid][0]
         if row["label"] != 1 or checked >= 4 or np.median(a["z"][a["label"] == rid]) > 15:
             continue
-        if BAG_EPOCH_NS + round(a["t"] * 1e9) in pano:
+        if START_NS + round(a["t"] * 1e9) in pano:
             continue
         disp = _sgbm(_decode(lm), _decode(rm))
         rock = (a["label"] == rid)
@@ -484,7 +493,7 @@ def test_same_seed_same_truth_and_trajectory(bag: dict, messages: dict,
     tum = _tum(bag["dir"])
     first = bag["stats"]["_traj"]
     assert np.array_equal(traj.p, first.p) and np.array_equal(traj.q, first.q)
-    t_rel = tum[:, 0] - BAG_EPOCH_NS * 1e-9
+    t_rel = tum[:, 0] - START_NS * 1e-9
     i = np.searchsorted(traj.t, t_rel - 1e-4)
     assert np.allclose(traj.t[i], t_rel, atol=1e-4)
     assert np.allclose(traj.p[i], tum[:, 1:4], atol=1e-6)
@@ -508,7 +517,8 @@ def test_renderer_is_deterministic(bag: dict) -> None:
     try:
         poses = [rig.camera_pose(traj.rotations()[k].as_matrix(), traj.p[k],
                                  base_T_left=bag["stats"]["_aux"][3]["base_T_left"])]
-        a, b = (r.render_views(rig, poses, cfg.sun, want_label=True, want_depth=True)[0]
+        sun = bag["stats"]["_aux"][3]["sun"]
+        a, b = (r.render_views(rig, poses, sun, want_label=True, want_depth=True)[0]
                 for _ in range(2))
     finally:
         r.release()
@@ -595,7 +605,7 @@ def test_world_yaml_with_constant_keys_loads() -> None:
     cfg = make_config("tiny", SEED, LENS)
     recorded = cfg.to_dict()
     sections = {"TerrainConfig": [recorded["terrain"]], "RockConfig": [recorded["rocks"]],
-                "SunConfig": [recorded["sun"], recorded["orbital"]["sun"]],
+                "SunConfig": [recorded["orbital"]["sun"]],
                 "CameraConfig": [recorded["camera"]], "RouteConfig": [recorded["route"]],
                 "OrbitalConfig": [recorded["orbital"]], "WorldConfig": [recorded]}
     assert set(CONSTANT_FIELDS) == set(sections)
@@ -714,7 +724,7 @@ def test_truth_rock_beside_the_route_is_in_a_panorama_view(bag: dict, messages: 
     rig, _, _ = _rig_from_bag(bag["dir"], messages["/stereo/left/camera_info"][0][1])
     poser = _poser(bag["dir"], messages)
     pano = set(_pano_stamps(messages))
-    views = [a for a in bag["stats"]["_aux"] if BAG_EPOCH_NS + round(a["t"] * 1e9) in pano]
+    views = [a for a in bag["stats"]["_aux"] if START_NS + round(a["t"] * 1e9) in pano]
     assert len(views) == 9
     r_wb, p_wb = _pose_at(tum, views[0]["t"])
     heading = r_wb[:2, 0]
@@ -789,7 +799,13 @@ def test_tf_static_and_robot_description(bag: dict, messages: dict) -> None:
     pairs = {(x.header.frame_id, x.child_frame_id): x.transform for x in tf.transforms}
     assert set(pairs) == {("base_link", "imu_link"), ("base_link", "mast_pan_base"),
                           ("mast_tilt_link", "left_camera_optical"),
-                          ("left_camera_optical", "right_camera_optical")}
+                          ("left_camera_optical", "right_camera_optical"),
+                          ("base_link", "sun_sensor")}
+    sun = pairs[("base_link", "sun_sensor")]
+    assert (sun.translation.x, sun.translation.y, sun.translation.z) == \
+        pytest.approx(bag["cfg"].sun_sensor.position_m)
+    assert sun.rotation.w == pytest.approx(1.0)
+    assert '<link name="sun_sensor"/>' in desc.data
     pan_base = pairs[("base_link", "mast_pan_base")]
     assert (pan_base.translation.x, pan_base.translation.z) == pytest.approx((0.4, 1.30))
     assert pairs[("left_camera_optical", "right_camera_optical")].translation.x == \
@@ -874,3 +890,110 @@ def test_a_stop_gets_its_end_of_drive_frame_before_the_mast_moves():
     assert not np.any(busy[idx])
     # Without it the first stop frame would come only after the panorama.
     assert np.sum((t[idx] > 20) & (t[idx] < 22)) == 1
+
+
+# -- the sun: epoch, site, sun sensor, light ----------------------------------------------
+def _sun_in_map(params: dict, origin: list[float], xy: np.ndarray, stamp_s: float
+                ) -> np.ndarray:
+    """The sun in the map frame from the bag's own records and roi_network.sun."""
+    from pyproj import CRS, Transformer
+
+    from roi_network import sun as ephemeris
+
+    crs = CRS.from_user_input(params["site.crs"])
+    lon, lat = Transformer.from_crs(crs, crs.geodetic_crs, always_xy=True).transform(
+        xy[0] + origin[0], xy[1] + origin[1])
+    pos = ephemeris.sun_position(params["site.body"], lat, lon, stamp_s)
+    return ephemeris.grid_north(params["site.crs"], lon, lat).enu_to_grid(pos.enu())
+
+
+def test_the_bag_records_its_site_and_epoch(bag: dict, messages: dict) -> None:
+    """The rosbag2 metadata's custom_data, rover.yaml's ``site:`` and world.yaml hold the
+    body, CRS, latitude, longitude and epoch; the first stamp is the epoch, at the local
+    solar time of ``sun.local_solar_time_h``."""
+    from roi_network import sun as ephemeris
+
+    meta = yaml.safe_load((bag["dir"] / "rosbag/metadata.yaml").read_text())
+    custom = meta["rosbag2_bagfile_information"]["custom_data"]
+    params = _rover_params(bag["dir"])
+    derived = yaml.safe_load((bag["dir"] / "world.yaml").read_text())["derived"]
+    want = {"body": "earth", "crs": "EPSG:32719", "latitude_deg": -24.1,
+            "longitude_deg": -69.95, "epoch_ns": START_NS}
+    for key, value in want.items():
+        assert custom[f"site.{key}"] == str(value), key
+        assert params[f"site.{key}"] == value, key
+        assert derived["site"][key] == value, key
+    assert params["site.epoch_utc"] == custom["site.epoch_utc"] == "2023-05-05T14:18:31Z"
+    first = min(t for msgs in messages.values() for t, _ in msgs)
+    assert first == START_NS
+    assert ephemeris.local_solar_time_h("earth", -69.95, first * 1e-9) == \
+        pytest.approx(bag["cfg"].sun.local_solar_time_h, abs=1 / 3600)
+
+
+def test_sun_sensor_reads_the_ephemeris_in_its_frame(bag: dict, messages: dict) -> None:
+    """Each /sun_sensor vector, against the sun computed from the bag alone (rover.yaml's
+    site and mount, the truth pose, roi_network.sun): its two angles are off by the
+    bag's bias plus noise of rover.yaml's sigma; the samples come at its rate, minus those
+    the mast shadows (world.yaml counts them)."""
+    params = _rover_params(bag["dir"])
+    derived = yaml.safe_load((bag["dir"] / "world.yaml").read_text())["derived"]
+    tum = _tum(bag["dir"])
+    mount = np.array(params["sun_sensor.base_to_sensor"])
+    r_bs = Rotation.from_quat(mount[3:]).as_matrix()
+    msgs = messages["/sun_sensor"]
+    sensor = derived["sun"]["sensor"]
+    assert len(msgs) == sensor["output"] > 0.9 * sensor["samples"]
+    assert sensor["samples"] == pytest.approx(derived["route"]["duration_s"]
+                                              * params["sun_sensor.rate_hz"], abs=1)
+    err = []
+    for t, m in msgs:
+        assert m.header.frame_id == params["sun_sensor.frame"] == "sun_sensor"
+        r_wb, p = _pose_at(tum, (t - START_NS) * 1e-9)
+        s_map = _sun_in_map(params, derived["map_origin"], p + r_wb @ mount[:3], t * 1e-9)
+        truth = r_bs.T @ r_wb.T @ s_map
+        v = np.array([m.vector.x, m.vector.y, m.vector.z])
+        assert np.linalg.norm(v) == pytest.approx(1.0, abs=1e-9)
+        assert truth[2] > np.cos(np.radians(params["sun_sensor.fov_half_angle_deg"]))
+        err.append([np.arctan2(v[0], v[2]) - np.arctan2(truth[0], truth[2]),
+                    np.arctan2(v[1], v[2]) - np.arctan2(truth[1], truth[2])])
+    err = np.degrees(err) - sensor["bias_deg"]
+    noise = params["sun_sensor.noise_deg"]
+    assert np.all(np.abs(err) < 5 * noise)
+    np.testing.assert_allclose(err.std(axis=0), [noise, noise], rtol=0.2)
+    np.testing.assert_allclose(err.mean(axis=0), 0.0, atol=5 * noise / np.sqrt(len(err)))
+    dt = np.diff([t for t, _ in msgs]) * 1e-9
+    assert np.min(dt) == pytest.approx(1 / params["sun_sensor.rate_hz"], abs=1e-6)
+
+
+def test_the_light_follows_the_sun_of_each_frame(bag: dict) -> None:
+    """Each pair is lit by the ephemeris' sun at its stamp and camera; over the bag it
+    moves as the sun does, and a sun an hour on changes the image."""
+    params = _rover_params(bag["dir"])
+    derived = yaml.safe_load((bag["dir"] / "world.yaml").read_text())["derived"]
+    aux = bag["stats"]["_aux"]
+    traj = bag["stats"]["_traj"]
+    for a in (aux[0], aux[len(aux) // 2], aux[-1]):
+        want = _sun_in_map(params, derived["map_origin"], traj.p[a["k"]][:2],
+                           START_NS * 1e-9 + a["t"])
+        assert np.degrees(np.arccos(min(1.0, float(want @ a["sun"])))) < 0.002
+    moved = np.degrees(np.arccos(float(aux[0]["sun"] @ aux[-1]["sun"])))
+    span = aux[-1]["t"] - aux[0]["t"]
+    assert 0.003 * span < moved < 0.006 * span  # about 15 deg/h in the sky
+    sky = bag["stats"]["_sky"]
+    cfg = bag["cfg"]
+    world = bag["stats"]["_world"]
+    rig = StereoRig.from_config(cfg.camera)
+    k = aux[3]["k"]
+    poses = [rig.camera_pose(traj.rotations()[k].as_matrix(), traj.p[k],
+                             base_T_left=aux[3]["base_T_left"])]
+    r = SceneRenderer(world.terrain, world.textures, world.rocks, MATERIAL_RGB,
+                      (cfg.camera.width, cfg.camera.height))
+    try:
+        now = r.render_views(rig, poses, aux[3]["sun"])[0]["rad"]
+        key = r._shadow_sun.copy()
+        later_sun, _ = sky.sun_map(aux[3]["t"] + 3600.0, traj.p[k][:2])
+        later = r.render_views(rig, poses, later_sun)[0]["rad"]
+        assert not np.array_equal(r._shadow_sun, key)  # the shadow map followed
+    finally:
+        r.release()
+    assert np.mean(np.abs(later.astype(float) - now)) > 0.01 * np.mean(now)
