@@ -38,6 +38,7 @@ INPUT_TOPICS: dict[str, TopicContract] = {
     '/stereo/right/camera_info': TopicContract('sensor_msgs/msg/CameraInfo', SENSOR_DATA_QOS),
     '/imu/data': TopicContract('sensor_msgs/msg/Imu', SENSOR_DATA_QOS),
     '/joint_states': TopicContract('sensor_msgs/msg/JointState', SENSOR_DATA_QOS),
+    '/sun_sensor': TopicContract('geometry_msgs/msg/Vector3Stamped', SENSOR_DATA_QOS),
     '/ground_truth/pose': TopicContract('geometry_msgs/msg/PoseStamped', DEFAULT_QOS),
 }
 
