@@ -55,13 +55,17 @@ K_WARN: Final = 0.20
 #: ... and ``out_of_distribution``: thermal-inertia rock abundances rarely exceed 30 %.
 K_OUT: Final = 0.35
 #: The size-frequency check counts rocks of at least this many times the complete
-#: footprint (2 m^2, 1.6 m across) ...
+#: footprint (2 m^2, 1.6 m across) among the complete ones ...
 LARGER_ROCK_FACTOR: Final = 2.0
-#: ... and compares their number (+1) with the model's for the fitted k (+1): beyond this
-#: factor either way the size-frequency is flagged ``warn`` ...
+#: ... against the model: fewer of them (+1) than N_k(D1) / N_k(D0) gives for the fitted k
+#: (+1), or more than the flattest curve of the model's family (k = :data:`K_FLATTEST`)
+#: gives, by more than this factor is ``warn`` ...
 SFD_WARN: Final = 3.0
-#: ... and ``out_of_distribution``.
+#: ... and by more than this one ``out_of_distribution``.
 SFD_OUT: Final = 10.0
+#: The rockiest curve of Golombek and Rapp's family considered (its flattest
+#: size-frequency).
+K_FLATTEST: Final = 0.40
 #: Fewest complete rocks for the size-frequency check to say anything.
 SFD_MIN_ROCKS: Final = 20
 #: Statuses in increasing doubt.
@@ -107,7 +111,7 @@ def check_gsd(info: OrthoInfo, recipe: Recipe) -> None:
     d_min = MIN_ROCK_PX * info.gsd_m
     raise OrthoImageError(
         f"{info.path}: ground sample distance {info.gsd_m:.3g} m/px is too coarse: a "
-        f"{area:g} m^2 rock ({d:.2f} m across) spans {px:.1f} px, fewer than "
+        f"{area:g} m^2 rock ({d:.2f} m across) spans {px:.2g} px, fewer than "
         f"{MIN_ROCK_PX:g}; the smallest rock this image shows {MIN_ROCK_PX:g} px across is "
         f"{math.pi * d_min**2 / 4:.3g} m^2 ({d_min:.3g} m); use an orthoimage of at most "
         f"{d / MIN_ROCK_PX:.2f} m/px")
@@ -242,7 +246,8 @@ def rock_abundance(rock_areas_m2: np.ndarray, area_m2: float) -> dict[str, Any]:
     k is fitted to the area covered by the complete rocks (footprint >=
     :data:`COMPLETE_ROCK_AREA_M2`, diameter D0); the size-frequency is judged by the
     number of them that are also at least :data:`LARGER_ROCK_FACTOR` times that footprint
-    (diameter D1), against the number the model's N_k(D1) / N_k(D0) predicts.
+    (diameter D1): against N_k(D1) / N_k(D0) of the fitted k when fewer, of
+    :data:`K_FLATTEST` when more.
 
     Args:
         rock_areas_m2: footprints of the detected rocks.
@@ -250,8 +255,8 @@ def rock_abundance(rock_areas_m2: np.ndarray, area_m2: float) -> dict[str, Any]:
 
     Returns:
         ``k`` (None with no complete rock), the covered fraction, the counts of complete
-        and larger rocks, the model's count of larger rocks, their ratio (+1 each), and
-        the rocks per km^2.
+        and larger rocks, the model's counts of larger rocks for the fitted k and for
+        :data:`K_FLATTEST`, the ratio (+1 each) to the nearer one, and the rocks per km^2.
     """
     a = np.asarray(rock_areas_m2, float)
     d0 = 2.0 * math.sqrt(COMPLETE_ROCK_AREA_M2 / math.pi)
@@ -268,9 +273,14 @@ def rock_abundance(rock_areas_m2: np.ndarray, area_m2: float) -> dict[str, Any]:
     if math.isfinite(k) and k > 0:
         n1 = int((big >= COMPLETE_ROCK_AREA_M2 * LARGER_ROCK_FACTOR).sum())
         expected = big.size * cumulative_number(k, d1) / cumulative_number(k, d0)
+        flattest = (big.size * cumulative_number(K_FLATTEST, d1)
+                    / cumulative_number(K_FLATTEST, d0))
+        ratio = ((n1 + 1.0) / (expected + 1.0) if n1 < expected else
+                 max(1.0, (n1 + 1.0) / (flattest + 1.0)))
         out |= {"larger_diameter_m": round(d1, 3), "larger_rocks": n1,
                 "larger_rocks_model": round(expected, 1),
-                "larger_rocks_ratio": round((n1 + 1.0) / (expected + 1.0), 3)}
+                "larger_rocks_flattest": round(flattest, 1),
+                "larger_rocks_ratio": round(ratio, 3)}
     return out
 
 
@@ -374,13 +384,17 @@ def _physical_reasons(rocks: dict[str, Any]) -> list[dict[str, Any]]:
         excess = max(ratio, 1.0 / ratio)
         lvl = _level(excess, SFD_WARN, SFD_OUT)
         if lvl != "ok":
-            more = "more" if ratio > 1 else "fewer"
+            if ratio > 1:
+                model = (f"even its flattest size-frequency (k = {100 * K_FLATTEST:.0f} %) "
+                         f"has {rocks['larger_rocks_flattest']:.0f}")
+            else:
+                model = (f"its size-frequency for the fitted k = {100 * k:.1f} % has "
+                         f"{rocks['larger_rocks_model']:.0f}")
             out.append({"check": "rock_size_frequency", "level": lvl, "value": ratio,
                         "training_range": [1.0 / SFD_WARN, SFD_WARN],
                         "message": f"{rocks['larger_rocks']} of the {rocks['rocks']} rocks "
                         f"of at least {COMPLETE_ROCK_AREA_M2:g} m^2 are of "
                         f"{COMPLETE_ROCK_AREA_M2 * LARGER_ROCK_FACTOR:g} m^2 or more where "
-                        f"Golombek and Rapp's size-frequency for k = {100 * k:.1f} % has "
-                        f"{rocks['larger_rocks_model']:.0f}: {excess:.2g} times {more} large "
-                        "rocks than a rock population"})
+                        f"Golombek and Rapp's model of rock populations {model}: "
+                        f"{excess:.2g} times {'more' if ratio > 1 else 'fewer'}"})
     return out

@@ -314,7 +314,12 @@ def test_rock_abundance_of_a_model_population_and_of_impossible_ones():
     same = rock_abundance(np.full(500, 1.0), area)
     reasons = {r["check"]: r for r in check_domain({}, [{"colour": "rgb"}], same)["reasons"]}
     assert reasons["rock_size_frequency"]["level"] == "out_of_distribution"
-    assert "times fewer large rocks" in reasons["rock_size_frequency"]["message"]
+    assert "times fewer" in reasons["rock_size_frequency"]["message"]
+    # Rocks all of 2-6 m^2: flatter than any curve of the model's family.
+    flat = rock_abundance(rng.uniform(2.0, 6.0, 300), area)
+    reasons = {r["check"]: r for r in check_domain({}, [{"colour": "rgb"}], flat)["reasons"]}
+    assert "even its flattest size-frequency (k = 40 %)" in \
+        reasons["rock_size_frequency"]["message"]
 
 
 # ---- bad input ----
