@@ -997,3 +997,21 @@ def test_the_light_follows_the_sun_of_each_frame(bag: dict) -> None:
     finally:
         r.release()
     assert np.mean(np.abs(later.astype(float) - now)) > 0.01 * np.mean(now)
+
+
+def test_sun_check_reports_the_sensor_against_the_ephemeris(bag: dict, tmp_path: Path,
+                                                            capsys) -> None:
+    """``python -m atacama_sim.sun_check BAG``: the output rate and share, the outages, and
+    the error (within noise once the recorded bias is taken off); a bag without its files
+    is named."""
+    from atacama_sim.sun_check import main, sun_sensor_report
+
+    report = sun_sensor_report(bag["dir"])
+    sensor = bag["stats"]["sun"]["sensor"]
+    assert report["messages"] == sensor["output"] and report["median_interval_s"] == 0.2
+    assert report["output_rate_hz"] == pytest.approx(5.0 * sensor["output_share"], rel=0.02)
+    assert sum(report["outages"].values()) == sensor["samples"] - sensor["output"]
+    assert report["angle_error_deg"]["median"] < 0.05 * 2 + np.hypot(*sensor["bias_deg"])
+    assert max(report["axis_error_less_bias_deg"]["std"]) < 0.07
+    assert main([str(tmp_path / "nothing")]) == 1
+    assert f"{tmp_path / 'nothing' / 'rover.yaml'}" in capsys.readouterr().err
