@@ -1,6 +1,6 @@
 """Reading a bag directory (DESIGN.md layout) for the offline CLI: the input topics in
-bag order with ``rosbags`` (no ROS graph), ``/joint_states`` among them when the bag has
-it, and the rover.yaml parameters.
+bag order with ``rosbags`` (no ROS graph), ``/joint_states`` and ``/sun_sensor`` among
+them when the bag has them, and the rover.yaml parameters.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from typing import Any
 
 from roi_network.images import bag_transport
 from rover_vo.config import read_ros_params
-from rover_vo.messages import TOPIC_JOINT_STATES, input_topics
+from rover_vo.messages import TOPIC_JOINT_STATES, TOPIC_SUN, input_topics
 
 
 class BagError(ValueError):
@@ -28,7 +28,7 @@ def rover_params(bag_dir: str | Path) -> dict[str, Any]:
 
 def read_messages(bag_dir: str | Path) -> Iterator[tuple[str, Any]]:
     """``(topic, message)`` of the VO input topics in bag (log time) order, with the
-    mast's ``/joint_states`` when the bag carries them.
+    mast's ``/joint_states`` and the sun sensor's ``/sun_sensor`` when the bag carries them.
 
     The stereo images are those of the transport the bag carries (compressed, the
     contract, when it carries both; :func:`roi_network.images.bag_transport`).
@@ -53,7 +53,7 @@ def read_messages(bag_dir: str | Path) -> Iterator[tuple[str, Any]]:
                                       str(path))
         except ValueError as exc:
             raise BagError(str(exc)) from None
-        topics = (*input_topics(transport), TOPIC_JOINT_STATES)
+        topics = (*input_topics(transport), TOPIC_JOINT_STATES, TOPIC_SUN)
         conns = [c for c in reader.connections if c.topic in topics]
         for conn, _, raw in reader.messages(connections=conns):
             yield conn.topic, reader.deserialize(raw, conn.msgtype)

@@ -25,6 +25,7 @@ import yaml
 
 from roi_network.mast import MAST_PARAMS
 from roi_network.params import node_parameters
+from rover_vo.sun_heading import SENSOR_PARAMS, SITE_PARAMS
 
 MODES = ("paper", "vo")
 
@@ -260,7 +261,7 @@ def config_from_params_file(path: str | Path) -> VoConfig:
     doc = _load_params_file(path)
     own = node_parameters({k: v for k, v in doc.items() if k != "/**"}, NODE_NAME)
     known = set(flat_parameters(VoConfig())) | set(ROVER_PARAMETERS) | set(
-        NODE_ONLY_PARAMETERS) | set(MAST_PARAMS)
+        NODE_ONLY_PARAMETERS) | set(MAST_PARAMS) | set(SENSOR_PARAMS) | set(SITE_PARAMS)
     values = node_parameters(doc, NODE_NAME)
     unknown = [k for k in own if k not in known] + unknown_options(values)
     if unknown:

@@ -9,13 +9,14 @@ with the same messages.
 
 Steps (docs/rover_vo.md, Method): 1 pair and order, 2 IMU propagation, 3 camera pose,
 4 zero velocity, 5 tracking, 6 stereo and reconstruction, 7 outlier rejection and motion,
-8 covariance, 9 gravity.
+8 covariance, 9 gravity, 10 sun heading.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -42,6 +43,13 @@ from rover_vo.motion import estimate_motion, refine_motion
 from rover_vo.propagator import ImuInterval, Propagator
 from rover_vo.rig import RigError, StereoRig, camera_info_problem, rig_from_camera_info
 from rover_vo.state import N_ERR, OdomState, step_noise, systematic_prior
+from rover_vo.sun_heading import (
+    MAX_SAMPLE_AGE_S,
+    Site,
+    SunHeading,
+    SunSensorModel,
+    vector_problem,
+)
 from rover_vo.zero_velocity import image_motion_px, is_stationary
 
 #: Layout of :meth:`VoEstimator.snapshot` (a restarted node refuses other layouts).
@@ -74,8 +82,14 @@ BAD_INPUT_KINDS = (
     "missing_right", "missing_camera_info",
     "bad_camera_info", "imu_gap", "imu_nan", "imu_duplicate", "imu_out_of_order",
     "stereo_duplicate", "stereo_out_of_order", "textureless", "overexposed", "vision_failed",
-    NO_JOINT_STATES, STALE_JOINT_STATES, "bad_joint_state", "internal_error",
+    NO_JOINT_STATES, STALE_JOINT_STATES, "bad_joint_state", "sun_nan", "sun_not_unit",
+    "sun_out_of_order", "sun_no_mount", "sun_wrong_frame", "sun_not_sun", "internal_error",
 )
+
+#: No /sun_sensor sample for this many of its periods (at least ``SUN_OUTAGE_MIN_S``)
+#: by a pair: the sun is out of sight, said once.
+SUN_OUTAGE_PERIODS = 5
+SUN_OUTAGE_MIN_S = 2.0
 
 
 @dataclass
@@ -207,6 +221,22 @@ class VoEstimator:
         self.max_speed = 0.0  # fastest horizontal speed output so far (m/s)
         self.max_turn_rate = 0.0  # fastest turn (yaw rate) output so far (rad/s)
         self._resume: dict[str, Any] | None = None
+        # 10. Sun heading: rover.yaml's sun sensor and site (none: no sun updates).
+        sensor = SunSensorModel.from_params(self.params)
+        site, why = Site.from_params(self.params) if sensor is not None else (None, None)
+        self.sun = SunHeading(sensor, site, np.radians(config.imu.accel_tilt_sigma_deg))
+        self._sun_pending: list[tuple[float, np.ndarray]] = []
+        self._sun_last: float | None = None  # newest sample's stamp
+        self._sun_said: set[str] = set()
+        self._sun_first_pair: float | None = None  # when the outage clock starts
+        self.sun_refused = None
+        if sensor is not None and site is None:
+            self.sun_refused = f"{m.TOPIC_SUN}: sun updates refused: {why}"
+        elif sensor is not None and not self.use_imu:
+            self.sun_refused = (f"{m.TOPIC_SUN}: sun updates off in mode '{config.mode}' "
+                                "(the level frame needs the IMU's gravity)")
+        if self.sun_refused is not None:
+            self._log(logging.WARNING, self.sun_refused)
 
     # -- restart ----------------------------------------------------------------------------
     def snapshot(self) -> dict[str, Any] | None:
@@ -218,7 +248,7 @@ class VoEstimator:
         s = self.state
         snap: dict[str, Any] = {
             "version": SNAPSHOT_VERSION, "t": s.t, "R": s.R.tolist(), "p": s.p.tolist(),
-            "P": s.P.tolist(), "distance_m": s.distance_m,
+            "P": s.P[:N_ERR, :N_ERR].tolist(), "distance_m": s.distance_m,
             "linear": [float(v) for v in self.velocity[0]],
             "max_speed": self.max_speed, "max_turn_rate": self.max_turn_rate,
             "last_step": [Rotation.from_matrix(self.last_step[0]).as_rotvec().tolist(),
@@ -290,6 +320,9 @@ class VoEstimator:
             self._feed_camera_info(topic, msg)
         elif topic in m.IMAGE_TOPICS:
             self._feed_image(topic, msg)
+        elif topic == m.TOPIC_SUN:
+            self._feed_sun(msg)
+            return []
         else:
             return []
         self._file_pairs(force=False)
@@ -321,6 +354,113 @@ class VoEstimator:
                      "stamp: skipped")
             return
         self.arrivals.note(side, t)
+
+    def _feed_sun(self, msg: Any) -> None:
+        """One /sun_sensor sample: checked (frame, a finite unit vector, its stamp after
+        the last), then held for the next pair at or after its stamp (step 10)."""
+        t, frame, v = m.sun_vector(msg)
+        topic = m.TOPIC_SUN
+        sensor = self.sun.sensor
+        if sensor is None:
+            self.bad("sun_no_mount", f"{topic} at {t:.3f} s: frame '{frame}' has no mount in "
+                     "rover.yaml (no sun_sensor.frame, sun_sensor.base_to_sensor): sample "
+                     "not used")
+            return
+        if frame != sensor.frame:
+            self.bad("sun_wrong_frame", f"{topic} at {t:.3f} s: frame '{frame}' is not "
+                     f"rover.yaml's sun_sensor.frame '{sensor.frame}' (no mount for it): "
+                     "sample not used")
+            return
+        problem = vector_problem(v)
+        if problem is not None:
+            what = ("not finite" if problem == "sun_nan" else
+                    f"of norm {np.linalg.norm(v):.4f}, not a unit vector")
+            self.bad(problem, f"{topic} at {t:.3f} s: vector ({v[0]:.4g}, {v[1]:.4g}, "
+                     f"{v[2]:.4g}) is {what}: sample skipped")
+            return
+        if self._sun_last is not None and t <= self._sun_last:
+            self.bad("sun_out_of_order", f"{topic} at {t:.3f} s: stamp not after the previous "
+                     f"sample's ({self._sun_last:.3f} s): sample skipped")
+            return
+        self._sun_last = t
+        self.sun.samples += 1
+        if self.sun.usable and self.use_imu:
+            self._sun_pending.append((t, v))
+            del self._sun_pending[:-64]
+
+    def _sun_say(self, kind: str, level: int, text: str) -> None:
+        """Log ``text`` the first time ``kind`` happens."""
+        if kind not in self._sun_said:
+            self._sun_said.add(kind)
+            self._log(level, text)
+
+    def _sun_update(self, t: float, out: VoOutput) -> None:
+        """10. Sun heading: the newest held sample at or before the pair's stamp updates
+        the heading of the state and of the reference frame (:mod:`rover_vo.sun_heading`);
+        ``out`` then carries the updated state. No sample for a while: said once."""
+        if not self.sun.usable or not self.use_imu or self.propagator is None:
+            return
+        due = [s for s in self._sun_pending if s[0] <= t]
+        self._sun_pending = [s for s in self._sun_pending if s[0] > t]
+        if not due or t - due[-1][0] > MAX_SAMPLE_AGE_S:
+            self._sun_outage(t)
+            return
+        ts, v = due[-1]
+        R_then_now = np.eye(3)
+        if t - ts > 1e-6:
+            iv = self.propagator.interval(ts, t)
+            if iv is not None:
+                R_then_now = iv.R
+        meas = self.sun.measure(ts, v, R_then_now, self.state.R,
+                                at_rest=out.source == "zero_velocity")
+        if meas.problem in ("below_horizon", "elevation_mismatch"):
+            self.bad("sun_not_sun", f"{m.TOPIC_SUN} at {ts:.3f} s: not the sun: "
+                     f"{meas.detail}: sample skipped")
+            return
+        if meas.problem == "near_zenith":
+            self.sun.near_zenith += 1
+            self._sun_say("near_zenith", logging.INFO, f"{m.TOPIC_SUN} at {ts:.3f} s: "
+                          f"{meas.detail}: no heading update while it is that high")
+            return
+        kf_state = self.kf.state if self.kf is not None else None
+        result = self.sun.apply(meas, self.state, kf_state, t)
+        if result == "initialized":
+            sigma = self.sun.heading_sigma_deg(self.state.P)
+            self._log(logging.INFO, f"{m.TOPIC_SUN} at {ts:.3f} s: sun heading on: the odom "
+                      f"frame's x axis lies at grid yaw {math.degrees(self.sun.psi0):.2f} deg "
+                      f"(1-sigma {sigma:.2f} deg), sun at {math.degrees(meas.elevation):.1f} "
+                      "deg elevation")
+        elif result == "rejected":
+            self._sun_say("rejected", logging.WARNING, (
+                f"{m.TOPIC_SUN} at {ts:.3f} s: heading {self.sun.last_innovation_deg:+.2f} deg "
+                f"off the estimate, beyond its uncertainty (1-sigma "
+                f"{self.sun.heading_sigma_deg(self.state.P):.2f} deg, the sample's "
+                f"{math.degrees(math.sqrt(meas.variance)):.2f} deg): sample rejected (further "
+                "ones counted in /vo/status sun.rejected)"))
+        out.state = self.state.copy()
+
+    def _sun_outage(self, t: float) -> None:
+        """Say once why no sample updates the heading by the pair at ``t``."""
+        rate = self.sun.sensor.rate_hz
+        limit = max(SUN_OUTAGE_PERIODS / rate if rate > 0 else 0.0, SUN_OUTAGE_MIN_S)
+        since = self._sun_last if self._sun_last is not None else self._sun_first_pair
+        if since is None or t - since < limit:
+            return
+        self.sun.outages += 0 if self.sun.in_outage else 1
+        self.sun.in_outage = True
+        _, el = self.sun.site.sun_grid(t)
+        last = (f"the last at {self._sun_last:.3f} s" if self._sun_last is not None
+                else "none yet")
+        if el <= 0.0:
+            self._sun_say("night", logging.WARNING, (
+                f"{m.TOPIC_SUN}: no sun by the pair at {t:.3f} s ({last}): the ephemeris puts "
+                f"it {math.degrees(-el):.1f} deg below the horizon: heading from the gyro "
+                "alone until a sample comes"))
+        else:
+            self._sun_say("silent", logging.WARNING, (
+                f"{m.TOPIC_SUN}: no sample for {t - since:.1f} s by the pair at {t:.3f} s "
+                f"({last}; the sun {math.degrees(el):.1f} deg up: outside the sensor's field "
+                "of view or shadowed): heading from the gyro alone until a sample comes"))
 
     def _feed_camera_info(self, topic: str, msg: Any) -> None:
         side = "left" if topic == m.TOPIC_LEFT_INFO else "right"
@@ -559,6 +699,14 @@ class VoEstimator:
         return None
 
     def _process_pair(self, pair: _Pair) -> VoOutput | None:
+        out = self._process_pair_images(pair)
+        if out is not None and self.sun.sensor is not None:
+            if self._sun_first_pair is None:
+                self._sun_first_pair = out.state.t
+            self._sun_update(out.state.t, out)
+        return out
+
+    def _process_pair_images(self, pair: _Pair) -> VoOutput | None:
         t = pair.t_ns * 1e-9
         self.last_pair_ns = pair.t_ns
         self.counts.pairs += 1
@@ -974,10 +1122,34 @@ class VoEstimator:
         }
         if self.propagator is not None:
             out["gyro_bias_rad_s"] = [round(float(b), 6) for b in self.propagator.bias]
+        out.update(self.sun_status())
         for kind in BAD_INPUT_KINDS:
             out[f"bad_input.{kind}"] = c.bad.get(kind, 0)
         out["last_bad_input"] = self.last_bad
         return out
+
+    def sun_status(self) -> dict[str, Any]:
+        """The sun heading's figures (``sun.*`` in /vo/status)."""
+        sun = self.sun
+        t = self.state.t if self.state is not None else None
+        if sun.sensor is None:
+            state = "off"
+        elif self.sun_refused is not None:
+            state = "refused"
+        elif sun.psi0 is None:
+            state = "waiting"
+        elif sun.in_outage:
+            state = "no_sun"
+        else:
+            state = "updating"
+        P = self.state.P if self.state is not None else np.zeros((N_ERR, N_ERR))
+        psi0 = math.degrees(sun.psi0) if sun.psi0 is not None else math.nan
+        return {"sun.state": state, "sun.samples": sun.samples, "sun.updates": sun.updates,
+                "sun.rejected": sun.rejected, "sun.near_zenith": sun.near_zenith,
+                "sun.outages": sun.outages, "sun.heading_bounded": sun.bounded(t),
+                "sun.odom_grid_yaw_deg": round(psi0, 4),
+                "sun.heading_sigma_deg": round(sun.heading_sigma_deg(P), 4),
+                "sun.elevation_deg": round(sun.last_elevation_deg, 3)}
 
     def bad_input_summary(self) -> str:
         """One line of the bad input so far: each kind's count and the first one said."""

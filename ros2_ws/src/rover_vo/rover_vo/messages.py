@@ -19,6 +19,9 @@ TOPIC_RIGHT_INFO = "/stereo/right/camera_info"
 TOPIC_IMU = "/imu/data"
 #: The mast's joint angles (read when rover.yaml has a mast: roi_network.mast).
 TOPIC_JOINT_STATES = "/joint_states"
+#: The sun sensor's unit sun vector (geometry_msgs/Vector3Stamped, its own frame; read when
+#: rover.yaml has a sun sensor and a site: rover_vo.sun_heading).
+TOPIC_SUN = "/sun_sensor"
 
 
 def input_topics(transport: str = images.COMPRESSED) -> tuple[str, ...]:
@@ -70,6 +73,12 @@ def imu_problem(msg: Any) -> str | None:
 def joint_state(msg: Any) -> tuple[float, list[str], list[float]]:
     """``(stamp s, names, positions rad)`` of a sensor_msgs/JointState."""
     return stamp_s(msg), [str(n) for n in msg.name], [float(p) for p in msg.position]
+
+
+def sun_vector(msg: Any) -> tuple[float, str, np.ndarray]:
+    """``(stamp s, frame_id, vector)`` of a geometry_msgs/Vector3Stamped."""
+    v = msg.vector
+    return stamp_s(msg), str(msg.header.frame_id), np.array([v.x, v.y, v.z], float)
 
 
 def decode_image(msg: Any) -> np.ndarray | None:

@@ -20,6 +20,7 @@ from roi_network.trajectory import POSE_COVARIANCE_FILE, write_pose_covariance
 from rover_vo.bag import BagError, read_messages, rover_params
 from rover_vo.config import VoConfig, flat_parameters
 from rover_vo.estimator import VoEstimator
+from rover_vo.sun_heading import SunSetupError
 from rover_vo.tum import write_tum
 
 #: Files :func:`odometry` writes into its output directory.
@@ -94,7 +95,8 @@ def run_odometry(bag_dir: str | Path, config: VoConfig, progress: bool = False) 
         "mast": bool, "bad_input": one line of the bad input (counts, the first of each)}``.
 
     Raises:
-        BagError: the bag cannot be read, its rover.yaml's mast is malformed, or a
+        BagError: the bag cannot be read, its rover.yaml's mast or sun sensor is
+            malformed, or a
             ``/joint_states`` message does not fit the mast (the message names the field).
     """
     import psutil
@@ -102,7 +104,7 @@ def run_odometry(bag_dir: str | Path, config: VoConfig, progress: bool = False) 
     params = rover_params(bag_dir)
     try:
         est = VoEstimator(config, params, raise_joint_state_errors=True)
-    except MastError as exc:
+    except (MastError, SunSetupError) as exc:
         raise BagError(f"{Path(bag_dir) / 'rover.yaml'}: {exc}") from None
     outputs = []
     proc = psutil.Process()

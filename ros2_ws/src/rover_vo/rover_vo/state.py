@@ -12,7 +12,8 @@ disparity bias make every step a little long or short, so the along-track error 
 linearly with distance), entering position as ``R dp ds``; and ``db``, a heading-rate bias
 (rad per metre driven, about the body's up axis), entering the attitude as
 ``R e_z |dp| db``. Only the 6x6 pose block (``cov``) is published; the full 8x8 ``P`` keeps
-the correlations that make these errors grow as they do.
+the correlations that make these errors grow as they do. With a sun sensor ``P`` gains a
+ninth state, ``psi0``, the odom frame's grid azimuth (a constant: :mod:`rover_vo.sun_heading`).
 """
 
 from __future__ import annotations
@@ -72,11 +73,12 @@ class OdomState:
             Q_body: 6x6 covariance of ``[dp, dtheta]`` in the old body frame.
         """
         step = self.R @ dp
-        F = np.eye(N_ERR)
+        n = self.P.shape[0]  # N_ERR, or N_ERR + 1 with the sun heading's psi0
+        F = np.eye(n)
         F[:3, 3:6] = -skew(step)
         F[:3, 6] = step  # scale error: the step was (1 + ds) times longer
         F[3:6, 7] = self.R[:, 2] * float(np.linalg.norm(dp))  # heading-rate bias
-        G = np.zeros((N_ERR, 6))
+        G = np.zeros((n, 6))
         G[:3, :3] = self.R
         G[3:6, 3:] = self.R
         P = F @ self.P @ F.T + G @ Q_body @ G.T

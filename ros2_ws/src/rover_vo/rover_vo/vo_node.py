@@ -1,11 +1,12 @@
 """The rover_vo node: stereo + IMU visual odometry on the live topics.
 
 Thin ROS wrapper around :class:`~rover_vo.estimator.VoEstimator` (the offline CLI runs the
-same estimator on the same messages). Subscribes the stereo images, camera infos, IMU and,
-when rover.yaml has a mast, ``/joint_states`` (sensor-data QoS); publishes ``/vo/odometry``
-(nav_msgs/Odometry, odom -> base_link, pose covariance growing with the distance driven,
-body twist) at each stereo pair and ``/vo/status`` (diagnostics). Extrinsics and the mast's
-kinematics come from the bag's rover.yaml parameters.
+same estimator on the same messages). Subscribes the stereo images, camera infos, IMU,
+``/sun_sensor`` and, when rover.yaml has a mast, ``/joint_states`` (sensor-data QoS);
+publishes ``/vo/odometry`` (nav_msgs/Odometry, odom -> base_link, pose covariance growing
+with the distance driven, its yaw bounded by the sun sensor when there is one, body twist)
+at each stereo pair and ``/vo/status`` (diagnostics). Extrinsics, the mast's kinematics,
+the sun sensor and the site come from the bag's rover.yaml parameters.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Vector3Stamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
@@ -37,6 +39,7 @@ from rover_vo.config import (
 )
 from rover_vo.estimator import VoEstimator, VoOutput
 from rover_vo.restart import resume_from_file, save_state
+from rover_vo.sun_heading import SENSOR_PARAMS, SITE_PARAMS
 
 RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 
@@ -89,9 +92,10 @@ class VoNode(Node):
         for name, default in ROVER_PARAMETERS.items():
             rover[name] = self.declare_parameter(
                 name, default, ParameterDescriptor(description=f"rover.yaml: {name}")).value
-        # The mast's kinematics, as rover.yaml gives them (none: a fixed camera; a missing
-        # field of a mast is an error naming it, not a default).
-        for name in MAST_PARAMS:
+        # The mast's kinematics, the sun sensor and the site, as rover.yaml gives them
+        # (none: a fixed camera, no sun sensor; a missing field of a mast or a sun sensor
+        # is an error naming it, not a default).
+        for name in (*MAST_PARAMS, *SENSOR_PARAMS, *SITE_PARAMS):
             if name in overrides:
                 rover[name] = self.declare_parameter(
                     name, overrides[name].value,
@@ -138,6 +142,10 @@ class VoNode(Node):
         for topic in (m.TOPIC_LEFT_INFO, m.TOPIC_RIGHT_INFO):
             self.create_subscription(CameraInfo, topic,
                                      lambda msg, t=topic: self.on_message(t, msg), sensor_qos(10))
+        # The sun sensor: always subscribed, so that samples of a sensor rover.yaml lacks
+        # are named (bad_input.sun_no_mount).
+        self.create_subscription(Vector3Stamped, m.TOPIC_SUN,
+                                 lambda msg: self.on_message(m.TOPIC_SUN, msg), sensor_qos(50))
         waiting = m.TOPIC_IMU
         self.joint_sub = None
         if self.estimator.has_mast:
