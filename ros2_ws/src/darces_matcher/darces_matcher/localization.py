@@ -10,7 +10,12 @@ estimate of that alignment and its covariance:
   since the previous one (a random walk of the VO error): ``drift_xy_m2_per_m`` on the
   position, ``drift_yaw_rad2_per_m`` on the heading, the heading error rotating the
   alignment about the rover's current position (the lever arm of the whole route behind
-  it does not matter, only where the rover is now).
+  it does not matter, only where the rover is now). When the odometry's heading is
+  bounded by absolute updates (rover_vo's sun heading: ``heading_bound_rad2`` given to
+  :meth:`MapOdomFilter.predict`), the heading error no longer walks: the alignment's
+  heading variance grows by the random walk only up to its value at the last fix plus
+  that bound (the odometry's yaw variance now and at the fix: twice its yaw variance),
+  and a fix's lag drift in heading is capped the same way.
 - **Update (a fix).** A fix of the whole LN is most accurate where the LN is, not where the
   rover is now: the measurement covariance is inflated by the drift accumulated between
   the point of the route nearest the LN's centroid and the rover. Successive fixes of a
@@ -233,6 +238,9 @@ class MapOdomFilter:
     _last_xy: np.ndarray | None = None
     _path_d: list[float] = field(default_factory=list)
     _path_xy: list[np.ndarray] = field(default_factory=list)
+    #: Bound of the odometry's heading error change (rad^2), None while it drifts freely.
+    heading_bound_rad2: float | None = None
+    _yaw_var_fix: float = 0.0  # the alignment's heading variance after the last fix
 
     @property
     def localized(self) -> bool:
@@ -247,7 +255,8 @@ class MapOdomFilter:
         return Alignment(_rigid(self.x), self.p.copy(), self._support, self._ln_size)
 
     def drift_noise(self, x: np.ndarray, rover_xy: np.ndarray, d_m: float) -> np.ndarray:
-        """Process noise of the alignment ``x`` over ``d_m`` metres driven at ``rover_xy``.
+        """Process noise of the alignment ``x`` over ``d_m`` metres driven at ``rover_xy``
+        (its heading part at most ``heading_bound_rad2`` when that is set).
 
         Args:
             x: (3,) alignment (tx, ty, yaw).
@@ -261,19 +270,28 @@ class MapOdomFilter:
         """
         c = self.config
         q = np.diag([c.drift_xy_m2_per_m, c.drift_xy_m2_per_m, c.drift_yaw_rad2_per_m]) * d_m
+        if self.heading_bound_rad2 is not None:
+            q[2, 2] = min(q[2, 2], self.heading_bound_rad2)
         rover_map = _rigid(x).apply(np.asarray(rover_xy, dtype=float))
         lever = x[:2] - rover_map
         g = np.array([[1.0, 0.0, -lever[1]], [0.0, 1.0, lever[0]], [0.0, 0.0, 1.0]])
         return g @ q @ g.T
 
-    def predict(self, odom_xy: np.ndarray) -> None:
+    def predict(self, odom_xy: np.ndarray, heading_bound_rad2: float | None = None) -> None:
         """Account for the drive from the previous odometry pose to ``odom_xy`` (odom, m):
         the configured random walk per metre driven (a VO's own covariance since the
         start of the drive need not be its honest error).
 
         Args:
             odom_xy: (2,) the rover's position in ``odom``, metres.
+            heading_bound_rad2: while the odometry's heading is bounded by absolute
+                updates, the most its error can change (rad^2; e.g. twice its yaw
+                variance); None: it drifts, the random walk holds.
         """
+        if heading_bound_rad2 is not None and not (math.isfinite(heading_bound_rad2)
+                                                   and heading_bound_rad2 >= 0.0):
+            heading_bound_rad2 = None
+        self.heading_bound_rad2 = heading_bound_rad2
         xy = np.asarray(odom_xy, dtype=float)[:2]
         if self._last_xy is None:
             self._last_xy = xy
@@ -287,6 +305,12 @@ class MapOdomFilter:
         self.distance_m += step
         if self.x is not None:
             self.p = _symmetric(self.p + self.drift_noise(self.x, xy, step))
+            if heading_bound_rad2 is not None:
+                cap = self._yaw_var_fix + heading_bound_rad2
+                if self.p[2, 2] > cap:
+                    # scale the heading's row and column: the covariance stays one
+                    d = np.array([1.0, 1.0, math.sqrt(cap / self.p[2, 2])])
+                    self.p = _symmetric(self.p * np.outer(d, d))
         if self.distance_m - self._path_d[-1] >= PATH_STEP_M:
             self._path_d.append(self.distance_m)
             self._path_xy.append(xy)
@@ -376,6 +400,7 @@ class MapOdomFilter:
                 self.x, self.p = covariance_intersection(self.x, self.p, z, r)
                 self._support, self._ln_size = result.support, n
                 self.held.clear()
+                self._yaw_var_fix = float(self.p[2, 2])
                 return "refined"
         if self.held:
             last = self.held[-1]
@@ -393,6 +418,7 @@ class MapOdomFilter:
         self.x, self.p = z, r
         self._support, self._ln_size = result.support, n
         self.held.clear()
+        self._yaw_var_fix = float(self.p[2, 2])
         if first:
             return "first_fix"
         self.switches += 1

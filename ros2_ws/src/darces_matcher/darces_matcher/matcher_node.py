@@ -41,6 +41,8 @@ LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
 RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 #: Deep enough for ~100 s of 10 Hz odometry arriving while the GN index is built.
 ODOMETRY = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+#: The /vo/status key that says the odometry's heading is bounded (rover_vo's sun heading).
+VO_HEADING_BOUNDED_KEY = "sun.heading_bounded"
 
 
 class MatcherNode(Node):
@@ -116,6 +118,8 @@ class MatcherNode(Node):
         # The odometry covariance each LN node was observed with (its heading error).
         self.node_odometry = NodeOdometry()
         self.last_event = "none"
+        # rover_vo's /vo/status says whether its heading is bounded (sun heading updates).
+        self.vo_heading_bounded = False
 
         self.alignment_pub = self.create_publisher(TransformStamped, "/global_alignment",
                                                    LATCHED)
@@ -127,6 +131,7 @@ class MatcherNode(Node):
         # waits in these queues (callbacks run only once spinning) instead of being missed.
         self.create_subscription(PointCloud2, "/local_network", self.on_local_network, LATCHED)
         self.create_subscription(Odometry, "/vo/odometry", self.on_odometry, ODOMETRY)
+        self.create_subscription(DiagnosticArray, "/vo/status", self.on_vo_status, RELIABLE)
         t0 = time.perf_counter()
         self.matcher = Matcher(gn, MatchConfig(**overrides))
         self.get_logger().info(
@@ -192,6 +197,13 @@ class MatcherNode(Node):
         r.x, r.y, r.z, r.w = (float(v) for v in q)
         self.alignment_pub.publish(msg)
 
+    def on_vo_status(self, msg: DiagnosticArray) -> None:
+        """Whether rover_vo's heading is bounded by absolute (sun) updates now."""
+        for status in msg.status:
+            for kv in status.values:
+                if kv.key == VO_HEADING_BOUNDED_KEY:
+                    self.vo_heading_bounded = kv.value == "True"
+
     def on_odometry(self, msg: Odometry) -> None:
         """Feed the drive to the filter; once localized, publish the pose in ``map``."""
         p, q = msg.pose.pose.position, msg.pose.pose.orientation
@@ -202,7 +214,8 @@ class MatcherNode(Node):
             self.get_logger().error(
                 "/vo/odometry: non-finite position or invalid orientation: message ignored")
             return
-        self.filter.predict(position[:2])
+        yaw_var = float(msg.pose.covariance[35])
+        self.filter.predict(position[:2], 2.0 * yaw_var if self.vo_heading_bounded else None)
         self.node_odometry.add_odometry(
             msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec, msg.pose.covariance)
         alignment = self.filter.alignment

@@ -153,6 +153,36 @@ def test_covariance_grows_with_distance_and_about_the_rover():
     assert np.allclose(pos[:2], [200.0, 50.0])
 
 
+def test_a_bounded_odometry_heading_bounds_the_alignments_heading_drift():
+    """With the odometry's heading bounded (sun updates), the alignment's heading variance
+    stops growing at its value at the fix plus the bound; without, it keeps walking."""
+    bound = np.radians(0.15) ** 2 * 2
+
+    def drive(bounded):
+        f = MapOdomFilter(FilterConfig(drift_xy_m2_per_m=0.01, drift_yaw_rad2_per_m=3e-6))
+        f.predict(np.zeros(2))
+        fix = MatchResult("fix", "ok", map_T_odom=Rigid2D(0.3, 100.0, 50.0),
+                          covariance=np.diag([0.04, 0.04, 1e-6]), support=10)
+        assert f.update(fix, np.zeros((5, 2))) == "first_fix"
+        for x in np.arange(1.0, 501.0):
+            f.predict(np.array([x, 0.0]), bound if bounded else None)
+        return f
+
+    free, sun = drive(False), drive(True)
+    at_fix = sun._yaw_var_fix  # the fix's, with the filter's floor
+    assert at_fix == pytest.approx(2e-6)
+    assert free.p[2, 2] == pytest.approx(at_fix + 3e-6 * 500, rel=1e-6)
+    assert sun.p[2, 2] == pytest.approx(at_fix + bound, rel=1e-9)
+    # still a covariance, and the position's drift is the same random walk
+    assert np.all(np.linalg.eigvalsh(sun.p) > 0)
+    assert sun.p[0, 0] == pytest.approx(free.p[0, 0], rel=1e-9)
+    # a fix's lag drift in heading is capped the same way
+    assert sun.drift_noise(sun.x, np.zeros(2), 400.0)[2, 2] == pytest.approx(bound)
+    # the bound lifted (no sun for a while): the walk resumes from there
+    sun.predict(np.array([600.0, 0.0]))
+    assert sun.p[2, 2] == pytest.approx(at_fix + bound + 3e-6 * 100, rel=1e-6)
+
+
 def _fix(t: Rigid2D, sigma: float = 0.5, support: int = 10) -> MatchResult:
     return MatchResult("fix", "ok", map_T_odom=t,
                        covariance=np.diag([sigma**2, sigma**2, (sigma / 100) ** 2]),
