@@ -72,8 +72,9 @@ def cmd_prepare(args) -> int:
     gn.metadata["elapsed_s"] = round(elapsed, 2)
     write_geojson(gn, out)
     n_rock = int((gn.records["label"] == 1).sum())
+    recipe = gn.metadata["recipe"]["name"]  # the no-sun fallback's when it was used
     print(f"{out}: {len(gn)} ROIs ({n_rock} rocks, {len(gn) - n_rock} outcrops) from "
-          f"{args.ortho} in {elapsed:.1f} s (recipe {model.recipe.name}; domain check "
+          f"{args.ortho} in {elapsed:.1f} s (recipe {recipe}; domain check "
           f"{domain['status']})")
     if args.preview:
         from orbital_gn.preview import draw_preview
