@@ -44,7 +44,9 @@ from rover_vo.propagator import ImuInterval, Propagator
 from rover_vo.rig import RigError, StereoRig, camera_info_problem, rig_from_camera_info
 from rover_vo.state import N_ERR, OdomState, step_noise, systematic_prior
 from rover_vo.sun_heading import (
+    AT_REST_TILT_SIGMA_RAD,
     MAX_SAMPLE_AGE_S,
+    MOTION_SPACING_M,
     Site,
     SunHeading,
     SunSensorModel,
@@ -90,6 +92,9 @@ BAD_INPUT_KINDS = (
 #: by a pair: the sun is out of sight, said once.
 SUN_OUTAGE_PERIODS = 5
 SUN_OUTAGE_MIN_S = 2.0
+#: A pair takes the newest sun sample at least this much older than itself (s): one the
+#: node has surely received by then, as the offline run has, so both take the same.
+SUN_LEAD_S = 0.1
 
 
 @dataclass
@@ -224,7 +229,8 @@ class VoEstimator:
         # 10. Sun heading: rover.yaml's sun sensor and site (none: no sun updates).
         sensor = SunSensorModel.from_params(self.params)
         site, why = Site.from_params(self.params) if sensor is not None else (None, None)
-        self.sun = SunHeading(sensor, site, np.radians(config.imu.accel_tilt_sigma_deg))
+        self.sun = SunHeading(sensor, site)
+        self._sun_motion_m: float | None = None  # distance at the last update in motion
         self._sun_pending: list[tuple[float, np.ndarray]] = []
         self._sun_last: float | None = None  # newest sample's stamp
         self._sun_said: set[str] = set()
@@ -395,13 +401,15 @@ class VoEstimator:
             self._log(level, text)
 
     def _sun_update(self, t: float, out: VoOutput) -> None:
-        """10. Sun heading: the newest held sample at or before the pair's stamp updates
-        the heading of the state and of the reference frame (:mod:`rover_vo.sun_heading`);
+        """10. Sun heading: the newest held sample at least ``SUN_LEAD_S`` before the
+        pair's stamp updates the heading of the state and of the reference frame
+        (:mod:`rover_vo.sun_heading`);
         ``out`` then carries the updated state. No sample for a while: said once."""
         if not self.sun.usable or not self.use_imu or self.propagator is None:
             return
-        due = [s for s in self._sun_pending if s[0] <= t]
-        self._sun_pending = [s for s in self._sun_pending if s[0] > t]
+        cut = t - SUN_LEAD_S
+        due = [s for s in self._sun_pending if s[0] <= cut]
+        self._sun_pending = [s for s in self._sun_pending if s[0] > cut]
         if not due or t - due[-1][0] > MAX_SAMPLE_AGE_S:
             self._sun_outage(t)
             return
@@ -411,8 +419,21 @@ class VoEstimator:
             iv = self.propagator.interval(ts, t)
             if iv is not None:
                 R_then_now = iv.R
-        meas = self.sun.measure(ts, v, R_then_now, self.state.R,
-                                at_rest=out.source == "zero_velocity")
+        at_rest = out.source == "zero_velocity"
+        attitude = self.state.R
+        tilt_sigma = np.radians(self.cfg.imu.accel_tilt_sigma_deg)
+        if at_rest:
+            # Standing still the mean specific force is gravity: roll and pitch from it.
+            iv = self.propagator.interval(t - TILT_WINDOW_S, t)
+            f = iv.mean_accel if iv is not None else None
+            if f is not None and abs(np.linalg.norm(f) - self.gravity) <= 0.05 * self.gravity:
+                yaw = np.arctan2(self.state.R[1, 0], self.state.R[0, 0])
+                attitude = Rotation.from_euler("z", yaw).as_matrix() @ self._gravity_tilt(f)
+                tilt_sigma = AT_REST_TILT_SIGMA_RAD
+        elif (self._sun_motion_m is not None
+              and self.state.distance_m - self._sun_motion_m < MOTION_SPACING_M):
+            return  # in motion: one sample per MOTION_SPACING_M (the tilt error is slow)
+        meas = self.sun.measure(ts, v, R_then_now, attitude, tilt_sigma)
         if meas.problem in ("below_horizon", "elevation_mismatch"):
             self.bad("sun_not_sun", f"{m.TOPIC_SUN} at {ts:.3f} s: not the sun: "
                      f"{meas.detail}: sample skipped")
@@ -424,6 +445,8 @@ class VoEstimator:
             return
         kf_state = self.kf.state if self.kf is not None else None
         result = self.sun.apply(meas, self.state, kf_state, t)
+        if not at_rest and result != "rejected":
+            self._sun_motion_m = self.state.distance_m
         if result == "initialized":
             sigma = self.sun.heading_sigma_deg(self.state.P)
             self._log(logging.INFO, f"{m.TOPIC_SUN} at {ts:.3f} s: sun heading on: the odom "
@@ -570,7 +593,9 @@ class VoEstimator:
         the IMU up to its stamp and, on a mast, a joint state at or after it; each input
         waited for a few of its own periods at most (:mod:`rover_vo.arrivals`), so that
         the first pose comes with the first pair's IMU and a dead sensor costs no more
-        than that wait. Over DDS, topics arrive in any interleaving.
+        than that wait. Over DDS, topics arrive in any interleaving. A pair does not wait
+        for the sun: it takes the samples come by then (the node takes the queued ones
+        first, as it does the IMU's).
         """
         out: list[VoOutput] = []
         while self.pairs:

@@ -72,6 +72,14 @@ MAX_SAMPLE_AGE_S = 1.0
 UNIT_TOLERANCE = 1e-3
 #: Index of ``psi0`` in the augmented error state (after the odometry's 8).
 PSI0 = 8
+#: 1-sigma roll and pitch of the level frame at rest, from the mean specific force over
+#: 0.5 s (the accelerometer's noise averages to ~0.002 deg; its bias, not estimated, is
+#: taken at 0.05 deg), rad.
+AT_REST_TILT_SIGMA_RAD = math.radians(0.05)
+#: In motion the filter's roll and pitch err by tenths of a degree, slowly: a sample is
+#: folded in at most once per this many metres driven (the tilt error changes with the
+#: ground), at rest every pair.
+MOTION_SPACING_M = 10.0
 #: The heading counts as bounded (``sun.heading_bounded`` in /vo/status) while the last
 #: update is at most this old (s).
 BOUNDED_FOR_S = 30.0
@@ -258,14 +266,11 @@ class SunHeading:
     Args:
         sensor: the sensor (rover.yaml), or None.
         site: the site (rover.yaml), or None.
-        tilt_sigma_rad: 1-sigma roll and pitch error of the attitude in motion (rad).
     """
 
-    def __init__(self, sensor: SunSensorModel | None, site: Site | None,
-                 tilt_sigma_rad: float) -> None:
+    def __init__(self, sensor: SunSensorModel | None, site: Site | None) -> None:
         self.sensor = sensor
         self.site = site
-        self.tilt_sigma = tilt_sigma_rad
         self.psi0: float | None = None
         self.samples = 0
         self.updates = 0
@@ -282,15 +287,16 @@ class SunHeading:
         return self.sensor is not None and self.site is not None
 
     def measure(self, utc_s: float, v_sensor: np.ndarray, base_R_then_now: np.ndarray,
-                odom_R_base: np.ndarray, at_rest: bool) -> Measurement:
+                odom_R_base: np.ndarray, tilt_sigma_rad: float) -> Measurement:
         """The heading measurement of one sample (module steps 1-3).
 
         Args:
             utc_s: the sample's stamp (POSIX UTC s).
             v_sensor: the unit sun vector in the sensor frame.
             base_R_then_now: body at the pair's stamp into body at the sample's (gyro).
-            odom_R_base: the estimate's attitude at the pair's stamp.
-            at_rest: the rover stands still (gravity is the mean specific force).
+            odom_R_base: the attitude at the pair's stamp (at rest: roll and pitch from
+                the mean specific force, the estimate's yaw).
+            tilt_sigma_rad: 1-sigma of that attitude's roll and pitch.
         """
         s_b = base_R_then_now.T @ (self.sensor.base_R_sensor @ np.asarray(v_sensor, float))
         s_o = odom_R_base @ s_b
@@ -298,7 +304,7 @@ class SunHeading:
         alpha_odom = math.atan2(s_o[1], s_o[0])
         el_meas = math.asin(max(-1.0, min(1.0, float(s_o[2]))))
         alpha_map, el = self.site.sun_grid(utc_s)
-        tilt = self.tilt_sigma / (3.0 if at_rest else 1.0)
+        tilt = tilt_sigma_rad
         sig = self.sensor.sigma_rad
         c = max(math.cos(el), 1e-6)
         var = sig**2 / c**2 + (tilt * math.tan(el)) ** 2

@@ -144,8 +144,8 @@ class VoNode(Node):
                                      lambda msg, t=topic: self.on_message(t, msg), sensor_qos(10))
         # The sun sensor: always subscribed, so that samples of a sensor rover.yaml lacks
         # are named (bad_input.sun_no_mount).
-        self.create_subscription(Vector3Stamped, m.TOPIC_SUN,
-                                 lambda msg: self.on_message(m.TOPIC_SUN, msg), sensor_qos(50))
+        self.sun_sub = self.create_subscription(Vector3Stamped, m.TOPIC_SUN, self.on_sun,
+                                                sensor_qos(100))
         waiting = m.TOPIC_IMU
         self.joint_sub = None
         if self.estimator.has_mast:
@@ -155,10 +155,16 @@ class VoNode(Node):
         logger.info(f"mode {config.mode}; waiting for stereo images "
                     f"({' or '.join(self.transports.subscribed())}) and {waiting}")
 
+    def on_sun(self, msg: Any) -> None:
+        """One sun sample, then every other one already queued."""
+        self.on_message(m.TOPIC_SUN, msg)
+        self.drain(self.sun_sub, m.TOPIC_SUN)
+
     def on_imu(self, msg: Any) -> None:
-        """One IMU message, after the joint states queued, then every other IMU message
-        already queued (:meth:`drain_imu`)."""
+        """One IMU message, after the joint states and sun samples queued, then every
+        other IMU message already queued (:meth:`drain_imu`)."""
         self.drain(self.joint_sub, m.TOPIC_JOINT_STATES)
+        self.drain(self.sun_sub, m.TOPIC_SUN)
         self.on_message(m.TOPIC_IMU, msg)
         self.drain_imu()
 
@@ -168,9 +174,10 @@ class VoNode(Node):
         self.drain(self.joint_sub, m.TOPIC_JOINT_STATES)
 
     def on_image(self, topic: str, msg: Any) -> None:
-        """A stereo image, after the joint states and IMU messages queued before it
-        (:meth:`drain_imu`)."""
+        """A stereo image, after the joint states, sun samples and IMU messages queued
+        before it (:meth:`drain_imu`): the pair takes the sun sample of its stamp."""
         self.drain(self.joint_sub, m.TOPIC_JOINT_STATES)
+        self.drain(self.sun_sub, m.TOPIC_SUN)
         self.drain_imu()
         self.on_message(topic, msg)
 

@@ -34,9 +34,10 @@ def _exe(name):
 
 
 def _played(topics, messages):
-    """The topics to play: the VO's inputs, with /joint_states when the bag has them."""
-    joints = any(t == m.TOPIC_JOINT_STATES for t, _ in messages)
-    return (*topics, m.TOPIC_JOINT_STATES) if joints else tuple(topics)
+    """The topics to play: the VO's inputs, with /joint_states and /sun_sensor when the
+    bag has them."""
+    present = {t for t, _ in messages}
+    return (*topics, *(t for t in (m.TOPIC_JOINT_STATES, m.TOPIC_SUN) if t in present))
 
 
 @pytest.fixture(params=["compressed", "raw", "panorama"])

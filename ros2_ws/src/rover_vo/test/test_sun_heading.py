@@ -47,7 +47,7 @@ def drive(with_sun: bool, metres: int = 1000, seed: int = 3):
     rng = np.random.default_rng(seed)
     s = site()
     sensor = sh.SunSensorModel.from_params(SENSOR)
-    f = sh.SunHeading(sensor, s, math.radians(0.05))
+    f = sh.SunHeading(sensor, s)
     state = OdomState(0.0, P=systematic_prior(0.003, 0.05))
     errors, sigmas = [], []
     bias = 1e-5
@@ -56,7 +56,7 @@ def drive(with_sun: bool, metres: int = 1000, seed: int = 3):
         state = state.compose(float(k), sh.rotz(bias), np.array([1.0, 0.0, 0.0]), Q)
         if with_sun:
             v = sun_in_body(s, s.epoch_s + k, PSI0_TRUE, rng, 0.05)
-            m = f.measure(s.epoch_s + k, v, np.eye(3), state.R, at_rest=False)
+            m = f.measure(s.epoch_s + k, v, np.eye(3), state.R, math.radians(0.05))
             assert m.problem is None
             f.apply(m, state)
         yaw = math.atan2(state.R[1, 0], state.R[0, 0])
@@ -88,26 +88,26 @@ def test_sun_bounds_the_heading_of_a_drive_with_a_gyro_bias():
 def test_a_contradicting_sample_is_rejected_and_counted():
     rng = np.random.default_rng(1)
     s = site()
-    f = sh.SunHeading(sh.SunSensorModel.from_params(SENSOR), s, math.radians(0.05))
+    f = sh.SunHeading(sh.SunSensorModel.from_params(SENSOR), s)
     state = OdomState(0.0, P=systematic_prior(0.003, 0.05))
     for k in range(5):
         m = f.measure(s.epoch_s + k, sun_in_body(s, s.epoch_s + k, PSI0_TRUE, rng, 0.05),
-                      np.eye(3), state.R, at_rest=True)
+                      np.eye(3), state.R, math.radians(0.02))
         assert f.apply(m, state) in ("initialized", "updated")
     R_before = state.R.copy()
     m = f.measure(s.epoch_s + 6, sun_in_body(s, s.epoch_s + 6, PSI0_TRUE + math.radians(5),
-                                             rng, 0.05), np.eye(3), state.R, at_rest=True)
+                                             rng, 0.05), np.eye(3), state.R, math.radians(0.02))
     assert f.apply(m, state) == "rejected"
     assert f.rejected == 1 and np.array_equal(state.R, R_before)
 
 
 def test_the_reference_turns_with_the_state_about_the_rover():
     s = site()
-    f = sh.SunHeading(sh.SunSensorModel.from_params(SENSOR), s, math.radians(0.05))
+    f = sh.SunHeading(sh.SunSensorModel.from_params(SENSOR), s)
     ref = OdomState(0.0, P=systematic_prior(0.003, 0.05))
     rng = np.random.default_rng(2)
     f.apply(f.measure(s.epoch_s, sun_in_body(s, s.epoch_s, PSI0_TRUE, rng, 0), np.eye(3),
-                      ref.R, True), ref)
+                      ref.R, math.radians(0.02)), ref)
     # the reference to the rover: a step whose heading is 2 deg uncertain (drift)
     dR, dp = sh.rotz(0.01), np.array([0.3, 0.0, 0.0])
     Q = step_noise(0.3, 0.01, 0.02)
@@ -118,7 +118,8 @@ def test_the_reference_turns_with_the_state_about_the_rover():
     # stays
     v = sun_in_body(s, s.epoch_s + 1, PSI0_TRUE + 0.01 - math.radians(0.5), rng, 0)
     p_before = cur.p.copy()
-    assert f.apply(f.measure(s.epoch_s + 1, v, np.eye(3), cur.R, True), cur, ref) == "updated"
+    m = f.measure(s.epoch_s + 1, v, np.eye(3), cur.R, math.radians(0.02))
+    assert f.apply(m, cur, ref) == "updated"
     assert np.array_equal(cur.p, p_before)
     yaw = math.atan2(cur.R[1, 0], cur.R[0, 0])
     assert 0.01 - math.radians(0.5) < yaw < 0.01 - math.radians(0.4)
@@ -129,9 +130,9 @@ def test_the_reference_turns_with_the_state_about_the_rover():
 
 def test_the_azimuth_variance_grows_toward_the_zenith():
     s = site()
-    f = sh.SunHeading(sh.SunSensorModel.from_params(SENSOR), s, math.radians(0.5))
+    f = sh.SunHeading(sh.SunSensorModel.from_params(SENSOR), s)
     v_low = np.array([math.cos(math.radians(20)), 0.0, math.sin(math.radians(20))])
-    low = f.measure(s.epoch_s, v_low, np.eye(3), np.eye(3), False)
+    low = f.measure(s.epoch_s, v_low, np.eye(3), np.eye(3), math.radians(0.5))
     # the variance model: sensor over cos^2, tilt times tan^2
     el = low.elevation
     expected = ((f.sensor.sigma_rad / math.cos(el)) ** 2
@@ -143,24 +144,25 @@ def test_the_azimuth_variance_grows_toward_the_zenith():
     s2, _ = sh.Site.from_params(near)
     noon = max((s.epoch_s + 60.0 * k for k in range(300)), key=lambda t: s2.sun_grid(t)[1])
     alpha, el2 = s2.sun_grid(noon)
-    f2 = sh.SunHeading(f.sensor, s2, math.radians(0.5))
+    f2 = sh.SunHeading(f.sensor, s2)
     v = np.array([math.cos(el2) * math.cos(alpha), math.cos(el2) * math.sin(alpha),
                   math.sin(el2)])
-    m = f2.measure(noon, v, np.eye(3), np.eye(3), False)
+    m = f2.measure(noon, v, np.eye(3), np.eye(3), math.radians(0.5))
     assert math.degrees(el2) > 85 and m.problem == "near_zenith"
 
 
 def test_impossible_vectors_are_not_the_sun():
     s = site()
-    f = sh.SunHeading(sh.SunSensorModel.from_params(SENSOR), s, math.radians(0.5))
+    f = sh.SunHeading(sh.SunSensorModel.from_params(SENSOR), s)
     # the elevation 10 deg off the ephemeris'
     alpha, el = s.sun_grid(s.epoch_s)
     e = el + math.radians(10)
     v = np.array([math.cos(e) * math.cos(alpha), math.cos(e) * math.sin(alpha), math.sin(e)])
-    m = f.measure(s.epoch_s, v, np.eye(3), np.eye(3), False)
+    m = f.measure(s.epoch_s, v, np.eye(3), np.eye(3), math.radians(0.5))
     assert m.problem == "elevation_mismatch" and "ephemeris" in m.detail
     # at night (12 h later) any vector is impossible
-    m = f.measure(s.epoch_s + 12 * 3600, np.array([0.0, 0.0, 1.0]), np.eye(3), np.eye(3), False)
+    m = f.measure(s.epoch_s + 12 * 3600, np.array([0.0, 0.0, 1.0]), np.eye(3), np.eye(3),
+                  math.radians(0.5))
     assert m.problem == "below_horizon" and "below the horizon" in m.detail
 
 

@@ -1,6 +1,6 @@
-"""The estimator with a sun sensor on the flat world (4 pairs 1 s apart, the rover level
-at yaw 0 in odom): the updates fix the odom frame's grid yaw; each bad input is counted
-and named, and the odometry goes on."""
+"""The estimator with a sun sensor on the flat world (2 pairs driving, 3 standing, 1 s
+apart, the rover level at yaw 0 in odom): the updates fix the odom frame's grid yaw; each
+bad input is counted and named, and the odometry goes on."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from rover_vo import messages as m
 from rover_vo.sun_heading import Site, rotz
 from rover_vo.testing import run
 
-SHORT = fw.Schedule(period_s=1.0).drive(4)
+SHORT = fw.Schedule(period_s=1.0).drive(2).stand(3, period_s=1.0)
 PSI0_TRUE_DEG = 40.0
 SENSOR = {"sun_sensor.frame": "sun_sensor",
           "sun_sensor.base_to_sensor": [0.0, 0.0, 0.8, 0.0, 0.0, 0.0, 1.0],
@@ -85,7 +85,9 @@ def test_sun_updates_fix_the_odom_frames_grid_yaw(day, no_sun):
     assert len(outputs) == len(no_sun)
     status = est.status()
     assert status["sun.state"] == "updating" and status["sun.heading_bounded"] is True
-    assert est.sun.updates == len(outputs) - 1  # the first pair's sample sets psi0
+    # the first pair's sample sets psi0; in motion one per 10 m, at rest one per pair
+    assert [o.source for o in outputs][2:] == ["zero_velocity"] * 3
+    assert est.sun.updates == 3
     assert status["sun.odom_grid_yaw_deg"] == pytest.approx(PSI0_TRUE_DEG, abs=0.3)
     assert status["sun.heading_sigma_deg"] < 1.0
     assert not [k for k, v in status.items() if k.startswith("bad_input.sun") and v]
