@@ -110,12 +110,17 @@ class ImuOptions:
         zero_velocity_flow_px: The rover stands still when the median corner moves less
             than this (px) ...
         zero_velocity_gyro_rad_s: ... and the gyro rate stays below this (rad/s).
+        sun_heading: Update the heading from /sun_sensor and gravity when rover.yaml has a
+            sun sensor and a site. Off by default: on the demo world the updates made the
+            heading worse than the gyro's (their errors are correlated from sample to
+            sample and the update takes them as independent; docs/rover_vo.md, Limits).
     """
 
     accel_tilt_sigma_deg: float = 0.5
     max_gap_s: float = 0.2
     zero_velocity_flow_px: float = 0.3
     zero_velocity_gyro_rad_s: float = 0.01
+    sun_heading: bool = False
 
 
 @dataclass

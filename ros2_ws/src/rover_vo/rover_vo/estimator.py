@@ -228,6 +228,12 @@ class VoEstimator:
         self._resume: dict[str, Any] | None = None
         # 10. Sun heading: rover.yaml's sun sensor and site (none: no sun updates).
         sensor = SunSensorModel.from_params(self.params)
+        self._sun_off = False  # rover.yaml has a sun sensor, the updates are switched off
+        if sensor is not None and not config.imu.sun_heading:
+            self._log(logging.INFO, f"{m.TOPIC_SUN}: rover.yaml has a sun sensor; heading "
+                      "updates off (imu.sun_heading: false, the default)")
+            sensor = None
+            self._sun_off = True
         site, why = Site.from_params(self.params) if sensor is not None else (None, None)
         self.sun = SunHeading(sensor, site)
         self._sun_motion_m: float | None = None  # distance at the last update in motion
@@ -364,6 +370,8 @@ class VoEstimator:
     def _feed_sun(self, msg: Any) -> None:
         """One /sun_sensor sample: checked (frame, a finite unit vector, its stamp after
         the last), then held for the next pair at or after its stamp (step 10)."""
+        if self._sun_off:
+            return
         t, frame, v = m.sun_vector(msg)
         topic = m.TOPIC_SUN
         sensor = self.sun.sensor

@@ -45,7 +45,7 @@ def test_a_restarted_estimator_continues_the_odom_frame(tiny_bag, tiny_messages,
     est2 = VoEstimator(VoConfig(), tiny_params, lambda lvl, text: logs.append(text))
     assert resume_from_file(est2, path, logs.append)
     out2 = [o for topic, msg in after for o in est2.feed(topic, msg)] + est2.finish()
-    assert out2[0].source == "resumed" and "resumed the odom frame" in logs[0]
+    assert out2[0].source == "resumed" and any("resumed the odom frame" in line for line in logs)
     # Tracking goes on from the new keyframe as it would from a fresh start.
     est_fresh, fresh, _ = run(after, tiny_params)
     assert est2.counts.vision >= est_fresh.counts.vision > 0

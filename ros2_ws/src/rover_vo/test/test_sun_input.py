@@ -13,9 +13,12 @@ import pytest
 import vo_flatworld as fw
 
 from rover_vo import messages as m
+from rover_vo.config import ImuOptions, VoConfig
 from rover_vo.sun_heading import Site, rotz
 from rover_vo.testing import run
 
+#: Sun heading updates on (imu.sun_heading: off by default).
+ON = VoConfig(imu=ImuOptions(sun_heading=True))
 SHORT = fw.Schedule(period_s=1.0).drive(2).stand(3, period_s=1.0)
 PSI0_TRUE_DEG = 40.0
 SENSOR = {"sun_sensor.frame": "sun_sensor",
@@ -81,7 +84,7 @@ def warnings(logs):
 
 
 def test_sun_updates_fix_the_odom_frames_grid_yaw(day, no_sun):
-    est, outputs, logs = run(day, params(SENSOR, DAY))
+    est, outputs, logs = run(day, params(SENSOR, DAY), ON)
     assert len(outputs) == len(no_sun)
     status = est.status()
     assert status["sun.state"] == "updating" and status["sun.heading_bounded"] is True
@@ -111,7 +114,7 @@ def test_bad_sun_vectors_are_skipped_and_counted(base, no_sun):
         else:
             msg = copy.deepcopy(sun[k - 1][1])
         sun[k] = (m.TOPIC_SUN, msg)
-    est, outputs, logs = run(merged(base, sun), params(SENSOR, DAY))
+    est, outputs, logs = run(merged(base, sun), params(SENSOR, DAY), ON)
     assert len(outputs) == len(no_sun)
     for kind in ("sun_nan", "sun_not_unit", "sun_wrong_frame", "sun_out_of_order"):
         assert est.counts.bad[kind] == 1, kind
@@ -123,7 +126,7 @@ def test_bad_sun_vectors_are_skipped_and_counted(base, no_sun):
 
 
 def test_a_sun_sensor_rover_yaml_lacks_is_named(day, no_sun):
-    est, outputs, logs = run(day, params())
+    est, outputs, logs = run(day, params(), ON)
     assert len(outputs) == len(no_sun)
     assert est.counts.bad["sun_no_mount"] > 0 and est.sun.updates == 0
     said = [t for t in warnings(logs) if "sun_no_mount" in t]
@@ -134,7 +137,7 @@ def test_a_sun_sensor_rover_yaml_lacks_is_named(day, no_sun):
 
 def test_a_bag_without_site_and_epoch_refuses_sun_updates_in_one_line(day, no_sun):
     site = {k: v for k, v in DAY.items() if k not in ("site.latitude_deg", "site.epoch_ns")}
-    est, outputs, logs = run(day, params(SENSOR, site))
+    est, outputs, logs = run(day, params(SENSOR, site), ON)
     assert len(outputs) == len(no_sun) and est.sun.updates == 0
     said = [t for t in warnings(logs) if "refused" in t]
     assert len(said) == 1 and "site.latitude_deg, site.epoch_ns" in said[0]
@@ -143,7 +146,7 @@ def test_a_bag_without_site_and_epoch_refuses_sun_updates_in_one_line(day, no_su
 
 
 def test_no_sun_at_night_is_said_once_and_the_odometry_goes_on(base, no_sun):
-    est, outputs, logs = run(base, params(SENSOR, NIGHT))
+    est, outputs, logs = run(base, params(SENSOR, NIGHT), ON)
     assert len(outputs) == len(no_sun)
     said = [t for t in warnings(logs) if "no sun" in t]
     assert len(said) == 1 and "below the horizon" in said[0]
@@ -155,8 +158,20 @@ def test_no_sun_at_night_is_said_once_and_the_odometry_goes_on(base, no_sun):
 
 def test_a_vector_the_ephemeris_says_is_impossible_is_skipped(base, no_sun):
     # the day's vectors, fed to the night's site: the sun is below the horizon there
-    est, outputs, logs = run(merged(base, sun_messages(DAY)), params(SENSOR, NIGHT))
+    est, outputs, logs = run(merged(base, sun_messages(DAY)), params(SENSOR, NIGHT), ON)
     assert len(outputs) == len(no_sun) and est.sun.updates == 0
     assert est.counts.bad["sun_not_sun"] == len(outputs)
     said = [t for t in warnings(logs) if "sun_not_sun" in t]
     assert len(said) == 1 and "below the horizon" in said[0]
+
+
+def test_the_sun_updates_are_off_by_default(day, no_sun):
+    """With rover.yaml's sun sensor but imu.sun_heading false, /sun_sensor is not read: the
+    odometry is the gyro's, no sample is counted bad, and the log says so once."""
+    est, outputs, logs = run(day, params(SENSOR, DAY))
+    assert len(outputs) == len(no_sun)
+    for a, b in zip(outputs, no_sun, strict=True):
+        assert np.array_equal(a.state.p, b.state.p)
+        assert np.array_equal(a.state.cov, b.state.cov)
+    assert not any(n for kind, n in est.counts.bad.items() if kind.startswith("sun"))
+    assert sum("heading updates off" in text for _, text in logs) == 1
