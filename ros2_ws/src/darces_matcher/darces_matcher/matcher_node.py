@@ -31,7 +31,7 @@ from darces_matcher.localization import (
 )
 from darces_matcher.matcher import MatchConfig, Matcher, MatchResult
 from roi_network.dtm import read_dtm, z_is_estimated
-from roi_network.geojson import read_geojson
+from roi_network.geojson import domain_reasons, domain_status, read_geojson
 from roi_network.pointcloud import PointCloudFormatError, from_pointcloud2
 from roi_network.records import xy
 from roi_network.spin import run_node
@@ -95,6 +95,14 @@ class MatcherNode(Node):
         if not gn_path:
             raise ValueError("parameter 'gn_path' is not set (the GN GeoJSON file)")
         gn = read_geojson(gn_path)
+        # orbital_gn prepare's verdict on the orthoimage against its training: a doubtful
+        # GN is said at start and in every /matcher/status.
+        self.gn_domain = domain_status(gn)
+        if self.gn_domain not in ("ok", "unknown"):
+            reasons = "; ".join(domain_reasons(gn)[:3])
+            self.get_logger().warning(
+                f"GN {gn_path}: domain check {self.gn_domain} (metadata.domain_check): the "
+                f"GN may not be this terrain's{': ' + reasons if reasons else ''}")
         # A DTM that cannot be used (unreadable, another CRS than the GN's) ends the node
         # with a line naming the file, as a bad GN does.
         self.dtm = read_dtm(dtm_path, gn.map_frame) if dtm_path else None
@@ -251,6 +259,8 @@ class MatcherNode(Node):
         status.level = DiagnosticStatus.OK if localized else DiagnosticStatus.WARN
         status.message = (f"{'localized' if localized else 'not localized'}: "
                           f"{self.last_event} ({r.reason})")
+        if self.gn_domain not in ("ok", "unknown"):
+            status.message += f"; GN domain check {self.gn_domain}"
         values = {
             "state": "localized" if localized else "searching",
             "event": self.last_event,
@@ -269,6 +279,7 @@ class MatcherNode(Node):
             "time_ms": f"{r.timings_ms.get('total', 0.0):.2f}",
             "z_source": "dtm" if self.dtm is not None else "none",
             "z_off_dtm": self.z_off_dtm,
+            "gn_domain_check": self.gn_domain,
         }
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         msg = DiagnosticArray()

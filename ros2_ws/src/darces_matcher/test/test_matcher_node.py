@@ -82,6 +82,10 @@ def _write_plane_dtm(path, gn, crs=None) -> None:
 @pytest.fixture(params=[False], ids=["no_dtm"])
 def matcher_process(request, tmp_path):
     gn = generate_gn(seed=11)
+    # A GN orbital_gn prepare judged doubtful: the matcher passes the verdict on.
+    gn.metadata["domain_check"] = {"status": "warn", "reasons": [
+        {"level": "warn", "message": "weighted entropy 0.9 bits is 1.6 times below the "
+         "training images' 1.43-1.45"}]}
     gn_path = tmp_path / "gn.geojson"
     write_geojson(gn, gn_path)
     args = ["-p", f"gn_path:={gn_path}"]
@@ -257,6 +261,8 @@ def test_gn_of_another_area_stays_unlocalized_and_says_so(matcher_process):
         values = {kv.key: kv.value for kv in last.values}
         assert last.level == DiagnosticStatus.WARN
         assert last.message.startswith("not localized") and values["state"] == "searching"
+        assert last.message.endswith("; GN domain check warn")
+        assert values["gn_domain_check"] == "warn"
         assert proc.poll() is None, "matcher node died"
     finally:
         drv.close()
