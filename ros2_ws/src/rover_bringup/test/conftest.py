@@ -38,6 +38,11 @@ def _load(name: str) -> ModuleType:
     return module
 
 
+#: The field-bag writer of the calibration tests, loaded before they are collected: they
+#: take it as ``sys.modules['rover_bringup_test_fieldbag']`` at import.
+_load('fieldbag')
+
+
 @pytest.fixture(scope='session')
 def bagfactory() -> ModuleType:
     """The test-bag writer module (test/bagfactory.py)."""

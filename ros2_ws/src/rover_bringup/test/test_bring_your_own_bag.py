@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import re
 import shlex
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -20,21 +21,7 @@ ROOT = Path(__file__).resolve().parents[4]
 GUIDE = ROOT / 'docs' / 'bring_your_own_bag.md'
 
 
-def _load_fieldbag():
-    # Tests run with --import-mode=importlib: load the helper next to them by path.
-    import importlib.util
-    import sys
-
-    name = 'rover_bringup_test_fieldbag'
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name(
-            'fieldbag.py'))
-        sys.modules[name] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sys.modules[name])
-    return sys.modules[name]
-
-
-fb = _load_fieldbag()
+fb = sys.modules['rover_bringup_test_fieldbag']  # loaded by conftest.py
 
 
 def guide_example() -> list[list[str]]:

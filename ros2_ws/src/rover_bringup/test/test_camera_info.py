@@ -3,7 +3,7 @@ against a known geometry and on EuRoC's sensor.yaml files (written at test time)
 
 from __future__ import annotations
 
-from pathlib import Path
+import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -21,22 +21,7 @@ from rover_bringup.rectify import (
     write_camera_info,
 )
 
-
-def _load_fieldbag():
-    # Tests run with --import-mode=importlib: load the helper next to them by path.
-    import importlib.util
-    import sys
-
-    name = 'rover_bringup_test_fieldbag'
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name(
-            'fieldbag.py'))
-        sys.modules[name] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sys.modules[name])
-    return sys.modules[name]
-
-
-fb = _load_fieldbag()
+fb = sys.modules['rover_bringup_test_fieldbag']  # loaded by conftest.py
 
 
 def _camera(source: str, body_T_camera: np.ndarray, fx: float, cx: float,

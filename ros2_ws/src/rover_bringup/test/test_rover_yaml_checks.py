@@ -3,29 +3,14 @@ an unusable CameraInfo among usable ones. The bags carry EuRoC's rectified pair.
 
 from __future__ import annotations
 
-from pathlib import Path
+import sys
 
 import pytest
 import yaml
 
 from rover_bringup.cli import main
 
-
-def _load_fieldbag():
-    # Tests run with --import-mode=importlib: load the helper next to them by path.
-    import importlib.util
-    import sys
-
-    name = 'rover_bringup_test_fieldbag'
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name(
-            'fieldbag.py'))
-        sys.modules[name] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sys.modules[name])
-    return sys.modules[name]
-
-
-fb = _load_fieldbag()
+fb = sys.modules['rover_bringup_test_fieldbag']  # loaded by conftest.py
 
 
 def test_one_unusable_camera_info_is_skipped_and_named_once(tmp_path, capsys):
