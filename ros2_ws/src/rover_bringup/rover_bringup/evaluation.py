@@ -44,7 +44,6 @@ from roi_network.dtm import UNKNOWN_THRESHOLD_M2
 from roi_network.trajectory import TUM_FIELDS, numeric_table
 from rover_bringup.errors import GloblocError
 from rover_bringup.gn_check import check_truth_frame
-from rover_bringup.run_outputs import run_status_lines
 from rover_bringup.run_outputs import (
     ALIGNMENT,
     EVENTS,
@@ -53,6 +52,7 @@ from rover_bringup.run_outputs import (
     OUTPUTS,
     VO_TUM,
     export_outputs,
+    run_status_lines,
 )
 
 #: A /global_pose more than this far from the truth is a false fix (DESIGN.md), metres.

@@ -10,10 +10,10 @@ SIGTERM, ``Respawner.stopped``) nothing is restarted: the nodes' exits are the s
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from rover_bringup.errors import say
 from rover_bringup.launcher import ManagedProcess, start
 
 
@@ -49,7 +49,7 @@ class Respawner:
         proc.close_log()
         message = (f'{proc.name} exited (status {proc.returncode}) while running: restarting '
                    f'it ({len(codes)} of at most {self.max_restarts}; log {proc.log_path})')
-        print(f'globloc: warning: {message}', file=sys.stderr, flush=True)
+        say(f'globloc: warning: {message}')
         with proc.log_path.open('ab') as fh:
             fh.write(f'\n[globloc] {message}\n\n'.encode())
         new = start(proc.name, proc.argv, self.log_dir, append=True)

@@ -35,7 +35,7 @@ import numpy as np
 import yaml
 
 from rover_bringup.bag import Bag, BagLocation, locate_bag
-from rover_bringup.errors import GloblocError
+from rover_bringup.errors import GloblocError, say
 from rover_bringup.gn_check import check_gn
 from rover_bringup.graph import (
     Availability,
@@ -115,11 +115,11 @@ class RunOptions:
 
 
 def _warn(message: str) -> None:
-    print(f'globloc: warning: {message}', file=sys.stderr, flush=True)
+    say(f'globloc: warning: {message}')
 
 
 def _info(message: str) -> None:
-    print(f'globloc: {message}', file=sys.stderr, flush=True)
+    say(f'globloc: {message}')
 
 
 def _new_run_dir(out: Path, location: BagLocation, run_id: str | None) -> Path:
@@ -456,8 +456,8 @@ def run(options: RunOptions) -> int:
             plan = _prepare(options)
             interrupt.raising = False
         except KeyboardInterrupt:
-            print(f'globloc: interrupted by {interrupt.name or "SIGINT"} before the graph '
-                  'started: nothing was run', file=sys.stderr, flush=True)
+            say(f'globloc: interrupted by {interrupt.name or "SIGINT"} before the graph '
+                'started: nothing was run')
             return EXIT_INTERRUPTED
         return _run(options, plan, interrupt)
 
@@ -551,9 +551,9 @@ def _run(options: RunOptions, plan: _Plan, interrupt: _Interrupt) -> int:
         return code
     _info(f'recorded {recorded} -> {run_dir / OUTPUTS}')
     for error in errors:
-        print(f'globloc: error: {error}', file=sys.stderr, flush=True)
+        say(f'globloc: error: {error}')
     for reason in degraded:
-        print(f'globloc: degraded: {reason}', file=sys.stderr, flush=True)
+        say(f'globloc: degraded: {reason}')
     _info(f'status: {status}' + (f' (exit status {code}; {run_dir / "run.yaml"})'
                                  if code else ''))
     return code

@@ -281,6 +281,36 @@ def test_interrupt_stops_the_graph_without_restarts_and_keeps_the_outputs(
     assert len(rows) == counts['/vo/odometry']
 
 
+
+def test_a_run_whose_caller_died_still_stops_its_graph_on_sigterm(
+    tmp_path: Path, bagfactory: ModuleType, fast_discovery_env: dict[str, str],
+    globloc_cmd: list[str],
+):
+    """The process that started the run dies (its end of the run's stderr pipe closes),
+    then the run gets SIGTERM: it still stops every child and writes run.yaml, though it
+    cannot say so."""
+    bag_dir = _fake_graph(tmp_path, 'fake_vo', 'echo', 30.0, bagfactory)
+    proc = _start_run(globloc_cmd, tmp_path, bag_dir, fast_discovery_env, '--rate', '1')
+    player_log = tmp_path / 'out' / 'tiny' / 'r1' / 'logs' / 'globloc_player.log'
+    try:
+        _wait_for(lambda: 'bag time 2.' in _read(player_log) or proc.poll() is not None, 60,
+                  'two seconds of playback')
+        assert proc.poll() is None, 'the run ended before it could be interrupted'
+        children = psutil.Process(proc.pid).children(recursive=True)
+        proc.stdout.close()
+        proc.stderr.close()  # the caller is gone: the run's next line meets a closed pipe
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130
+    assert not [c for c in children if c.is_running() and c.status() != psutil.STATUS_ZOMBIE]
+    report = yaml.safe_load((tmp_path / 'out' / 'tiny' / 'r1' / 'run.yaml').read_text())
+    assert (report['status'], report['interrupted_by']) == ('interrupted', 'SIGTERM')
+
+
 def _corrupt_copy(src: Path, dst: Path, topic: str, every: int) -> int:
     """Copy a bag, truncating the CDR bytes of every ``every``-th message of ``topic``;
     returns how many were corrupted."""
