@@ -12,7 +12,6 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
-import pytest
 
 from roi_detector.inputs import (
     BadInput,
@@ -244,18 +243,6 @@ def test_the_bag_reader_skips_each_bad_message_and_reads_the_rest(tmp_path):
     assert any(line.startswith("stamp out of order: /stereo/right/image_raw at "
                                "1403715273.450 s: stamped before the message before it "
                                "(1403715273.500 s)") for line in lines)
-
-
-@pytest.fixture
-def run_cli(capsys):
-    from roi_detector import cli
-
-    def run(*args):
-        capsys.readouterr()
-        rc = cli.main([str(a) for a in args])
-        out = capsys.readouterr()
-        return SimpleNamespace(returncode=rc, stdout=out.out, stderr=out.err)
-    return run
 
 
 def test_roi_detector_ln_goes_on_past_one_bad_camera_info_and_says_when_none_is_usable(

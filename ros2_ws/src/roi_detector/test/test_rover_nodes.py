@@ -101,37 +101,21 @@ def _stop(proc: subprocess.Popen) -> None:
             proc.wait()
 
 
-def _in_process(capsys):
-    """``roi_detector ARGS`` run in this process (the console script's ``main``, without
-    a new interpreter's start per call): ``run(*args)`` -> returncode, stdout, stderr."""
-    from types import SimpleNamespace
-
-    from roi_detector import cli
-
-    def run(*args):
-        capsys.readouterr()
-        rc = cli.main([str(a) for a in args])
-        out = capsys.readouterr()
-        return SimpleNamespace(returncode=rc, stdout=out.out, stderr=out.err)
-    return run
-
-
-def test_cli_ln_and_eval_on_tiny(tiny_bag, tmp_path, capsys):
+def test_cli_ln_and_eval_on_tiny(tiny_bag, tmp_path, run_cli):
     odom = tmp_path / "truth_odom.tum"
     # The installed console script once; the other commands in this process.
     r = subprocess.run([shutil.which("roi_detector"), "truth-odometry", str(tiny_bag),
                         "--out", str(odom)], capture_output=True, text=True, timeout=240)
     assert r.returncode == 0, r.stderr
-    run = _in_process(capsys)
     ln_path = tmp_path / "ln.geojson"
     # A 16 m drive: its rocks are in view in a few pairs only (min_obs 1).
-    r = run("ln", str(tiny_bag), "--odometry", str(odom), "--out", str(ln_path), "--model",
+    r = run_cli("ln", str(tiny_bag), "--odometry", str(odom), "--out", str(ln_path), "--model",
             "none", "--min-obs", "1")
     assert r.returncode == 0, r.stderr
     ln = read_geojson(ln_path)
     assert ln.frame_id == "odom" and len(ln) >= 1
     assert np.all(ln.records["cov_xx"] > 0) and np.all(ln.records["n_obs"] >= 1)
-    r = run("eval", str(ln_path), str(tiny_bag), "--json", str(tmp_path / "e.json"),
+    r = run_cli("eval", str(ln_path), str(tiny_bag), "--json", str(tmp_path / "e.json"),
             "--plot", str(tmp_path / "e.png"))
     assert r.returncode == 0, r.stderr
     assert (tmp_path / "e.json").is_file() and (tmp_path / "e.png").stat().st_size > 1000
@@ -146,7 +130,7 @@ def test_cli_ln_and_eval_on_tiny(tiny_bag, tmp_path, capsys):
     (tmp_path / "vo_covariance.txt").write_text("".join(
         pose_covariance_row(t, cov) + "\n" for t in poses[:, 0]))
     ln_cov = tmp_path / "ln_cov.geojson"
-    r = run("ln", str(tiny_bag), "--odometry", str(odom), "--out", str(ln_cov), "--model",
+    r = run_cli("ln", str(tiny_bag), "--odometry", str(odom), "--out", str(ln_cov), "--model",
             "none", "--min-obs", "1")
     assert r.returncode == 0, r.stderr
     assert "vo_covariance.txt" in r.stdout
@@ -157,13 +141,13 @@ def test_cli_ln_and_eval_on_tiny(tiny_bag, tmp_path, capsys):
     # A covariance file that does not cover the odometry: a clear error, no LN.
     (tmp_path / "short_cov.txt").write_text(f"{poses[0, 0]:.9f} " + " ".join(
         f"{v:.6e}" for v in cov) + "\n")
-    r = run("ln", str(tiny_bag), "--odometry", str(odom), "--covariance",
+    r = run_cli("ln", str(tiny_bag), "--odometry", str(odom), "--covariance",
             str(tmp_path / "short_cov.txt"), "--out", str(tmp_path / "y.geojson"),
             "--model", "none")
     assert r.returncode == 1 and "short_cov.txt: no covariance at odometry stamp" in r.stderr
     assert not (tmp_path / "y.geojson").exists()
     # Bad input: a clear one-line error, no output file.
-    r = run("ln", str(tiny_bag), "--odometry", str(tmp_path / "missing.tum"), "--out",
+    r = run_cli("ln", str(tiny_bag), "--odometry", str(tmp_path / "missing.tum"), "--out",
             str(tmp_path / "x.geojson"))
     assert r.returncode == 1 and "missing.tum" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "x.geojson").exists()
@@ -383,19 +367,18 @@ def test_roi_detector_refuses_an_unknown_method(tiny_bag, tmp_path):
     assert "parameter 'method'" in log and "per_pair" in log and "Traceback" not in log
 
 
-def test_cli_ln_reads_raw_images_alike(tiny_bag, tmp_path, capsys):
+def test_cli_ln_reads_raw_images_alike(tiny_bag, tmp_path, run_cli):
     """A bag with raw sensor_msgs/Image stereo pairs (a field bag's usual transport) gives
     the LN its compressed twin gives: the same pixels, the same nodes."""
     from roi_network.testing import write_raw_image_copy, write_stamp_offset_copy
 
     raw_bag = write_raw_image_copy(tiny_bag, tmp_path / "raw")
-    run = _in_process(capsys)
     odom = tmp_path / "truth_odom.tum"
-    assert run("truth-odometry", str(tiny_bag), "--out", str(odom)).returncode == 0
+    assert run_cli("truth-odometry", str(tiny_bag), "--out", str(odom)).returncode == 0
     lns = []
     for bag in (tiny_bag, raw_bag):
         out = tmp_path / f"{bag.name}.geojson"
-        r = run("ln", str(bag), "--odometry", str(odom), "--out", str(out), "--model", "none",
+        r = run_cli("ln", str(bag), "--odometry", str(odom), "--out", str(out), "--model", "none",
                 "--min-obs", "1")
         assert r.returncode == 0, r.stderr
         lns.append(read_geojson(out).records)
@@ -404,11 +387,11 @@ def test_cli_ln_reads_raw_images_alike(tiny_bag, tmp_path, capsys):
     # Right images stamped 3 ms after their left ones (two drivers): the same LN; with
     # exact stamps only, every pair is counted as a lone half, with its partner's offset.
     apart = write_stamp_offset_copy(tiny_bag, tmp_path / "apart", 0.003)
-    r = run("ln", str(apart), "--odometry", str(odom), "--out", str(tmp_path / "a.geojson"),
+    r = run_cli("ln", str(apart), "--odometry", str(odom), "--out", str(tmp_path / "a.geojson"),
             "--model", "none", "--min-obs", "1")
     assert r.returncode == 0, r.stderr
     np.testing.assert_array_equal(read_geojson(tmp_path / "a.geojson").records, lns[0])
-    r = run("ln", str(apart), "--odometry", str(odom), "--out", str(tmp_path / "e.geojson"),
+    r = run_cli("ln", str(apart), "--odometry", str(odom), "--out", str(tmp_path / "e.geojson"),
             "--model", "none", "--min-obs", "1", "--stereo-sync-tolerance", "0")
     assert r.returncode == 1
     assert "the nearest right image is 3.0 ms from it" in r.stdout + r.stderr
@@ -419,7 +402,7 @@ def test_cli_ln_reads_raw_images_alike(tiny_bag, tmp_path, capsys):
     distorted = write_raw_image_copy(tiny_bag, tmp_path / "distorted",
                                      distortion=(-0.28, 0.09, 0.0, 0.0, 0.0))
     for flags, said in (((), 2), (("--no-rectify",), 0)):
-        r = run("ln", str(distorted), "--odometry", str(odom), "--out",
+        r = run_cli("ln", str(distorted), "--odometry", str(odom), "--out",
                 str(tmp_path / "d.geojson"), "--model", "none", "--min-obs", "1", *flags)
         assert r.returncode == 0, r.stderr
         assert (r.stdout + r.stderr).count("images are rectified to its P") == said
@@ -587,18 +570,17 @@ DRIVE = ["mast_pan", "mast_tilt"], [0.0, float(np.radians(20.0))]
 
 
 def test_cli_ln_places_each_pair_by_the_joint_states_and_counts_what_it_cannot(
-        tiny_bag, tmp_path, capsys):
+        tiny_bag, tmp_path, run_cli):
     """``roi_detector ln`` on a mast's bag: a mast held at the drive pose gives the fixed
     camera's LN; pairs with no joint state (none at all, too far in time, a mast that
     stopped publishing) are not placed, counted and named once; joint names the mast does
     not have are an error naming them."""
-    run = _in_process(capsys)
     odom = tmp_path / "truth_odom.tum"
-    assert run("truth-odometry", str(tiny_bag), "--out", str(odom)).returncode == 0
+    assert run_cli("truth-odometry", str(tiny_bag), "--out", str(odom)).returncode == 0
 
     def ln(bag, name):
         out = tmp_path / f"{name}.geojson"
-        r = run("ln", str(bag), "--odometry", str(odom), "--out", str(out), "--model",
+        r = run_cli("ln", str(bag), "--odometry", str(odom), "--out", str(out), "--model",
                 "none", "--min-obs", "1")
         return r, (read_geojson(out) if out.exists() else None)
 
