@@ -59,6 +59,17 @@ def bag_and_run(request, tiny_bag, clean_run, tiny_messages, tiny_params, tmp_pa
     return raw, run(messages, tiny_params), _played(m.input_topics("raw"), messages), 2
 
 
+def _stop(player, node, ctx) -> None:
+    """Stop the player (if it still plays) and the node with SIGINT, and the test's rclpy
+    context."""
+    if player is not None and player.poll() is None:
+        player.send_signal(signal.SIGINT)
+        player.wait(timeout=10)
+    node.send_signal(signal.SIGINT)
+    node.wait(timeout=15)
+    rclpy.try_shutdown(context=ctx)
+
+
 def test_node_on_tiny_bag_agrees_with_offline(bag_and_run, ros_env, tmp_path):
     tiny_bag, (est, offline, _), topics, rate = bag_and_run
     offline_status = {k: str(v) for k, v in est.status().items() if k.startswith("bad_input.")}
@@ -116,12 +127,7 @@ def test_node_on_tiny_bag_agrees_with_offline(bag_and_run, ros_env, tmp_path):
         for key in ("features", "stereo_matches", "inliers", "state", "bad_input.imu_gap"):
             assert key in values
     finally:
-        if player is not None and player.poll() is None:
-            player.send_signal(signal.SIGINT)
-            player.wait(timeout=10)
-        node.send_signal(signal.SIGINT)
-        node.wait(timeout=15)
-        rclpy.try_shutdown(context=ctx)
+        _stop(player, node, ctx)
     log = node.stdout.read()
     assert node.returncode == 0, log
     # The rectification is said once per side, among the warnings of the same logger.
@@ -287,12 +293,7 @@ def test_node_gives_the_first_pose_at_once_and_skips_a_bad_camera_info(ros_env, 
         values = {kv.key: kv.value for kv in status[-1].status[0].values}
         assert values["bad_input.bad_camera_info"] == "1"
     finally:
-        if player is not None and player.poll() is None:
-            player.send_signal(signal.SIGINT)
-            player.wait(timeout=10)
-        node.send_signal(signal.SIGINT)
-        node.wait(timeout=15)
-        rclpy.try_shutdown(context=ctx)
+        _stop(player, node, ctx)
     log = node.stdout.read()
     t = m.seconds(second)
     assert log.count(f"/stereo/left/camera_info at {t:.3f} s: K[0] (fx) = 0") == 1, log
