@@ -4,9 +4,10 @@ Bad input is counted per kind and reported once per kind (``BadInput``): the cal
 the message and goes on, so neither a node nor a CLI run dies on one bad frame. Each report
 names the topic, the message's stamp and the field (``/stereo/left/camera_info at
 1403715273.712 s: K[0] (fx) = 0``): a CameraInfo the pipeline cannot use
-(:func:`camera_info_problem`), an image that does not decode or whose encoding is not one
-it reads, a stereo pair whose images differ in size from each other or from their
-CameraInfo, a message older than the one before it on its topic (:class:`StampOrder`).
+(:func:`roi_network.camera_info.camera_info_problem`), an image that does not decode or
+whose encoding is not one it reads, a stereo pair whose images differ in size from each
+other or from their CameraInfo, a message older than the one before it on its topic
+(:class:`StampOrder`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import yaml
 from scipy.spatial.transform import Rotation, Slerp
 
 from roi_network import images
+from roi_network.camera_info import camera_info_problem
 
 # POSE_COVARIANCE_FILE and write_tum are this package's names for the shared ones.
 from roi_network.trajectory import (  # noqa: F401
@@ -105,34 +107,6 @@ def why_undecodable(msg) -> tuple[str, str]:
                 f"encoding '{encoding}' is not one this pipeline reads "
                 f"({', '.join(images.RAW_ENCODINGS)})")
     return "undecodable image", images.describe(msg)
-
-
-def camera_info_problem(side: str, msg) -> str | None:
-    """What makes a stereo CameraInfo unusable, naming the field and its value
-    (``K[0] (fx) = 0``); None when the pipeline can use it.
-
-    The pipeline reads P (the rectified camera: left P's 3x3, right ``P[3] = -fx * B``)
-    and, to rectify, D, K and R; a K of zeros (no calibration of the raw camera) is
-    allowed, as :func:`roi_network.images.describes_rectified` reads it.
-    """
-    fields = {name: np.asarray(getattr(msg, name.lower()), float).ravel()
-              for name in ("K", "P", "R", "D")}
-    for name, size in (("K", 9), ("P", 12), ("R", 9)):
-        if fields[name].size != size:
-            return f"{name} holds {fields[name].size} numbers, not {size}"
-    for name, values in fields.items():
-        bad = np.flatnonzero(~np.isfinite(values))
-        if len(bad):
-            return f"{name}[{bad[0]}] = {values[bad[0]]}"
-    k, p = fields["K"], fields["P"]
-    checks = [("K", 0, "fx"), ("K", 4, "fy")] if np.any(k) else []
-    for name, i, what in [*checks, ("P", 0, "fx"), ("P", 5, "fy")]:
-        if not fields[name][i] > 0:
-            return f"{name}[{i}] ({what}) = {fields[name][i]:g}"
-    if side == "right" and not p[3] < 0:
-        return (f"P[3] (-fx*B) = {p[3]:g}: expected -fx * baseline, negative (the right "
-                "camera on the left one's +x)")
-    return None
 
 
 def info_size(info) -> tuple[int, int] | None:
@@ -220,7 +194,7 @@ class FrameMaker:
         """Take ``side``'s CameraInfo; one the pipeline cannot use
         (:func:`camera_info_problem`) is counted (``bad camera_info``), named with its
         topic, stamp and field, and skipped: the side keeps the one it had."""
-        problem = camera_info_problem(side, msg)
+        problem = camera_info_problem(msg, side)
         if problem is not None:
             self.rejected[side] += 1
             self.bad("bad camera_info", f"{INFO_TOPICS[side]} at "

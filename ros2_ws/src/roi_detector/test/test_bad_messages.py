@@ -17,9 +17,9 @@ from roi_detector.inputs import (
     BadInput,
     FrameMaker,
     StampOrder,
-    camera_info_problem,
     read_stereo_frames,
 )
+from roi_network.camera_info import camera_info_problem
 
 W, H = 94, 60
 FX, BASELINE = 55.0, 0.11
@@ -50,13 +50,17 @@ def _image(stamp_ns: int, width: int = W, height: int = H, encoding: str = "mono
 
 def test_a_camera_info_the_pipeline_cannot_use_is_named_by_topic_stamp_and_field():
     t = T0 + 712_000_000
-    assert camera_info_problem("left", _info("left", t)) is None
-    assert camera_info_problem("left", _info("left", t, fx=0.0)) == "K[0] (fx) = 0"
+    assert camera_info_problem(_info("left", t), "left") is None
+    assert camera_info_problem(_info("left", t, fx=0.0), "left") == "K[0] (fx) = 0"
     nan = _info("left", t)
     nan.p[5] = float("nan")
-    assert camera_info_problem("left", nan) == "P[5] = nan"
+    assert camera_info_problem(nan, "left") == "P[5] = nan"
     no_baseline = _info("left", t)  # a left P on the right topic
-    assert camera_info_problem("right", no_baseline).startswith("P[3] (-fx*B) = 0")
+    assert camera_info_problem(no_baseline, "right") == "P[3] (-fx * baseline) = 0: no baseline"
+    swapped = _info("left", t)
+    swapped.p[3] = FX * BASELINE
+    assert "swapped" in camera_info_problem(swapped, "right")
+    assert camera_info_problem(_info("left", t, width=0), "left") == "width = 0"
     lines = []
     bad = BadInput(lines.append)
     maker = FrameMaker(bad)

@@ -20,7 +20,7 @@ them into the parameters the nodes read:
 Checks, each naming the frame or topic: the camera frames must be optical (REP-103: z
 forward, x right, y down), the baseline of the tree must agree with the CameraInfo's, and
 the right camera must sit on the left camera's +x axis (a rectified pair). Every
-CameraInfo is checked (:func:`camera_info_problem`: positive focal lengths in K and P,
+CameraInfo is checked (:func:`info_problem`: positive focal lengths in K and P,
 finite numbers, an image size, the right one's baseline): an unusable one among usable
 ones is skipped and named once with its topic, stamp and field; a topic with none usable,
 left and right CameraInfo of different sizes, or a first image of another size than its
@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from roi_network.camera_info import camera_info_problem
 from rover_bringup.errors import GloblocError
 from rover_bringup.topics import TF_STATIC
 from rover_bringup.urdf import (
@@ -75,7 +76,7 @@ class BagCalibration:
         frames: the sensors' ``header.frame_id``: ``left``, ``right`` (their CameraInfo,
             else images), ``imu``.
         left_info, right_info: the first usable CameraInfo of each side
-            (:func:`camera_info_problem`).
+            (:func:`info_problem`).
         infos_read: CameraInfo messages read, by topic.
         infos_unusable: by topic, the first unusable CameraInfo's problem and how many
             were unusable.
@@ -112,35 +113,14 @@ def _stamp_s(msg: Any) -> float:
 
 
 #: The CameraInfo numbers a calibration cannot do without: (field, index, meaning).
-FOCAL_LENGTHS = (('k', 0, 'fx'), ('k', 4, 'fy'), ('p', 0, 'fx'), ('p', 5, 'fy'))
 
 
-def camera_info_problem(info: Any, topic: str) -> str | None:
-    """What makes one CameraInfo unusable, as ``<topic> at <stamp> s: <field> = <value>``
-    (``/stereo/left/camera_info at 1403715273.712 s: K[0] (fx) = 0``), None when it is
-    usable: finite K, D, R and P; positive focal lengths in K and P; a width and height;
-    on the right camera (``/stereo/right/...``) ``P[3] = -fx * baseline < 0``."""
-    where = f'{topic} at {_stamp_s(info):.3f} s'
-    arrays = {name: np.asarray(getattr(info, name), float).ravel() for name in 'kdrp'}
-    for name, values in arrays.items():
-        if not np.all(np.isfinite(values)):
-            i = int(np.flatnonzero(~np.isfinite(values))[0])
-            return f'{where}: {name.upper()}[{i}] = {values[i]}'
-    for name, size in (('k', 9), ('p', 12)):
-        if arrays[name].size != size:
-            return f'{where}: {name.upper()} has {arrays[name].size} numbers, not {size}'
-    for name, i, meaning in FOCAL_LENGTHS:
-        if arrays[name][i] <= 0:
-            return f'{where}: {name.upper()}[{i}] ({meaning}) = {arrays[name][i]:g}'
-    if int(info.width) <= 0 or int(info.height) <= 0:
-        return f'{where}: width x height = {int(info.width)}x{int(info.height)}'
-    tx = arrays['p'][3]
-    if topic == RIGHT_INFO and tx == 0:
-        return f'{where}: P[3] (-fx * baseline) = 0: no baseline'
-    if topic == RIGHT_INFO and tx > 0:
-        return (f'{where}: P[3] (-fx * baseline) = {tx:g} > 0: the right camera sits left of '
-                'the left one; are the left and right topics swapped?')
-    return None
+def info_problem(info: Any, topic: str) -> str | None:
+    """What makes one CameraInfo unusable (:func:`roi_network.camera_info.camera_info_problem`)
+    as ``<topic> at <stamp> s: <field> = <value>``
+    (``/stereo/left/camera_info at 1403715273.712 s: K[0] (fx) = 0``), None when usable."""
+    problem = camera_info_problem(info, "right" if topic == RIGHT_INFO else "left")
+    return None if problem is None else f"{topic} at {_stamp_s(info):.3f} s: {problem}"
 
 
 def bag_calibration(rosbag: str | Path) -> BagCalibration:
@@ -214,7 +194,7 @@ def bag_calibration(rosbag: str | Path) -> BagCalibration:
 
 def _read_info(cal: BagCalibration, topic: str, msg: Any) -> None:
     cal.infos_read[topic] = cal.infos_read.get(topic, 0) + 1
-    problem = camera_info_problem(msg, topic)
+    problem = info_problem(msg, topic)
     if problem is not None:
         first, count = cal.infos_unusable.get(topic, (problem, 0))
         cal.infos_unusable[topic] = (first, count + 1)

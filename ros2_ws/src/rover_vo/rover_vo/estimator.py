@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from roi_network.camera_info import camera_info_problem
 from roi_network.images import RAW_ENCODINGS, StereoHalves, StereoRectifiers, describe
 from roi_network.mast import (
     NO_JOINT_STATES,
@@ -41,7 +42,7 @@ from rover_vo.features import stereo_match, track
 from rover_vo.keyframes import Keyframe, make_keyframe
 from rover_vo.motion import estimate_motion, refine_motion
 from rover_vo.propagator import ImuInterval, Propagator
-from rover_vo.rig import RigError, StereoRig, camera_info_problem, rig_from_camera_info
+from rover_vo.rig import RigError, StereoRig, rig_from_camera_info
 from rover_vo.state import N_ERR, OdomState, step_noise, systematic_prior
 from rover_vo.sun_heading import (
     AT_REST_TILT_SIGMA_RAD,

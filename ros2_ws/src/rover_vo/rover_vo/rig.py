@@ -61,60 +61,6 @@ class StereoRig:
         return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1.0]])
 
 
-#: What the entries of a CameraInfo's K and P are, for the messages.
-_K_NAMES = {0: "fx", 2: "cx", 4: "fy", 5: "cy"}
-_P_NAMES = {0: "fx", 2: "cx", 3: "-fx * baseline", 5: "fy", 6: "cy"}
-
-
-def _entries(info: Any, field: str, size: int | None) -> tuple[np.ndarray | None, str | None]:
-    try:
-        v = np.asarray(getattr(info, field.lower()), dtype=float).ravel()
-    except (TypeError, ValueError):
-        return None, f"{field} is not a list of numbers"
-    if size is not None and v.size != size:
-        return None, f"{field} has {v.size} values, expected {size}"
-    bad = np.flatnonzero(~np.isfinite(v))
-    if bad.size:
-        return None, f"{field}[{bad[0]}] = {v[bad[0]]}"
-    return v, None
-
-
-def camera_info_problem(info: Any, side: str) -> str | None:
-    """What makes one CameraInfo unusable, naming the field and its value
-    (``K[0] (fx) = 0``), or None.
-
-    Checked: width and height positive; K, R, P of 9, 9, 12 finite numbers, D finite;
-    K's and P's focal lengths positive (a K of zeros, no calibration, is taken as
-    rectified images described by P); the right camera's ``P[3] = -fx * baseline``
-    negative.
-
-    Args:
-        info: sensor_msgs/CameraInfo (rosbags or rclpy).
-        side: ``left`` or ``right``.
-    """
-    for field in ("width", "height"):
-        if int(getattr(info, field)) <= 0:
-            return f"{field} = {getattr(info, field)}"
-    values = {}
-    for field, size in (("K", 9), ("R", 9), ("P", 12), ("D", None)):
-        v, problem = _entries(info, field, size)
-        if problem is not None:
-            return problem
-        values[field] = v
-    K, P = values["K"], values["P"]
-    if np.any(K):
-        for i in (0, 4):
-            if not K[i] > 0:
-                return f"K[{i}] ({_K_NAMES[i]}) = {K[i]:g}"
-    for i in (0, 5):
-        if not P[i] > 0:
-            return f"P[{i}] ({_P_NAMES[i]}) = {P[i]:g}"
-    if side == "right" and not P[3] < 0:
-        return (f"P[3] ({_P_NAMES[3]}) = {P[3]:g}: expected < 0 for the right camera of a "
-                "rectified pair")
-    return None
-
-
 def rig_from_camera_info(left_info: Any, right_info: Any, params: dict[str, Any]) -> StereoRig:
     """Build the rig from the two CameraInfo messages and the ``rover.yaml`` parameters.
 
