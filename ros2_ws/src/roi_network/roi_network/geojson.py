@@ -21,8 +21,8 @@ from typing import Any, Final
 
 import numpy as np
 from pyproj import CRS
-from pyproj.exceptions import CRSError
 
+from roi_network.crs import CrsError, projected_crs
 from roi_network.network import MapFrame, RoiNetwork
 from roi_network.records import LABEL_NAMES, LABELS, ROI_DTYPE, as_records
 
@@ -45,19 +45,17 @@ class GeoJsonFormatError(ValueError):
 
 
 def validate_crs(crs: Any, where: str) -> str:
-    """Check that ``crs`` names a projected CRS and return it as an authority string.
+    """Check that ``crs`` can carry the map frame (:func:`roi_network.crs.projected_crs`)
+    and return it as given.
 
     Raises:
-        GeoJsonFormatError: naming ``where`` if the CRS is unknown or not projected.
+        GeoJsonFormatError: naming ``where`` if the CRS is unknown, not projected or not
+            east, north.
     """
-    if not isinstance(crs, str) or not crs:
-        raise GeoJsonFormatError(f"{where}: must be a CRS string such as 'EPSG:32719'")
     try:
-        parsed = CRS.from_user_input(crs)
-    except CRSError as exc:
-        raise GeoJsonFormatError(f"{where}: unknown CRS '{crs}' ({exc})") from exc
-    if not parsed.is_projected:
-        raise GeoJsonFormatError(f"{where}: CRS '{crs}' is not projected (metres needed)")
+        projected_crs(crs, where)
+    except CrsError as exc:
+        raise GeoJsonFormatError(str(exc)) from None
     return crs
 
 

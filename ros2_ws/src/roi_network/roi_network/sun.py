@@ -589,20 +589,14 @@ class GridNorth:
 
 @functools.lru_cache(maxsize=16)
 def _proj(crs: str):
-    from pyproj import CRS, Proj
-    from pyproj.exceptions import CRSError
+    from pyproj import Proj
+
+    from roi_network.crs import CrsError, projected_crs
 
     try:
-        parsed = CRS.from_user_input(crs)
-    except CRSError as exc:
-        raise SunError(f"crs: unknown CRS '{crs}' ({exc})") from exc
-    if not parsed.is_projected:
-        raise SunError(f"crs: '{crs}' is not a projected CRS (grid north needs one)")
-    axes = tuple(a.direction.lower() for a in parsed.axis_info[:2])
-    if axes != ("east", "north"):
-        raise SunError(f"crs: '{crs}' has axes {', '.join(axes)}; the map frame needs "
-                       "east, north")
-    return Proj(parsed)
+        return Proj(projected_crs(crs, "crs"))
+    except CrsError as exc:
+        raise SunError(str(exc)) from None
 
 
 def grid_north(crs: str, lon_deg: float, lat_deg: float) -> GridNorth:

@@ -10,6 +10,7 @@ from roi_network.geojson import (
     domain_reasons,
     domain_status,
     read_geojson,
+    validate_crs,
     write_geojson,
 )
 from roi_network.network import MapFrame, RoiNetwork
@@ -86,7 +87,7 @@ def _broken(tmp_path, edit):
         (lambda d: d["features"][1]["properties"].update(score="high"), "feature 1.*'score'"),
         (lambda d: d["features"][2]["properties"].update({"class": "crater"}), "'class'"),
         (lambda d: d["features"][0]["properties"].update(id=-3), "'id'"),
-        (lambda d: d["metadata"].update(crs="EPSG:4326"), "not projected"),
+        (lambda d: d["metadata"].update(crs="EPSG:4326"), "is not a projected CRS"),
         (lambda d: d["metadata"].update(crs="EPSG:999999"), "'metadata.crs'"),
         (lambda d: d.pop("metadata"), "'metadata'"),
         (lambda d: d["metadata"].update(map_origin=[1.0]), "'metadata.map_origin'"),
@@ -139,3 +140,10 @@ def test_domain_check_status_round_trips(tmp_path):
     back = read_geojson(path)
     assert domain_status(back) == "warn"
     assert domain_reasons(back) == ["ground sample distance 0.4 ..."]
+
+
+def test_a_crs_with_north_east_axes_cannot_carry_the_map_frame():
+    # New Zealand Transverse Mercator: northing first; the map frame is east, north
+    with pytest.raises(GeoJsonFormatError, match="has axes north, east"):
+        validate_crs("EPSG:2193", "metadata.crs")
+    assert validate_crs("EPSG:32719", "metadata.crs") == "EPSG:32719"
