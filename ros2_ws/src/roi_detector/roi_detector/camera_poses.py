@@ -43,11 +43,15 @@ from roi_network.params import flatten
 
 #: The kinds of pair a mast's joint states could not place (``BadInput`` kinds).
 NOT_PLACED = ("no joint states", "stale joint states", "joint states stopped")
-#: How long a pair waits for a joint sample at or after its stamp, in the inputs' own time
-#: (the newest stamp of any input), s. A node's executor may take a pair's images and its
-#: odometry before the joint states queued beside them: a wait of the tolerance alone
-#: decided pairs before their samples were read.
-JOINT_WAIT_S = 2.0
+#: A pair waits for a joint sample at or after its stamp until this many newer stereo pairs
+#: have come after it and after the last /joint_states message: the mast's stream is down.
+#: A live mast publishes its samples of a pair's stamp right after the pair, but a node's
+#: executor takes one message per topic per turn, so a busy detector reads 10 Hz joint
+#: states seconds of stamps behind its images; they still come between pairs. (A wait in
+#: stamps, the inputs' newest stamp 2 s past the pair, gave such pairs up.) The last pairs
+#: of a live run whose mast stopped wait for pairs that do not come; offline, the end of
+#: the bag decides them.
+JOINT_WAIT_PAIRS = 2
 
 
 class PairPoses:
@@ -73,6 +77,9 @@ class PairPoses:
         self.bad = bad
         self.strict = strict
         self.first: float | None = None  # the stamp of the first joint sample kept, s
+        self.pairs = 0  # stereo pairs come so far
+        self.pairs_at_joint = 0  # ... when the last joint message came
+        self._arrival: dict[int, int] = {}  # a waiting pair's stamp (us) -> its arrival count
 
     @property
     def has_mast(self) -> bool:
@@ -91,6 +98,7 @@ class PairPoses:
             MastError: with ``strict``, a message the mast cannot read (naming its joints
                 or the field).
         """
+        self.pairs_at_joint = self.pairs
         try:
             self.poser.add(stamp_s, list(names), list(positions))
         except MastError as exc:
@@ -102,17 +110,25 @@ class PairPoses:
         if self.has_mast and (self.first is None or stamp_s < self.first):
             self.first = float(stamp_s)
 
-    def decidable(self, t: float, clock_s: float | None) -> bool:
+    def pair_arrived(self, t: float) -> None:
+        """The stereo pair stamped ``t`` has come (before asking :meth:`decidable` of it)."""
+        self.pairs += 1
+        self._arrival[round(t * 1e6)] = self.pairs
+        if len(self._arrival) > 1000:  # pairs never asked about
+            del self._arrival[next(iter(self._arrival))]
+
+    def decidable(self, t: float) -> bool:
         """Whether the pose at ``t`` can be decided now: always without a mast; with one,
         once a joint sample at or after ``t`` has come (the interpolation's bracket), or
-        the inputs' clock ``clock_s`` (the newest stamp of any input) passed ``t`` by
-        :data:`JOINT_WAIT_S` (none is coming)."""
+        :data:`JOINT_WAIT_PAIRS` newer pairs have come since both the pair and the last
+        joint message (none is coming)."""
         if not self.has_mast:
             return True
         last = self.poser.last_stamp
         if last is not None and last >= t:
             return True
-        return clock_s is not None and clock_s > t + JOINT_WAIT_S
+        since = max(self._arrival.get(round(t * 1e6), self.pairs), self.pairs_at_joint)
+        return self.pairs - since >= JOINT_WAIT_PAIRS
 
     def pose(self, t: float):
         """The left camera's pose at ``t``: the fixed ``[x, y, z, qx, qy, qz, qw]``
@@ -120,6 +136,7 @@ class PairPoses:
         cannot place the pair (counted and said once per kind, see the module)."""
         if self.fixed is not None:
             return self.fixed
+        self._arrival.pop(round(t * 1e6), None)
         got = self.poser.pose_at(t)
         if not isinstance(got, str):
             return got.base_T_left

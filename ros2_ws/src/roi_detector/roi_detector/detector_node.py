@@ -156,7 +156,6 @@ class RoiDetectorNode(Node):
                                    self.bad, strict=False)
         except MastError as exc:
             raise ValueError(str(exc)) from None
-        self.clock_s: float | None = None  # the newest stamp of the inputs, s
         self.detector = RoverDetector(extrinsic, classifier, cfg, self.bad)
         self.mapper = DriveMapper(cfg, classifier=classifier)
         self.odometry = OdometryBuffer(self.max_gap_s)
@@ -194,14 +193,10 @@ class RoiDetectorNode(Node):
             self.get_logger().info(f"mast joints '{kin.pan_joint}', '{kin.tilt_joint}': each "
                                    f"pair placed at its camera pose from {JOINT_STATES}")
 
-    def _tick(self, stamp_s: float) -> None:
-        self.clock_s = stamp_s if self.clock_s is None else max(self.clock_s, stamp_s)
-
     def on_joint_state(self, msg: JointState) -> None:
         """Keep the mast's angles (PairPoses); resolve the pairs waiting for them."""
         t = _stamp_s(msg.header.stamp)
         self.poses.add(t, list(msg.name), list(msg.position))
-        self._tick(t)
         self._track_waiting()
 
     def on_info(self, side: str, msg: CameraInfo) -> None:
@@ -221,11 +216,13 @@ class RoiDetectorNode(Node):
         if not self.order(topic, stamp):
             self.publish_status(msg.header.stamp, throttle=True)
             return
-        self._tick(stamp * 1e-9)
-        if self.halves.add(side, stamp, msg) is None:
+        key = self.halves.add(side, stamp, msg)
+        if key is None:
             self.bad("duplicate image", f"{topic}: two images with stamp "
                      f"{stamp * 1e-9:.3f} s: the second dropped")
             return
+        if len(self.halves.slots[key]) == 2:
+            self.poses.pair_arrived(key * 1e-9)  # a mast's joint states come between pairs
         if not self.frames.ready:
             # Complete pairs that waited INFO_WAIT_NS for a usable CameraInfo.
             dropped = [s for s in self.halves.complete() if s < stamp - INFO_WAIT_NS]
@@ -275,7 +272,6 @@ class RoiDetectorNode(Node):
                                     [q.x, q.y, q.z, q.w], cov):
             self.bad("odometry out of order", "a /vo/odometry stamp went backwards")
             return
-        self._tick(_stamp_s(msg.header.stamp))
         self._track_waiting()
 
     def _track_waiting(self) -> None:
@@ -290,7 +286,7 @@ class RoiDetectorNode(Node):
         for item in self.waiting:
             t, header_stamp, stamp, left_msg, right_msg = item
             pose = self.odometry.at(t)
-            if pose is not None and not self.poses.decidable(t, self.clock_s):
+            if pose is not None and not self.poses.decidable(t):
                 keep.append(item)  # its joint states may still come
                 continue
             if pose is not None:

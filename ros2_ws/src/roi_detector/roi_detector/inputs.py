@@ -297,10 +297,9 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
     ready: list[tuple[int, dict]] = []
     index = 0
     mast = joints is not None and joints.has_mast
-    clock = None  # the newest header stamp read, s (a mast's pairs wait on it)
 
     def decided(stamp_ns: int) -> bool:
-        return not mast or joints.decidable(stamp_ns * 1e-9, clock)
+        return not mast or joints.decidable(stamp_ns * 1e-9)
 
     with AnyReader([rosbag], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
         transport = images.bag_transport(
@@ -311,8 +310,6 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
         conns = [c for c in reader.connections if c.topic in topics]
         for conn, _t, raw in reader.messages(connections=conns):
             msg = reader.deserialize(raw, conn.msgtype)
-            if mast:
-                clock = max(clock or 0.0, _stamp_ns(msg.header) * 1e-9)
             if conn.topic == JOINT_STATES:
                 joints.add(_stamp_ns(msg.header) * 1e-9, list(msg.name), list(msg.position))
             elif not order(conn.topic, _stamp_ns(msg.header)):
@@ -328,6 +325,8 @@ def read_stereo_frames(bag_dir: str | Path, bad: BadInput, every: int = 1,
                     continue
                 if len(pending.slots[key]) == 2:
                     slot = pending.pop(key)
+                    if mast:
+                        joints.pair_arrived(key * 1e-9)
                     index += 1
                     if (index - 1) % every == 0:
                         ready.append((key, slot))

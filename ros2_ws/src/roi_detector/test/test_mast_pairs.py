@@ -125,7 +125,7 @@ def _pose(x: float, y: float = 0.0):
 def test_without_a_mast_every_pair_takes_the_fixed_extrinsic_as_written():
     bad = BadInput(lambda m: None)
     poses = PairPoses(fixed_params(), bad)
-    assert not poses.has_mast and poses.decidable(5.0, None)
+    assert not poses.has_mast and poses.decidable(5.0)
     assert poses.pose(5.0) == fixed_params()["base_to_left_camera"]
     assert rotation_of(poses.pose(5.0)) is None and not bad.counts
 
@@ -134,9 +134,10 @@ def test_with_a_mast_each_pair_takes_its_joint_angles_pose():
     poses = PairPoses(mast_params(), BadInput(lambda m: None))
     assert poses.has_mast
     poses.add(10.0, JOINTS, [0.0, DRIVE_TILT])
-    assert not poses.decidable(10.05, 10.05)  # the bracket's second sample may come
+    poses.pair_arrived(10.05)
+    assert not poses.decidable(10.05)  # the bracket's second sample may come
     poses.add(10.1, JOINTS, [math.pi / 2, PAN_TILT])
-    assert poses.decidable(10.05, 10.1)
+    assert poses.decidable(10.05)
     np.testing.assert_allclose(poses.pose(10.1), KIN.base_T_left(math.pi / 2, PAN_TILT))
     # At the drive angles the pose is the fixed camera's.
     drive = StereoCamera.from_camera_info(K, P_RIGHT, 640, 480,
@@ -149,7 +150,11 @@ def test_images_before_any_joint_state_are_not_placed_counted_and_named_once():
     said = []
     bad = BadInput(said.append)
     poses = PairPoses(mast_params(), bad)
-    assert not poses.decidable(1.0, 2.5) and poses.decidable(1.0, 3.5)  # no sample comes
+    for t in (1.0, 2.0):
+        poses.pair_arrived(t)
+        assert not poses.decidable(1.0)
+    poses.pair_arrived(3.0)  # two newer pairs and still no joint state: none is coming
+    assert poses.decidable(1.0) and not poses.decidable(2.0)
     assert [poses.pose(t) for t in (1.0, 2.0, 3.0)] == [None] * 3
     # The first sample comes later: the pairs before it had none.
     poses.add(3.5, JOINTS, [0.0, DRIVE_TILT])
@@ -179,6 +184,24 @@ def test_joint_stamps_further_than_the_tolerance_skip_the_pair():
     poses.add(11.0, JOINTS, [0.0, DRIVE_TILT])
     assert poses.pose(10.5) is None and bad.counts["stale joint states"] == 1
     assert poses.pose(10.95) is not None  # within the tolerance of the second
+
+
+def test_a_pair_waits_for_joint_states_that_lag_behind_as_long_as_they_still_come():
+    """A busy node reads 10 Hz joint states seconds of stamps behind its images: a pair
+    waits while samples keep coming between pairs, however far behind they are."""
+    poses = PairPoses(mast_params(), BadInput(lambda m: None))
+    poses.add(0.0, JOINTS, [0.0, DRIVE_TILT])
+    for k in range(1, 6):  # pairs at 10, 20, ... s; the joint states read reach 0.5 s
+        poses.pair_arrived(10.0 * k)
+        poses.add(k * 0.1, JOINTS, [0.0, DRIVE_TILT])
+        assert not poses.decidable(10.0)
+    # a pair that comes before its own joint state, after an outage, waits for it too
+    poses.pair_arrived(60.0)
+    poses.add(60.0, JOINTS, [0.0, DRIVE_TILT])
+    assert poses.decidable(60.0) and poses.pose(60.0) is not None
+    poses.pair_arrived(70.0)
+    poses.pair_arrived(80.0)  # two pairs with no joint message after them: the mast is down
+    assert poses.decidable(10.0) and not poses.decidable(70.0)
 
 
 def test_a_mast_that_stops_publishing_skips_the_pairs_and_says_so_once():
