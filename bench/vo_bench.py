@@ -2,10 +2,12 @@
 third-party odometry (KISS-ICP on the stereo point clouds) on the same bags, in one run.
 
 For each bag: ``rover_vo odometry BAG --mode M --threads 1`` in its own process (with
-OMP_NUM_THREADS=1) for M in paper, vo; then KISS-ICP 1.3.0 on the point clouds
-of OpenCV SGBM disparities of the same stereo pairs (base_link); then every trajectory
-through ``rover_vo.evaluation.evaluate`` (evo: KITTI-style drift over 100..800 m,
-heading drift per 100 m, aligned APE, final error), and for rover_vo the covariance
+OMP_NUM_THREADS=1) for M in paper, vo, and ``paper_sun`` (mode paper with the sun heading
+on, ``imu.sun_heading: true``; only on a bag whose rover.yaml has a sun sensor); then
+KISS-ICP 1.3.0 on the point clouds of OpenCV SGBM disparities of the same stereo pairs
+(base_link); then every trajectory through ``rover_vo.evaluation.evaluate`` (evo:
+KITTI-style drift over 100..800 m, heading drift per 100 m, heading error from the start,
+aligned APE, final error), and for rover_vo the covariance
 against the actual error (is it honest?).
 
 Each method's run on each bag is cached in WORK/vo_runs/<bag>/<method>/ (rerun with
@@ -41,15 +43,32 @@ RESULTS = Path(os.environ.get("BENCH_RESULTS")
 #: Scratch space of the runs (caches, LNs, plots): $BENCH_WORK, else out/bench/work/.
 WORK = Path(os.environ.get("BENCH_WORK")
             or Path(__file__).resolve().parents[1] / "out" / "bench" / "work")
-MODES = ("paper", "vo")
+MODES = ("paper", "vo", "paper_sun")
+#: Methods that are a mode with parameters: (mode, rover_vo parameters).
+PARAMETRIZED = {"paper_sun": ("paper", {"imu.sun_heading": True})}
 ONE_CORE = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
-def run_mode(bag: Path, mode: str, out: Path) -> dict:
+def has_sun_sensor(bag: Path) -> bool:
+    """Whether the bag's rover.yaml states a sun sensor."""
+    from rover_vo.bag import rover_params
+
+    return any(k.startswith("sun_sensor.") for k in rover_params(bag))
+
+
+def run_mode(bag: Path, method: str, out: Path) -> dict:
     """``rover_vo odometry`` in its own process on one core; returns its report."""
     env = dict(os.environ) | ONE_CORE
+    mode, params = PARAMETRIZED.get(method, (method, {}))
     cmd = ["rover_vo", "odometry", str(bag), "--out", str(out), "--mode", mode,
            "--threads", "1"]
+    if params:
+        import yaml
+
+        out.mkdir(parents=True, exist_ok=True)
+        write_atomic(out / "params.yaml", yaml.safe_dump(
+            {"rover_vo": {"ros__parameters": params}}))
+        cmd += ["--params", str(out / "params.yaml")]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
     if proc.returncode != 0:
@@ -162,6 +181,8 @@ def bench_method(bag: Path, method: str, force: bool) -> dict:
     row_path = out / "row.json"
     if row_path.is_file() and not force:
         return json.loads(row_path.read_text())
+    if method in PARAMETRIZED and method == "paper_sun" and not has_sun_sensor(bag):
+        return {}
     print(f"[vo_bench] {bag.name}: {method}", file=sys.stderr)
     # A finished run whose summary was not written (an interrupted bench) is reused.
     done = (out / "vo.tum").is_file() and (out / "vo_report.json").is_file() and not force
@@ -206,9 +227,10 @@ def markdown(summaries: list[dict], meta: dict) -> str:
         f"{meta['loadavg']}): one process per run, OpenCV and OpenMP limited to one thread.",
         "",
         "| bag | method | distance m | drift % (KITTI 100-800 m) | heading deg/100 m | "
+        "heading error from start, max / final deg | "
         "rot deg/100 m | APE RMSE m | final error % | pairs/CPU s (estimator) | peak RSS MB |"
         " NEES xy (2 = honest) | in 95 % ellipse |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in summaries:
         name = Path(s["bag"]).name
@@ -220,13 +242,17 @@ def markdown(summaries: list[dict], meta: dict) -> str:
                 speed += f" ({r['estimator_pairs_per_cpu_s']:.1f})"
             lines.append(
                 f"| {name} | {method} | {m['distance_m']:.0f} | {m['kitti_drift_pct']:.3f} | "
-                f"{m['heading_drift_deg_per_100m']:.3f} | {m['kitti_rot_deg_per_100m']:.3f} | "
+                f"{m['heading_drift_deg_per_100m']:.3f} | "
+                f"{m.get('heading_error_deg_max', float('nan')):.2f} / "
+                f"{m.get('heading_error_deg_final', float('nan')):.2f} | "
+                f"{m['kitti_rot_deg_per_100m']:.3f} | "
                 f"{m['ape_rmse_m']:.2f} | {m['final_error_pct']:.3f} | {speed} | "
                 f"{r.get('peak_rss_mb', '')} | {h.get('mean_nees_2dof', '')} | "
                 f"{h.get('share_in_95pct_ellipse', '')} |")
     lines += spread(summaries)
     lines += ["", "Methods: `paper` = frame to frame + IMU (the paper's mode, the default); `vo` ="
-              " frame to frame, vision alone; `kiss_icp` = KISS-ICP"
+              " frame to frame, vision alone; `paper_sun` = `paper` with the sun heading on"
+              " (`imu.sun_heading: true`, bags with a sun sensor); `kiss_icp` = KISS-ICP"
               " 1.3.0"
               " on SGBM stereo point clouds of the same pairs; `opencv_rgbd` = OpenCV 4.14 contrib"
               " `rgbd.RgbdOdometry` (dense photometric, Steinbruecker et al. 2011) on the left"

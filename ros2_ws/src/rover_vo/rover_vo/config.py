@@ -111,9 +111,9 @@ class ImuOptions:
             than this (px) ...
         zero_velocity_gyro_rad_s: ... and the gyro rate stays below this (rad/s).
         sun_heading: Update the heading from /sun_sensor and gravity when rover.yaml has a
-            sun sensor and a site. Off by default: on the demo world the updates made the
-            heading worse than the gyro's (their errors are correlated from sample to
-            sample and the update takes them as independent; docs/rover_vo.md, Limits).
+            sun sensor and a site. Off by default: the update at stops, with the sensor
+            and tilt biases as consider states, is not yet measured on a traverse
+            (docs/rover_vo.md, Limits).
     """
 
     accel_tilt_sigma_deg: float = 0.5

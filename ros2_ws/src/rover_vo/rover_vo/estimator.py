@@ -45,9 +45,7 @@ from rover_vo.propagator import ImuInterval, Propagator
 from rover_vo.rig import RigError, StereoRig, rig_from_camera_info
 from rover_vo.state import N_ERR, OdomState, step_noise, systematic_prior
 from rover_vo.sun_heading import (
-    AT_REST_TILT_SIGMA_RAD,
     MAX_SAMPLE_AGE_S,
-    MOTION_SPACING_M,
     Site,
     SunHeading,
     SunSensorModel,
@@ -237,7 +235,6 @@ class VoEstimator:
             self._sun_off = True
         site, why = Site.from_params(self.params) if sensor is not None else (None, None)
         self.sun = SunHeading(sensor, site)
-        self._sun_motion_m: float | None = None  # distance at the last update in motion
         self._sun_pending: list[tuple[float, np.ndarray]] = []
         self._sun_last: float | None = None  # newest sample's stamp
         self._sun_said: set[str] = set()
@@ -428,21 +425,17 @@ class VoEstimator:
             iv = self.propagator.interval(ts, t)
             if iv is not None:
                 R_then_now = iv.R
-        at_rest = out.source == "zero_velocity"
-        attitude = self.state.R
-        tilt_sigma = np.radians(self.cfg.imu.accel_tilt_sigma_deg)
-        if at_rest:
-            # Standing still the mean specific force is gravity: roll and pitch from it.
-            iv = self.propagator.interval(t - TILT_WINDOW_S, t)
-            f = iv.mean_accel if iv is not None else None
-            if f is not None and abs(np.linalg.norm(f) - self.gravity) <= 0.05 * self.gravity:
-                yaw = np.arctan2(self.state.R[1, 0], self.state.R[0, 0])
-                attitude = Rotation.from_euler("z", yaw).as_matrix() @ self._gravity_tilt(f)
-                tilt_sigma = AT_REST_TILT_SIGMA_RAD
-        elif (self._sun_motion_m is not None
-              and self.state.distance_m - self._sun_motion_m < MOTION_SPACING_M):
-            return  # in motion: one sample per MOTION_SPACING_M (the tilt error is slow)
-        meas = self.sun.measure(ts, v, R_then_now, attitude, tilt_sigma)
+        if out.source != "zero_velocity":
+            self.sun.in_motion += 1  # in motion the tilt is not known well enough
+            return
+        # Standing still the mean specific force is gravity: roll and pitch from it.
+        iv = self.propagator.interval(t - TILT_WINDOW_S, t)
+        f = iv.mean_accel if iv is not None else None
+        if f is None or abs(np.linalg.norm(f) - self.gravity) > 0.05 * self.gravity:
+            return
+        yaw = np.arctan2(self.state.R[1, 0], self.state.R[0, 0])
+        attitude = Rotation.from_euler("z", yaw).as_matrix() @ self._gravity_tilt(f)
+        meas = self.sun.measure(ts, v, R_then_now, attitude)
         if meas.problem in ("below_horizon", "elevation_mismatch"):
             self.bad("sun_not_sun", f"{m.TOPIC_SUN} at {ts:.3f} s: not the sun: "
                      f"{meas.detail}: sample skipped")
@@ -454,8 +447,6 @@ class VoEstimator:
             return
         kf_state = self.kf.state if self.kf is not None else None
         result = self.sun.apply(meas, self.state, kf_state, t)
-        if not at_rest and result != "rejected":
-            self._sun_motion_m = self.state.distance_m
         if result == "initialized":
             sigma = self.sun.heading_sigma_deg(self.state.P)
             self._log(logging.INFO, f"{m.TOPIC_SUN} at {ts:.3f} s: sun heading on: the odom "
@@ -1180,6 +1171,7 @@ class VoEstimator:
         psi0 = math.degrees(sun.psi0) if sun.psi0 is not None else math.nan
         return {"sun.state": state, "sun.samples": sun.samples, "sun.updates": sun.updates,
                 "sun.rejected": sun.rejected, "sun.near_zenith": sun.near_zenith,
+                "sun.in_motion": sun.in_motion,
                 "sun.outages": sun.outages, "sun.heading_bounded": sun.bounded(t),
                 "sun.odom_grid_yaw_deg": round(psi0, 4),
                 "sun.heading_sigma_deg": round(sun.heading_sigma_deg(P), 4),

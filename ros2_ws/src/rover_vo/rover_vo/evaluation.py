@@ -38,6 +38,9 @@ class VoMetrics:
         kitti_rot_deg_per_100m: mean rotation error over those segments (deg per 100 m).
         segments: number of segment pairs averaged (all lengths).
         heading_drift_deg_per_100m: mean |heading change error| over 100 m segments.
+        heading_error_deg_max, heading_error_deg_final: the heading's error from the
+            start (the first poses' headings aligned, no fit): largest and last |error|;
+            what an absolute heading reference (a sun sensor) bounds.
         ape_rmse_m: RMSE of the position after an SE(3) Umeyama alignment.
         final_error_m, final_error_pct: end-point error with the first poses aligned, and
             as % of distance_m.
@@ -61,6 +64,8 @@ class VoMetrics:
     kitti_rot_deg_per_100m: float
     segments: int
     heading_drift_deg_per_100m: float
+    heading_error_deg_max: float
+    heading_error_deg_final: float
     ape_rmse_m: float
     final_error_m: float
     final_error_pct: float
@@ -225,6 +230,10 @@ def evaluate(est_path: str | Path, truth_path: str | Path,
             err = np.abs(np.angle(np.exp(1j * (d_est - d_ref))))
             lengths = np.abs(np.array([ref.distances[b] - ref.distances[a] for a, b in ids]))
             heading = float(np.mean(np.degrees(err) / lengths * 100.0))
+    yaw_ref = _yaw(np.array(ref.poses_se3)[:, :3, :3])
+    yaw_est = _yaw(np.array(est.poses_se3)[:, :3, :3])
+    from_start = np.degrees(np.abs(np.angle(np.exp(1j * ((yaw_est - yaw_est[0])
+                                                          - (yaw_ref - yaw_ref[0]))))))
     aligned = copy.deepcopy(est)
     aligned.align(ref, correct_scale=False)
     ape = metrics.APE(metrics.PoseRelation.translation_part)
@@ -251,6 +260,8 @@ def evaluate(est_path: str | Path, truth_path: str | Path,
         distance_m=round(distance, 3), poses=int(est.num_poses),
         kitti_drift_pct=round(kitti, 4), kitti_rot_deg_per_100m=round(kitti_rot, 4),
         segments=n_seg, heading_drift_deg_per_100m=round(heading, 4),
+        heading_error_deg_max=round(float(from_start.max()), 4),
+        heading_error_deg_final=round(float(from_start[-1]), 4),
         ape_rmse_m=round(float(ape.get_statistic(metrics.StatisticsType.rmse)), 4),
         final_error_m=round(final, 4),
         final_error_pct=round(100.0 * final / distance, 4) if distance > 0 else float("nan"),

@@ -12,8 +12,9 @@ disparity bias make every step a little long or short, so the along-track error 
 linearly with distance), entering position as ``R dp ds``; and ``db``, a heading-rate bias
 (rad per metre driven, about the body's up axis), entering the attitude as
 ``R e_z |dp| db``. Only the 6x6 pose block (``cov``) is published; the full 8x8 ``P`` keeps
-the correlations that make these errors grow as they do. With a sun sensor ``P`` gains a
-ninth state, ``psi0``, the odom frame's grid azimuth (a constant: :mod:`rover_vo.sun_heading`).
+the correlations that make these errors grow as they do. With a sun sensor ``P`` gains
+five constant states: ``psi0``, the odom frame's grid azimuth, and four consider states
+(:mod:`rover_vo.sun_heading`).
 """
 
 from __future__ import annotations
@@ -73,7 +74,7 @@ class OdomState:
             Q_body: 6x6 covariance of ``[dp, dtheta]`` in the old body frame.
         """
         step = self.R @ dp
-        n = self.P.shape[0]  # N_ERR, or N_ERR + 1 with the sun heading's psi0
+        n = self.P.shape[0]  # N_ERR, or N_ERR + 5 with the sun heading's states
         F = np.eye(n)
         F[:3, 3:6] = -skew(step)
         F[:3, 6] = step  # scale error: the step was (1 + ds) times longer

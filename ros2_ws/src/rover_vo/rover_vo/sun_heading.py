@@ -7,40 +7,57 @@ gives the same sun's azimuth in the map's grid at the sample's stamp: the differ
 the body's heading from grid north, whatever the odometry did before.
 
 The odom frame is not turned (DESIGN.md: it starts at the rover's first pose and
-``odom -> base_link`` never jumps). The filter carries one more error state, ``psi0``:
-the grid azimuth of the odom frame's x axis (the yaw of ``map_R_odom``). It is set by the
-first usable sample (``psi0 = sun's grid azimuth - sun's azimuth in odom``, its variance
-the sample's plus the odometry's yaw variance then, its errors correlated with the
-odometry's yaw), and every later sample is a measurement of ``yaw + psi0`` (H has a 1 at
-the yaw error and at ``psi0``). The update is a Schmidt-Kalman one: only the yaw and
-``psi0`` are corrected (position, roll and pitch, scale and heading-rate bias keep their
-values, so the pose moves by a small turn about the rover and nothing else), and the
-Joseph form keeps the covariance right for that gain. The odometry's yaw variance then
-stays bounded: about the sample's variance plus ``psi0``'s.
+``odom -> base_link`` never jumps). The filter carries five more error states:
 
-Per sample (:meth:`SunHeading.measure`):
+- ``psi0`` (index 8): the grid azimuth of the odom frame's x axis (the yaw of
+  ``map_R_odom``). The first usable sample sets it (``psi0 = sun's grid azimuth - sun's
+  azimuth in odom``, its error correlated with the odometry's yaw and with the consider
+  states below); every later sample is a measurement of ``yaw + psi0``.
+- Four *consider* states (Schmidt): errors that are the same from one sample to the next
+  and so do not average out. The sensor's two angle biases (9, 10; rover.yaml
+  ``sun_sensor.bias_deg``, constant for a sensor) and the tilt error of gravity at rest
+  about the body's x and y axes (11, 12; the accelerometer's turn-on bias,
+  ``AT_REST_TILT_BIAS_RAD``). They are never corrected and their variance never shrinks;
+  each sample's azimuth depends on them through its own geometry (the sun's place in the
+  sensor's field of view, the body's heading against the sun), so the filter knows that
+  two samples at one stop share their error and that samples at stops of other headings
+  share part of it. Treating them as white noise, as a filter without these states would,
+  makes the heading's variance shrink with every sample to far below the truth.
+
+The update is a Schmidt-Kalman one: only the yaw and ``psi0`` are corrected (position,
+roll and pitch, scale, heading-rate bias and the consider states keep their values, so the
+pose moves by a small turn about the rover and nothing else), and the Joseph form keeps
+the covariance right for that gain.
+
+Per sample (:meth:`SunHeading.measure`), at rest only (see below):
 
 1. the vector into base_link by the mount (rover.yaml ``sun_sensor.base_to_sensor``),
    then to the body at the pair's stamp by the gyro between the two stamps, then into
-   odom by the filter's attitude: its elevation and its azimuth in odom;
+   odom by the attitude (roll and pitch from the mean specific force, the estimate's
+   yaw): its elevation and its azimuth in odom;
 2. the ephemeris at the stamp (POSIX UTC, rover.yaml ``site.*``): the sun below the
    horizon, or a measured elevation more than ``ELEVATION_GATE_SIGMA`` sigma from the
    ephemeris', is a vector that is not the sun (counted, skipped);
-3. the azimuth's variance: the sensor's noise and bias (rover.yaml ``noise_deg``,
-   ``bias_deg``, per angle) over ``cos(elevation)^2`` (the azimuth is ill-defined near
-   the zenith), plus the tilt's uncertainty times ``tan(elevation)^2`` (a roll or pitch
-   error about the sun's horizontal direction turns the vector's horizontal part);
-   samples whose azimuth sigma exceeds ``MAX_AZIMUTH_SIGMA_DEG`` are not used;
+3. the azimuth's sensitivity to each sensor angle and each tilt axis (numerical
+   derivatives of step 1): the white part of its variance (the sensor's noise, the
+   accelerometer's noise over the averaging window) and the rows of the consider states;
+   samples whose total azimuth sigma exceeds ``MAX_AZIMUTH_SIGMA_DEG`` are not used (the
+   sun near the zenith);
 4. the innovation against ``yaw + psi0``, a chi-square gate (1 degree of freedom,
-   ``GATE_CHI2``): a sample that contradicts the heading beyond its uncertainty is
-   rejected and counted.
+   ``GATE_CHI2``) on its full variance (state, consider states, white noise): a sample
+   that contradicts the heading beyond its uncertainty is rejected and counted.
+
+Only samples taken at rest are used. In motion the filter's roll and pitch err by tenths
+of a degree, slowly, and an error ``e`` about the sun's horizontal direction turns the
+azimuth by ``e tan(elevation)``: about 0.45 deg at 42 deg elevation, more than the gyro
+drifts between two stops; the drive/stop schedule of a traverse gives the stops.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -70,19 +87,22 @@ MAX_AZIMUTH_SIGMA_DEG = 3.0
 MAX_SAMPLE_AGE_S = 1.0
 #: A vector whose norm is further than this from 1 is not a unit vector.
 UNIT_TOLERANCE = 1e-3
-#: Index of ``psi0`` in the augmented error state (after the odometry's 8).
+#: Index of ``psi0`` in the augmented error state (after the odometry's 8) ...
 PSI0 = 8
-#: 1-sigma roll and pitch of the level frame at rest, from the mean specific force over
-#: 0.5 s (the accelerometer's noise averages to ~0.002 deg; its bias, not estimated, is
-#: taken at 0.05 deg), rad.
-AT_REST_TILT_SIGMA_RAD = math.radians(0.05)
-#: In motion the filter's roll and pitch err by tenths of a degree, slowly: a sample is
-#: folded in at most once per this many metres driven (the tilt error changes with the
-#: ground), at rest every pair.
-MOTION_SPACING_M = 10.0
+#: ... of the consider states: the sensor's two angle biases, the tilt bias about body x, y.
+CONSIDER = slice(9, 13)
+#: 1-sigma tilt error of gravity at rest per body axis from the accelerometer's turn-on
+#: bias, not estimated: 2 mg (a tactical-grade MEMS unit's; atan(0.002) = 0.115 deg), rad.
+AT_REST_TILT_BIAS_RAD = math.radians(0.115)
+#: 1-sigma white tilt error of the 0.5 s mean specific force (noise density 0.002 m/s^2
+#: per sqrt(Hz) over 0.5 s: 0.0028 m/s^2), rad.
+AT_REST_TILT_NOISE_RAD = math.radians(0.016)
+#: Step of the numerical derivatives of the azimuth (rad).
+DERIVATIVE_STEP_RAD = 1e-6
 #: The heading counts as bounded (``sun.heading_bounded`` in /vo/status) while the last
-#: update is at most this old (s).
-BOUNDED_FOR_S = 30.0
+#: update is at most this old (s): a few drive segments between stops (the odometry's own
+#: yaw variance grows from the last update, and says so); a longer outage is drift.
+BOUNDED_FOR_S = 300.0
 
 
 class SunSetupError(ValueError):
@@ -96,14 +116,16 @@ class SunSensorModel:
     Attributes:
         frame: the frame of its ``/sun_sensor`` messages.
         base_R_sensor: 3x3 rotation sensor -> base_link.
-        sigma_rad: 1-sigma error of each measured angle, noise and bias together (rad).
+        noise_rad: 1-sigma white noise of each measured angle (rad).
+        bias_rad: 1-sigma of each angle's constant bias (rad).
         rate_hz: its sample rate (0: not stated).
         fov_half_angle_deg: its field of view's half-angle (nan: not stated).
     """
 
     frame: str
     base_R_sensor: np.ndarray
-    sigma_rad: float
+    noise_rad: float
+    bias_rad: float
     rate_hz: float
     fov_half_angle_deg: float
 
@@ -139,8 +161,8 @@ class SunSensorModel:
             if not (math.isfinite(values[name]) and values[name] >= 0.0):
                 raise SunSetupError(f"rover.yaml: field 'sun_sensor.{name}' must be a number "
                                     f">= 0, got {values[name]}")
-        sigma = math.radians(math.hypot(values["noise_deg"], values["bias_deg"]))
-        return cls(frame, mount[:3, :3], sigma, values["rate_hz"],
+        return cls(frame, mount[:3, :3], math.radians(values["noise_deg"]),
+                   math.radians(values["bias_deg"]), values["rate_hz"],
                    values["fov_half_angle_deg"])
 
 
@@ -219,7 +241,10 @@ class Measurement:
         alpha_map: the ephemeris' azimuth in the grid (rad, a yaw).
         elevation: the ephemeris' apparent elevation (rad).
         elevation_measured: the vector's elevation over the level plane (rad).
-        variance: the azimuth's variance (rad^2).
+        variance: the azimuth's total variance (rad^2): white and consider parts.
+        white_variance: its white part (the sensor's and the accelerometer's noise).
+        consider_row: the azimuth's sensitivity to the consider states (4,): the sensor's
+            two angle biases, the tilt bias about body x and y.
         problem: None, or ``below_horizon``, ``elevation_mismatch``, ``near_zenith``.
         detail: what the problem was, in words.
     """
@@ -229,28 +254,50 @@ class Measurement:
     elevation: float
     elevation_measured: float
     variance: float
+    white_variance: float = 0.0
+    consider_row: np.ndarray = field(default_factory=lambda: np.zeros(4))
     problem: str | None = None
     detail: str = ""
 
 
-def augment(P: np.ndarray, var_psi0: float) -> np.ndarray:
-    """The 9x9 covariance with ``psi0`` set by a first sample: ``e0 = -e_yaw + n``."""
+def consider_prior(sensor: SunSensorModel) -> np.ndarray:
+    """Variances of the consider states: the sensor's angle biases, the tilt biases."""
+    return np.array([sensor.bias_rad**2] * 2 + [AT_REST_TILT_BIAS_RAD**2] * 2)
+
+
+def augment(P: np.ndarray, m: Measurement, prior: np.ndarray) -> np.ndarray:
+    """The odometry's ``P`` (8x8) with the sun's states: the consider states from their
+    ``prior`` (uncorrelated with the rest), then ``psi0`` set by the first sample ``m``:
+    ``e_psi0 = -e_yaw - consider_row . c - n`` (``n`` its white noise)."""
     n = P.shape[0]
-    A = np.zeros((n + 1, n + 1))
-    A[:n, :n] = P
-    A[:n, n] = A[n, :n] = -P[:, 5]
-    A[n, n] = P[5, 5] + var_psi0
-    return A
+    k = len(prior)
+    ext = np.zeros((n + k, n + k))
+    ext[:n, :n] = P
+    ext[n:, n:] = np.diag(prior)
+    T = np.zeros((n + 1 + k, n + k))
+    T[:n, :n] = np.eye(n)
+    T[n, 5] = -1.0
+    T[n, n:] = -np.asarray(m.consider_row, float)
+    T[n + 1:, n:] = np.eye(k)
+    A = T @ ext @ T.T
+    A[n, n] += m.white_variance
+    return 0.5 * (A + A.T)
 
 
-def schmidt_update(P: np.ndarray, y: float, r: float, gain_from: np.ndarray | None = None
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Update of ``yaw + psi0`` by innovation ``y`` (variance ``r``), only the yaw (5)
-    and ``psi0`` (8) corrected; returns the correction (9,) and the new covariance (Joseph
-    form, right for this gain). ``gain_from``: the covariance the gain is computed from
-    (default ``P``)."""
+def measurement_row(P: np.ndarray, m: Measurement) -> np.ndarray:
+    """``H`` of a sample: 1 at the yaw and at ``psi0``, its consider row."""
     H = np.zeros(P.shape[0])
     H[5] = H[PSI0] = 1.0
+    H[CONSIDER] = m.consider_row
+    return H
+
+
+def schmidt_update(P: np.ndarray, y: float, H: np.ndarray, r: float,
+                   gain_from: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Update by innovation ``y`` of row ``H`` (white variance ``r``), only the yaw (5)
+    and ``psi0`` (8) corrected; returns the correction and the new covariance (Joseph
+    form, right for this gain). ``gain_from``: the covariance the gain is computed from
+    (default ``P``)."""
     G = P if gain_from is None else gain_from
     S = float(H @ G @ H) + r
     K = np.zeros(P.shape[0])
@@ -258,6 +305,25 @@ def schmidt_update(P: np.ndarray, y: float, r: float, gain_from: np.ndarray | No
     A = np.eye(P.shape[0]) - np.outer(K, H)
     P2 = A @ P @ A.T + r * np.outer(K, K)
     return K * y, 0.5 * (P2 + P2.T)
+
+
+def sensor_angles(v: np.ndarray) -> np.ndarray:
+    """The two angles a two-axis sun sensor reads of a sensor-frame vector (rad)."""
+    return np.array([math.atan2(v[0], v[2]), math.atan2(v[1], v[2])])
+
+
+def angles_vector(ang: np.ndarray) -> np.ndarray:
+    """The unit vector of two sensor angles."""
+    w = np.array([math.tan(ang[0]), math.tan(ang[1]), 1.0])
+    return w / np.linalg.norm(w)
+
+
+def small_rotation(x: float, y: float) -> np.ndarray:
+    """``Exp([x, y, 0])`` to first order, orthonormalised (the tilt perturbation)."""
+    c = math.sqrt(max(1.0 - x * x - y * y, 0.0))
+    R = np.array([[1.0, 0.0, y], [0.0, 1.0, -x], [-y, x, c]])
+    u, _, vt = np.linalg.svd(R)
+    return u @ vt
 
 
 class SunHeading:
@@ -279,6 +345,7 @@ class SunHeading:
         self.last_elevation_deg = math.nan
         self.last_innovation_deg = math.nan
         self.near_zenith = 0
+        self.in_motion = 0  # samples by pairs in motion: not used
         self.outages = 0  # spans without a sample, the sun out of sight or set
         self.in_outage = False
 
@@ -287,34 +354,48 @@ class SunHeading:
         return self.sensor is not None and self.site is not None
 
     def measure(self, utc_s: float, v_sensor: np.ndarray, base_R_then_now: np.ndarray,
-                odom_R_base: np.ndarray, tilt_sigma_rad: float) -> Measurement:
-        """The heading measurement of one sample (module steps 1-3).
+                odom_R_base: np.ndarray) -> Measurement:
+        """The heading measurement of one sample taken at rest (module steps 1-3).
 
         Args:
             utc_s: the sample's stamp (POSIX UTC s).
             v_sensor: the unit sun vector in the sensor frame.
             base_R_then_now: body at the pair's stamp into body at the sample's (gyro).
-            odom_R_base: the attitude at the pair's stamp (at rest: roll and pitch from
-                the mean specific force, the estimate's yaw).
-            tilt_sigma_rad: 1-sigma of that attitude's roll and pitch.
+            odom_R_base: the attitude at the pair's stamp: roll and pitch from the mean
+                specific force, the estimate's yaw.
         """
-        s_b = base_R_then_now.T @ (self.sensor.base_R_sensor @ np.asarray(v_sensor, float))
-        s_o = odom_R_base @ s_b
-        s_o = s_o / np.linalg.norm(s_o)
+        mount = self.sensor.base_R_sensor
+        ang = sensor_angles(np.asarray(v_sensor, float))
+
+        def sun_odom(d: np.ndarray) -> np.ndarray:
+            # d: the sensor's two angle errors, the tilt error about body x and y
+            s_b = base_R_then_now.T @ (mount @ angles_vector(ang - d[:2]))
+            s_o = odom_R_base @ (small_rotation(d[2], d[3]) @ s_b)
+            return s_o / np.linalg.norm(s_o)
+
+        s_o = sun_odom(np.zeros(4))
         alpha_odom = math.atan2(s_o[1], s_o[0])
         el_meas = math.asin(max(-1.0, min(1.0, float(s_o[2]))))
+        row = np.zeros(4)
+        h = DERIVATIVE_STEP_RAD
+        for i in range(4):
+            d = np.zeros(4)
+            d[i] = h
+            up, down = sun_odom(d), sun_odom(-d)
+            row[i] = wrap(math.atan2(up[1], up[0]) - math.atan2(down[1], down[0])) / (2 * h)
+        sensor = self.sensor
+        white = (float(row[:2] @ row[:2]) * sensor.noise_rad**2
+                 + float(row[2:] @ row[2:]) * AT_REST_TILT_NOISE_RAD**2)
+        var = white + float(row**2 @ consider_prior(sensor))
         alpha_map, el = self.site.sun_grid(utc_s)
-        tilt = tilt_sigma_rad
-        sig = self.sensor.sigma_rad
-        c = max(math.cos(el), 1e-6)
-        var = sig**2 / c**2 + (tilt * math.tan(el)) ** 2
-        m = Measurement(alpha_odom, alpha_map, el, el_meas, var)
+        m = Measurement(alpha_odom, alpha_map, el, el_meas, var, white, row)
         if el <= 0.0:
             m.problem, m.detail = "below_horizon", (
                 f"the ephemeris puts the sun {math.degrees(-el):.1f} deg below the horizon")
             return m
-        gate = max(ELEVATION_GATE_SIGMA * math.hypot(sig, tilt),
-                   math.radians(ELEVATION_GATE_FLOOR_DEG))
+        sigma_el = math.hypot(sensor.noise_rad, sensor.bias_rad, AT_REST_TILT_BIAS_RAD,
+                              AT_REST_TILT_NOISE_RAD)
+        gate = max(ELEVATION_GATE_SIGMA * sigma_el, math.radians(ELEVATION_GATE_FLOOR_DEG))
         if abs(el_meas - el) > gate:
             m.problem, m.detail = "elevation_mismatch", (
                 f"its elevation is {math.degrees(el_meas):.2f} deg, the ephemeris' sun "
@@ -349,25 +430,28 @@ class SunHeading:
         self.last_elevation_deg = math.degrees(m.elevation)
         if self.psi0 is None:
             self.psi0 = wrap(m.alpha_map - m.alpha_odom)
-            state.P = augment(state.P, m.variance)
+            prior = consider_prior(self.sensor)
+            state.P = augment(state.P, m, prior)
             if reference is not None and reference.P.shape[0] <= PSI0:
-                reference.P = augment(reference.P, m.variance)
+                reference.P = augment(reference.P, m, prior)
             self.last_update_t = t
             self.in_outage = False
             return "initialized"
         y = wrap(m.alpha_map - m.alpha_odom - self.psi0)
         self.last_innovation_deg = math.degrees(y)
         P = state.P
-        S = P[5, 5] + 2 * P[5, PSI0] + P[PSI0, PSI0] + m.variance
+        H = measurement_row(P, m)
+        S = float(H @ P @ H) + m.white_variance
         if y * y / S > GATE_CHI2:
             self.rejected += 1
             return "rejected"
-        dx, state.P = schmidt_update(P, y, m.variance)
+        dx, state.P = schmidt_update(P, y, H, m.white_variance)
         turn = rotz(float(dx[5]))
         state.R = turn @ state.R
         if reference is not None:
             if reference.P.shape == P.shape:
-                _, reference.P = schmidt_update(reference.P, y, m.variance, gain_from=P)
+                _, reference.P = schmidt_update(reference.P, y, H, m.white_variance,
+                                                gain_from=P)
             reference.R = turn @ reference.R
             reference.p = state.p + turn @ (reference.p - state.p)
         self.psi0 = wrap(self.psi0 + float(dx[PSI0]))
