@@ -98,7 +98,6 @@ class PairPoses:
             MastError: with ``strict``, a message the mast cannot read (naming its joints
                 or the field).
         """
-        self.pairs_at_joint = self.pairs
         try:
             self.poser.add(stamp_s, list(names), list(positions))
         except MastError as exc:
@@ -107,6 +106,7 @@ class PairPoses:
             self.bad("bad joint states", f"{exc}: the message is dropped, as if it had "
                      "not come")
             return
+        self.pairs_at_joint = self.pairs
         if self.has_mast and (self.first is None or stamp_s < self.first):
             self.first = float(stamp_s)
 

@@ -174,6 +174,11 @@ def test_unknown_joint_names_are_an_error_offline_and_no_joint_states_live():
         live.add(t, ["pan", "tilt"], [0.0, 0.3])
     assert bad.counts["bad joint states"] == 3 and len(said) == 1
     assert "'pan', 'tilt'" in said[0]
+    # dropped messages do not keep pairs waiting: two newer pairs and the mast is down
+    for t in (1.05, 1.15, 1.25):
+        live.pair_arrived(t)
+        live.add(t + 0.01, ["pan", "tilt"], [0.0, 0.3])
+    assert live.decidable(1.05) and not live.decidable(1.15)
     assert live.pose(1.1) is None and bad.counts["no joint states"] == 1
 
 
