@@ -419,15 +419,15 @@ class VoEstimator:
         if not due or t - due[-1][0] > MAX_SAMPLE_AGE_S:
             self._sun_outage(t)
             return
+        if out.source != "zero_velocity":
+            self.sun.in_motion += 1  # in motion the tilt is not known well enough
+            return
         ts, v = due[-1]
         R_then_now = np.eye(3)
         if t - ts > 1e-6:
             iv = self.propagator.interval(ts, t)
             if iv is not None:
                 R_then_now = iv.R
-        if out.source != "zero_velocity":
-            self.sun.in_motion += 1  # in motion the tilt is not known well enough
-            return
         # Standing still the mean specific force is gravity: roll and pitch from it.
         iv = self.propagator.interval(t - TILT_WINDOW_S, t)
         f = iv.mean_accel if iv is not None else None

@@ -61,6 +61,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from roi_network import sun as ephemeris
 from roi_network.mast import MastError, pose_matrix
@@ -319,11 +320,8 @@ def angles_vector(ang: np.ndarray) -> np.ndarray:
 
 
 def small_rotation(x: float, y: float) -> np.ndarray:
-    """``Exp([x, y, 0])`` to first order, orthonormalised (the tilt perturbation)."""
-    c = math.sqrt(max(1.0 - x * x - y * y, 0.0))
-    R = np.array([[1.0, 0.0, y], [0.0, 1.0, -x], [-y, x, c]])
-    u, _, vt = np.linalg.svd(R)
-    return u @ vt
+    """``Exp([x, y, 0])``: the tilt perturbation about body x and y."""
+    return Rotation.from_rotvec([x, y, 0.0]).as_matrix()
 
 
 class SunHeading:
