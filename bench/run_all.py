@@ -18,7 +18,9 @@ Steps, in order (each one a bench script of bench/, run as its own process):
    and ``matcher`` on each bag's GN;
 6. matcher: ``darces_bench.py quick`` (perfect LNs of the demo bag) and ``generality``
    (quick: three family GNs, the default matcher; full: the whole family, the paper
-   protocol and its stressed version).
+   protocol and its stressed version);
+7. heldout (full tier only): six held-out worlds of the quick preset (seeds 201-206, never
+   used to train or tune), each with panoramas and fixed: their bags, e2e and roi.
 
 The results directory is emptied first (``--only`` keeps it), so that every file in it
 comes from one commit. Each result file then records the commit (and whether the tree
@@ -59,6 +61,14 @@ EVAL_BAGS = {
              *[(f"atacama_1km_s{s}{suffix}", "atacama_1km", s, opts) for s in (1, 2, 3)
                for suffix, opts in (("", ()), ("_fixed", FIXED))]],
 }
+#: Held-out worlds of the full tier's ``heldout`` step: seeds never used to train or tune,
+#: of the quick preset (400 m; a 1 km pair costs about 1.5 CPU-hours, the quick pair a
+#: fifth), each with panoramas and fixed, through the e2e and roi benches.
+HELDOUT_SEEDS = (201, 202, 203, 204, 205, 206)
+HELDOUT_BAGS = [(f"quick_s{s}{suffix}", "quick", s, opts) for s in HELDOUT_SEEDS
+                for suffix, opts in (("", ()), ("_fixed", FIXED))]
+#: The held-out runs' results name: e2e_heldout.*, roi_heldout.*.
+HELDOUT_TAG = "heldout"
 #: Playback rate of the end-to-end runs (``globloc run --rate``).
 RATE = 5.0
 #: Graphs run side by side in the e2e step, each in its own ROS domain (2 cores keep up
@@ -73,7 +83,7 @@ QUICK_FAMILY = "thomas_few,matern_1000,thomas_strong"
 GENERALITY_LNS, GENERALITY_STRESS_LNS, GENERALITY_SEED = 120, 100, 7
 #: Perfect-LN trials on the demo bag (darces_bench.py quick).
 QUICK_TRIALS = 20
-STEPS = ("bags", "e2e", "vo", "roi", "orbital", "matcher")
+STEPS = ("bags", "e2e", "vo", "roi", "orbital", "matcher", "heldout")
 
 
 @dataclass
@@ -107,13 +117,53 @@ def shown(cmd: list[str]) -> str:
     return " ".join(words)
 
 
-def e2e_runs(results: Path) -> dict[str, str]:
-    """Bag name -> run directory of the e2e step (from its JSON)."""
-    path = results / f"e2e_{TAG}.json"
+def e2e_runs(results: Path, tag: str = TAG) -> dict[str, str]:
+    """Bag name -> run directory of an e2e step (from its JSON)."""
+    path = results / f"e2e_{tag}.json"
     if not path.is_file():
         return {}
     return {Path(b["bag"]).name: b["run_dir"] for b in json.loads(path.read_text())["bags"]
             if b.get("run_dir")}
+
+
+def bag_commands(step: str, bags_dir: Path,
+                 specs: list[tuple[str, str, int, tuple[str, ...]]]) -> list[Command]:
+    """Generate each bag that is missing (``atacama_sim generate``) and its GN."""
+    cmds: list[Command] = []
+    for name, preset, seed, opts in specs:
+        bag = bags_dir / name
+        cmds.append(Command(step, ["atacama_sim", "generate", "--preset", preset, "--seed",
+                                   str(seed), *opts, "--no-progress", "--out", str(bag)],
+                            skip_if=lambda bag=bag: (bag / "rosbag").is_dir(),
+                            why_skip=f"{_rel(bag)}/rosbag exists"))
+        cmds.append(Command(step, ["orbital_gn", "prepare", str(bag / "orbital.tif"), "--out",
+                                   str(bag / "gn.geojson"), "--preview", str(bag / "gn.png")],
+                            skip_if=lambda bag=bag: (bag / "gn.geojson").is_file(),
+                            why_skip=f"{_rel(bag)}/gn.geojson exists"))
+    return cmds
+
+
+def e2e_roi_commands(step: tuple[str, str], bags: list[Path], tag: str, results: Path,
+                     dry_run: bool) -> list[Command]:
+    """``e2e_bench.py`` on ``bags`` (two graphs at a time), then ``roi_bench.py`` on truth
+    odometry and on the odometry of those runs; ``step`` names the two commands' steps."""
+    paths = [str(b) for b in bags]
+    jobs = str(min(E2E_JOBS, len(paths)))
+    e2e = Command(step[0], _py("e2e_bench.py", *paths, "--rate", f"{RATE:g}", "--jobs", jobs,
+                               "--tag", tag, "--out", str(RUNS), "--results", str(results)))
+
+    def roi_argv() -> list[str]:
+        runs = {} if dry_run else e2e_runs(results, tag)
+        extra: list[str] = []
+        for bag in bags:
+            run = runs.get(bag.name)
+            vo = f"{run}/vo.tum" if run else f"<e2e run of {bag.name}>/vo.tum"
+            if run or dry_run:
+                extra += ["--vo", f"{bag.name}={vo}"]
+            extra += ["--gn", f"{bag.name}={bag / 'gn.geojson'}"]
+        return _py("roi_bench.py", "--name", tag, *paths, *extra)
+
+    return [e2e, Command(step[1], roi_argv)]
 
 
 def plan(tier: str, bags_dir: Path, results: Path, dry_run: bool = False) -> list[Command]:
@@ -121,40 +171,15 @@ def plan(tier: str, bags_dir: Path, results: Path, dry_run: bool = False) -> lis
     bags = [(bags_dir / name, preset, seed) for name, preset, seed, _ in EVAL_BAGS[tier]]
     options = {name: opts for name, _, _, opts in EVAL_BAGS[tier]}
     paths = [str(b) for b, _, _ in bags]
-    cmds: list[Command] = []
     # 1. bags and their GNs
-    for bag, preset, seed in bags:
-        cmds.append(Command("bags", ["atacama_sim", "generate", "--preset", preset, "--seed",
-                                     str(seed), *options[bag.name], "--no-progress",
-                                     "--out", str(bag)],
-                            skip_if=lambda bag=bag: (bag / "rosbag").is_dir(),
-                            why_skip=f"{_rel(bag)}/rosbag exists"))
-        cmds.append(Command("bags", ["orbital_gn", "prepare", str(bag / "orbital.tif"), "--out",
-                                     str(bag / "gn.geojson"), "--preview", str(bag / "gn.png")],
-                            skip_if=lambda bag=bag: (bag / "gn.geojson").is_file(),
-                            why_skip=f"{_rel(bag)}/gn.geojson exists"))
-    # 2. end to end
-    jobs = str(min(E2E_JOBS, len(paths)))
-    cmds.append(Command("e2e", _py("e2e_bench.py", *paths, "--rate", f"{RATE:g}", "--jobs", jobs,
-                                   "--tag", TAG,
-                                   "--out", str(RUNS), "--results", str(results))))
+    cmds = bag_commands("bags", bags_dir, EVAL_BAGS[tier])
+    # 2. end to end, and 4. rover detection (after the odometry, step 3)
+    e2e, roi = e2e_roi_commands(("e2e", "roi"), [b for b, _, _ in bags], TAG, results, dry_run)
+    cmds.append(e2e)
     # 3. odometry
     vo_methods = [] if tier == "full" else ["--methods", *_vo_modes()]
     cmds.append(Command("vo", _py("vo_bench.py", "--bags", *paths, *vo_methods, "--force")))
-
-    # 4. rover detection, on truth odometry and on the e2e runs' odometry
-    def roi_argv() -> list[str]:
-        runs = {} if dry_run else e2e_runs(results)
-        extra: list[str] = []
-        for bag, _, _ in bags:
-            run = runs.get(bag.name)
-            vo = f"{run}/vo.tum" if run else f"<e2e run of {bag.name}>/vo.tum"
-            if run or dry_run:
-                extra += ["--vo", f"{bag.name}={vo}"]
-            extra += ["--gn", f"{bag.name}={bag / 'gn.geojson'}"]
-        return _py("roi_bench.py", "--name", TAG, *paths, *extra)
-
-    cmds.append(Command("roi", roi_argv))
+    cmds.append(roi)
     # 5. orbital GN (a _fixed bag's world, orbital image and GN are its twin's)
     worlds = [(bag, p, s) for bag, p, s in bags if not options[bag.name]]
     recipes = [] if tier == "full" else ["--recipes", "sun_aware"]
@@ -175,6 +200,11 @@ def plan(tier: str, bags_dir: Path, results: Path, dry_run: bool = False) -> lis
         cmds.append(Command("matcher", _py("darces_bench.py", "generality", *sizes)))
         cmds.append(Command("matcher", _py("darces_bench.py", "paper")))
         cmds.append(Command("matcher", _py("darces_bench.py", "stress")))
+        # 7. held-out worlds: their bags, end to end and rover detection
+        cmds += bag_commands("heldout", bags_dir, HELDOUT_BAGS)
+        cmds += e2e_roi_commands(("heldout", "heldout"),
+                                 [bags_dir / name for name, *_ in HELDOUT_BAGS], HELDOUT_TAG,
+                                 results, dry_run)
     return cmds
 
 
@@ -291,8 +321,10 @@ def first_table(md: str) -> list[str]:
 #: summary.md's sections: (title, file, how to read it, the step that writes it).
 SECTIONS = (
     ("End to end", f"e2e_{TAG}.json", e2e_table, "e2e"),
+    ("End to end, held-out worlds", f"e2e_{HELDOUT_TAG}.json", e2e_table, "heldout"),
     ("Odometry (rover_vo)", "vo_bench.md", None, "vo"),
     ("Rover detection and LN (roi_detector)", f"roi_{TAG}.md", None, "roi"),
+    ("Rover detection and LN, held-out worlds", f"roi_{HELDOUT_TAG}.md", None, "heldout"),
     ("Orbital GN: detection quality (orbital_gn)", "orbital_gn_quality.md", None, "orbital"),
     ("Matcher: perfect LNs of the demo bag", "darces_quick.json", darces_quick_table, "matcher"),
     ("Matcher: generality over the evaluation family", "darces_generality.md", None, "matcher"),

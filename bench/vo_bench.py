@@ -12,7 +12,7 @@ against the actual error (is it honest?).
 
 Each method's run on each bag is cached in WORK/vo_runs/<bag>/<method>/ (rerun with
 --force); the summary of every cached run of the given bags goes to
-RESULTS/vo_bench.{json,md}.
+RESULTS/vo_bench.{json,md} (``--tag T``: vo_bench_T.*).
 
 Usage (repository root, after ``source env.sh``)::
 
@@ -34,7 +34,7 @@ import numpy as np
 
 from roi_network.files import write_atomic
 from roi_network.trajectory import read_pose_covariance_rows, read_tum_rows
-from rover_vo.evaluation import evaluate, plot_trajectories
+from rover_vo.evaluation import evaluate, grid_heading_error_deg, plot_trajectories
 
 #: Where result files go: $BENCH_RESULTS (`make bench`: bench/results/current/), else
 #: out/bench/results/.
@@ -202,10 +202,28 @@ def bench_method(bag: Path, method: str, force: bool) -> dict:
                    "sources", "process_wall_s")},
                "bad_input": {k: v for k, v in report["status"].items()
                              if k.startswith("bad_input.") and v}}
+        sun = sun_figures(report["status"], out / "vo.tum", truth)
+        if sun:
+            row["sun"] = sun
     plot_trajectories(out / "vo.tum", truth, out / "trajectory.png",
                       title=f"{method} on {bag.name}")
     write_atomic(row_path, json.dumps(row, indent=2) + "\n")
     return row
+
+
+def sun_figures(status: dict, est: Path, truth: Path) -> dict:
+    """A sun-heading run's updates and its absolute heading at the end against the truth:
+    the error, the filter's sigma, and whether the error is within 3 sigma. Empty for a
+    run whose sun heading never set the odom frame's grid yaw."""
+    grid_yaw = status.get("sun.odom_grid_yaw_deg")
+    if grid_yaw is None or not np.isfinite(float(grid_yaw)):
+        return {}
+    err = grid_heading_error_deg(est, truth, float(grid_yaw))
+    sigma = status.get("sun.heading_sigma_deg")
+    return {"updates": status.get("sun.updates"), "rejected": status.get("sun.rejected"),
+            "in_motion": status.get("sun.in_motion"),
+            "grid_heading_error_deg_final": round(err, 4), "heading_sigma_deg": sigma,
+            "within_3sigma": None if not sigma else bool(abs(err) <= 3.0 * float(sigma))}
 
 
 def collect(bag: Path) -> dict:
@@ -249,6 +267,7 @@ def markdown(summaries: list[dict], meta: dict) -> str:
                 f"{m['ape_rmse_m']:.2f} | {m['final_error_pct']:.3f} | {speed} | "
                 f"{r.get('peak_rss_mb', '')} | {h.get('mean_nees_2dof', '')} | "
                 f"{h.get('share_in_95pct_ellipse', '')} |")
+    lines += sun_table(summaries)
     lines += spread(summaries)
     lines += ["", "Methods: `paper` = frame to frame + IMU (the paper's mode, the default); `vo` ="
               " frame to frame, vision alone; `paper_sun` = `paper` with the sun heading on"
@@ -262,6 +281,25 @@ def markdown(summaries: list[dict], meta: dict) -> str:
     return "\n".join(lines)
 
 
+def sun_table(summaries: list[dict]) -> list[str]:
+    """The sun heading's runs: updates and the absolute (grid) heading at the end."""
+    rows = [(Path(s["bag"]).name, method, row["sun"]) for s in summaries
+            for method, row in s["rows"].items() if row.get("sun")]
+    if not rows:
+        return []
+    lines = ["", "Sun heading at the end of the route (absolute heading: the odometry's yaw plus "
+             "the odom frame's grid yaw the sun set, against the truth):", "",
+             "| bag | method | updates (at stops) | rejected | samples in motion (not used) | "
+             "grid heading error deg | sigma deg | within 3 sigma |",
+             "|---|---|---|---|---|---|---|---|"]
+    for name, method, sun in rows:
+        within = {True: "yes", False: "no", None: ""}[sun.get("within_3sigma")]
+        lines.append(f"| {name} | {method} | {sun.get('updates')} | {sun.get('rejected')} | "
+                     f"{sun.get('in_motion')} | {sun['grid_heading_error_deg_final']:+.2f} | "
+                     f"{sun.get('heading_sigma_deg')} | {within} |")
+    return lines
+
+
 def spread(summaries: list[dict]) -> list[str]:
     """Per method, min / median / max over the bags of a preset (``<preset>_s<seed>``)."""
     groups: dict[tuple[str, str], list[dict]] = {}
@@ -271,8 +309,9 @@ def spread(summaries: list[dict]) -> list[str]:
         for method, row in s["rows"].items():
             groups.setdefault((preset, method), []).append(row)
     lines = ["", "Spread over seeds (min / median / max):", "",
-             "| preset | method | seeds | drift % | heading deg/100 m | final error % | "
-             "NEES xy |", "|---|---|---|---|---|---|---|"]
+             "| preset | method | seeds | drift % | heading deg/100 m | "
+             "heading error from start, max deg | final error % | NEES xy |",
+             "|---|---|---|---|---|---|---|---|"]
     for (preset, method), rows in groups.items():
         if len(rows) < 2:
             continue
@@ -287,6 +326,7 @@ def spread(summaries: list[dict]) -> list[str]:
             f"| {preset} | {method} | {len(rows)} | "
             f"{mmm([r['metrics']['kitti_drift_pct'] for r in rows])} | "
             f"{mmm([r['metrics']['heading_drift_deg_per_100m'] for r in rows])} | "
+            f"{mmm([r['metrics'].get('heading_error_deg_max') for r in rows])} | "
             f"{mmm([r['metrics']['final_error_pct'] for r in rows])} | "
             f"{mmm([r.get('honesty', {}).get('mean_nees_2dof') for r in rows])} |")
     return lines
@@ -302,21 +342,23 @@ def main() -> int:
                    choices=[*MODES, *THIRD_PARTY], help="methods to run (cached ones are reused)")
     p.add_argument("--force", action="store_true", help="recompute cached runs")
     p.add_argument("--summary-only", action="store_true", help="only rebuild the summary")
+    p.add_argument("--tag", help="results name: RESULTS/vo_bench_<tag>.* (default vo_bench.*)")
     args = p.parse_args()
+    name = f"vo_bench_{args.tag}" if args.tag else "vo_bench"
     if not args.summary_only:
         for bag in args.bags:
             for method in args.methods:
                 bench_method(bag, method, args.force)
     summaries = [collect(b) for b in args.bags]
-    meta = {"command": "python bench/vo_bench.py --bags " + " ".join(str(b) for b in args.bags),
+    meta = {"command": "python bench/vo_bench.py " + " ".join(sys.argv[1:]),
             "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
             "machine": f"{platform.machine()}, {os.cpu_count()} cores",
             "loadavg": " ".join(f"{x:.1f}" for x in os.getloadavg())}
     RESULTS.mkdir(parents=True, exist_ok=True)
-    write_atomic(RESULTS / "vo_bench.json", json.dumps({"meta": meta, "bags": summaries},
-                                                        indent=2) + "\n")
-    write_atomic(RESULTS / "vo_bench.md", markdown(summaries, meta))
-    print((RESULTS / "vo_bench.md").read_text())
+    write_atomic(RESULTS / f"{name}.json", json.dumps({"meta": meta, "bags": summaries},
+                                                       indent=2) + "\n")
+    write_atomic(RESULTS / f"{name}.md", markdown(summaries, meta))
+    print((RESULTS / f"{name}.md").read_text())
     return 0
 
 

@@ -22,7 +22,7 @@ def test_quick_tier_dry_run_lists_every_bench_on_the_demo_bag(run_all, tmp_path,
     out = capsys.readouterr().out
     lines = [ln for ln in out.splitlines() if ln.startswith("[")]
     steps = [ln.split("]")[0][1:] for ln in lines]
-    assert steps[:2] == ["bags", "bags"] and set(steps) == set(run_all.STEPS)
+    assert steps[:2] == ["bags", "bags"] and set(steps) == set(run_all.STEPS) - {"heldout"}
     assert f"atacama_sim generate --preset quick --seed 1 --no-progress --out {tmp_path}/quick" \
         in out
     assert "skipped" not in out  # nothing exists under tmp_path: everything is generated
@@ -50,6 +50,13 @@ def test_full_tier_adds_the_1km_seeds_and_the_paper_protocol(run_all, tmp_path, 
     assert f"{tmp_path}/atacama_1km_s3_fixed --rate 5 --jobs 2" in out  # two graphs at a time
     assert "darces_bench.py paper" in out and "darces_bench.py stress" in out
     assert "--recipes" not in out and "--methods darces" not in out
+    # Held-out worlds, each with panoramas and fixed, end to end and through roi_bench.
+    held = [ln for ln in out.splitlines() if ln.startswith("[heldout]")]
+    assert sum("atacama_sim generate" in ln for ln in held) == 2 * len(run_all.HELDOUT_SEEDS)
+    assert f"--seed 201 --no-panoramas --no-progress --out {tmp_path}/quick_s201_fixed" in out
+    assert any("e2e_bench.py" in ln and "--tag heldout" in ln for ln in held)
+    assert any("roi_bench.py --name heldout" in ln and
+               "--vo quick_s206_fixed=<e2e run of quick_s206_fixed>/vo.tum" in ln for ln in held)
 
 
 def test_a_run_stamps_every_result_and_summarises_it(run_all, tmp_path, monkeypatch):

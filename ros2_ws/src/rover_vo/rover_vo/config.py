@@ -25,7 +25,7 @@ import yaml
 
 from roi_network.mast import MAST_PARAMS
 from roi_network.params import node_parameters
-from rover_vo.sun_heading import SENSOR_PARAMS, SITE_PARAMS
+from rover_vo.sun_heading import ACCEL_BIAS_RANDOM_WALK, SENSOR_PARAMS, SITE_PARAMS
 
 MODES = ("paper", "vo")
 
@@ -34,13 +34,14 @@ NODE_NAME = "rover_vo"
 
 #: rover.yaml parameters the estimator reads, with the values used when the bag's
 #: rover.yaml lacks them (pose [x y z qx qy qz qw] in base_link; Hz; rad/s/sqrt(Hz);
-#: rad/s^2/sqrt(Hz); m/s^2).
+#: rad/s^2/sqrt(Hz); m/s^2/sqrt(s), the sun heading's tilt drift; m/s^2).
 ROVER_PARAMETERS: dict[str, Any] = {
     "base_to_left_camera": [0.0] * 7,
     "base_to_imu": [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
     "imu_rate_hz": 50.0,
     "gyro_noise_density": 1.7e-4,
     "gyro_bias_random_walk": 2.0e-5,
+    "accel_bias_random_walk": ACCEL_BIAS_RANDOM_WALK,
     "gravity": 9.81,
 }
 
@@ -112,7 +113,7 @@ class ImuOptions:
         zero_velocity_gyro_rad_s: ... and the gyro rate stays below this (rad/s).
         sun_heading: Update the heading from /sun_sensor and gravity when rover.yaml has a
             sun sensor and a site. Off by default: the update at stops, with the sensor
-            and tilt biases as consider states, is not yet measured on a traverse
+            and tilt biases estimated, is measured offline, not yet end to end
             (docs/rover_vo.md, Limits).
     """
 

@@ -184,7 +184,8 @@ class VoEstimator:
         self.use_imu = config.use_imu
         # The IMU's constants: rover.yaml's, else the defaults.
         rover = {k: float(self.params.get(k, ROVER_PARAMETERS[k])) for k in (
-            "gyro_noise_density", "gyro_bias_random_walk", "gravity", "imu_rate_hz")}
+            "gyro_noise_density", "gyro_bias_random_walk", "accel_bias_random_walk",
+            "gravity", "imu_rate_hz")}
         self.gyro_noise_density = rover["gyro_noise_density"]
         self.gyro_bias_random_walk = rover["gyro_bias_random_walk"]
         self.gravity = rover["gravity"]
@@ -234,7 +235,7 @@ class VoEstimator:
             sensor = None
             self._sun_off = True
         site, why = Site.from_params(self.params) if sensor is not None else (None, None)
-        self.sun = SunHeading(sensor, site)
+        self.sun = SunHeading(sensor, site, rover["accel_bias_random_walk"], self.gravity)
         self._sun_pending: list[tuple[float, np.ndarray]] = []
         self._sun_last: float | None = None  # newest sample's stamp
         self._sun_said: set[str] = set()

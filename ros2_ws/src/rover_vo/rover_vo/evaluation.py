@@ -268,6 +268,25 @@ def evaluate(est_path: str | Path, truth_path: str | Path,
         per_length=per_length, stops=len(stops), **stop_figures)
 
 
+def grid_heading_error_deg(est_path: str | Path, truth_path: str | Path,
+                           odom_grid_yaw_deg: float) -> float:
+    """Error of the absolute heading at the estimate's last pose, deg (signed).
+
+    The absolute heading is the odometry's yaw plus the yaw of the odom frame in the map's
+    grid that the sun heading estimated (rover_vo's status ``sun.odom_grid_yaw_deg``); the
+    truth (map frame) is taken at the truth row nearest the estimate's last stamp. What a
+    sun sensor bounds, where the heading error from the start is what the odometry alone
+    keeps."""
+    est, truth = _tum_rows(est_path), _tum_rows(truth_path)
+    k = int(np.argmin(np.abs(truth[:, 0] - est[-1, 0])))
+    from scipy.spatial.transform import Rotation
+
+    yaw_est = _yaw(Rotation.from_quat(est[-1, 4:8]).as_matrix())
+    yaw_truth = _yaw(Rotation.from_quat(truth[k, 4:8]).as_matrix())
+    err = yaw_est + np.radians(odom_grid_yaw_deg) - yaw_truth
+    return float(np.degrees(np.angle(np.exp(1j * err))))
+
+
 def _tum_rows(path: str | Path) -> np.ndarray:
     from roi_network.trajectory import read_tum_rows
 

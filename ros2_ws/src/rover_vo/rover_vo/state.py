@@ -13,8 +13,8 @@ linearly with distance), entering position as ``R dp ds``; and ``db``, a heading
 (rad per metre driven, about the body's up axis), entering the attitude as
 ``R e_z |dp| db``. Only the 6x6 pose block (``cov``) is published; the full 8x8 ``P`` keeps
 the correlations that make these errors grow as they do. With a sun sensor ``P`` gains
-five constant states: ``psi0``, the odom frame's grid azimuth, and four consider states
-(:mod:`rover_vo.sun_heading`).
+five states: ``psi0``, the odom frame's grid azimuth, and four bias states of the sun
+sensor and the gravity tilt (:mod:`rover_vo.sun_heading`).
 """
 
 from __future__ import annotations

@@ -11,23 +11,27 @@ The odom frame is not turned (DESIGN.md: it starts at the rover's first pose and
 
 - ``psi0`` (index 8): the grid azimuth of the odom frame's x axis (the yaw of
   ``map_R_odom``). The first usable sample sets it (``psi0 = sun's grid azimuth - sun's
-  azimuth in odom``, its error correlated with the odometry's yaw and with the consider
+  azimuth in odom``, its error correlated with the odometry's yaw and with the bias
   states below); every later sample is a measurement of ``yaw + psi0``.
-- Four *consider* states (Schmidt): errors that are the same from one sample to the next
-  and so do not average out. The sensor's two angle biases (9, 10; rover.yaml
-  ``sun_sensor.bias_deg``, constant for a sensor) and the tilt error of gravity at rest
-  about the body's x and y axes (11, 12; the accelerometer's turn-on bias,
-  ``AT_REST_TILT_BIAS_RAD``). They are never corrected and their variance never shrinks;
-  each sample's azimuth depends on them through its own geometry (the sun's place in the
-  sensor's field of view, the body's heading against the sun), so the filter knows that
-  two samples at one stop share their error and that samples at stops of other headings
-  share part of it. Treating them as white noise, as a filter without these states would,
-  makes the heading's variance shrink with every sample to far below the truth.
+- Four *bias* states (:attr:`SunHeading.bias`): errors that are the same from one sample
+  to the next and so do not average out. The sensor's two angle biases (9, 10; rover.yaml
+  ``sun_sensor.bias_deg``, constant for a sensor, and any tilt of its mount) and the tilt
+  error of gravity at rest about the body's x and y axes (11, 12; the accelerometer's
+  bias, ``AT_REST_TILT_BIAS_RAD`` at turn-on, then a random walk of rover.yaml's
+  ``accel_bias_random_walk`` over g). Each is a small turn of the sun's direction in the
+  body frame, so its share of an azimuth follows the body's heading against the sun: at
+  one heading it is a constant offset, indistinguishable from ``psi0``, and stops at
+  other headings separate the two. They are estimated: each sample's azimuth is taken at
+  the estimated biases, and the update corrects them. Treating them as white noise makes
+  the heading's variance shrink with every sample to far below the truth; leaving them
+  uncorrected (consider states) keeps their full share, about 0.5 deg at 40 deg elevation
+  with 0.1 deg of sensor bias and 2 mg of accelerometer bias. What no sun sample can
+  separate from ``psi0`` is a turn of the mount about the boresight: the mount's yaw must
+  be calibrated.
 
-The update is a Schmidt-Kalman one: only the yaw and ``psi0`` are corrected (position,
-roll and pitch, scale, heading-rate bias and the consider states keep their values, so the
-pose moves by a small turn about the rover and nothing else), and the Joseph form keeps
-the covariance right for that gain.
+The update corrects the yaw, ``psi0`` and the bias states (position, roll and pitch, scale
+and heading-rate bias keep their values, so the pose moves by a small turn about the rover
+and nothing else), and the Joseph form keeps the covariance right for that gain.
 
 Per sample (:meth:`SunHeading.measure`), at rest only (see below):
 
@@ -39,12 +43,13 @@ Per sample (:meth:`SunHeading.measure`), at rest only (see below):
    horizon, or a measured elevation more than ``ELEVATION_GATE_SIGMA`` sigma from the
    ephemeris', is a vector that is not the sun (counted, skipped);
 3. the azimuth's sensitivity to each sensor angle and each tilt axis (numerical
-   derivatives of step 1): the white part of its variance (the sensor's noise, the
-   accelerometer's noise over the averaging window) and the rows of the consider states;
+   derivatives of step 1, at the estimated biases): the white part of its variance (the
+   sensor's noise, the accelerometer's noise over the averaging window) and the rows of
+   the bias states;
    samples whose total azimuth sigma exceeds ``MAX_AZIMUTH_SIGMA_DEG`` are not used (the
    sun near the zenith);
 4. the innovation against ``yaw + psi0``, a chi-square gate (1 degree of freedom,
-   ``GATE_CHI2``) on its full variance (state, consider states, white noise): a sample
+   ``GATE_CHI2``) on its full variance (state, bias states, white noise): a sample
    that contradicts the heading beyond its uncertainty is rejected and counted.
 
 Only samples taken at rest are used. In motion the filter's roll and pitch err by tenths
@@ -90,11 +95,15 @@ MAX_SAMPLE_AGE_S = 1.0
 UNIT_TOLERANCE = 1e-3
 #: Index of ``psi0`` in the augmented error state (after the odometry's 8) ...
 PSI0 = 8
-#: ... of the consider states: the sensor's two angle biases, the tilt bias about body x, y.
-CONSIDER = slice(9, 13)
+#: ... of the bias states: the sensor's two angle biases, the tilt bias about body x, y.
+BIASES = slice(9, 13)
+#: State indices an update corrects: the yaw, ``psi0`` and the bias states.
+CORRECTED = [5, PSI0, 9, 10, 11, 12]
 #: 1-sigma tilt error of gravity at rest per body axis from the accelerometer's turn-on
-#: bias, not estimated: 2 mg (a tactical-grade MEMS unit's; atan(0.002) = 0.115 deg), rad.
+#: bias: 2 mg (a tactical-grade MEMS unit's; atan(0.002) = 0.115 deg), rad.
 AT_REST_TILT_BIAS_RAD = math.radians(0.115)
+#: The accelerometer's bias random walk when rover.yaml states none, m/s^2/sqrt(s).
+ACCEL_BIAS_RANDOM_WALK = 3.0e-4
 #: 1-sigma white tilt error of the 0.5 s mean specific force (noise density 0.002 m/s^2
 #: per sqrt(Hz) over 0.5 s: 0.0028 m/s^2), rad.
 AT_REST_TILT_NOISE_RAD = math.radians(0.016)
@@ -242,10 +251,11 @@ class Measurement:
         alpha_map: the ephemeris' azimuth in the grid (rad, a yaw).
         elevation: the ephemeris' apparent elevation (rad).
         elevation_measured: the vector's elevation over the level plane (rad).
-        variance: the azimuth's total variance (rad^2): white and consider parts.
+        variance: the azimuth's total variance (rad^2): white and bias parts (the biases'
+            prior, before any update).
         white_variance: its white part (the sensor's and the accelerometer's noise).
-        consider_row: the azimuth's sensitivity to the consider states (4,): the sensor's
-            two angle biases, the tilt bias about body x and y.
+        bias_row: the azimuth's sensitivity to the bias states (4,): the sensor's two
+            angle biases, the tilt bias about body x and y.
         problem: None, or ``below_horizon``, ``elevation_mismatch``, ``near_zenith``.
         detail: what the problem was, in words.
     """
@@ -256,20 +266,20 @@ class Measurement:
     elevation_measured: float
     variance: float
     white_variance: float = 0.0
-    consider_row: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    bias_row: np.ndarray = field(default_factory=lambda: np.zeros(4))
     problem: str | None = None
     detail: str = ""
 
 
-def consider_prior(sensor: SunSensorModel) -> np.ndarray:
-    """Variances of the consider states: the sensor's angle biases, the tilt biases."""
+def bias_prior(sensor: SunSensorModel) -> np.ndarray:
+    """Prior variances of the bias states: the sensor's angle biases, the tilt biases."""
     return np.array([sensor.bias_rad**2] * 2 + [AT_REST_TILT_BIAS_RAD**2] * 2)
 
 
 def augment(P: np.ndarray, m: Measurement, prior: np.ndarray) -> np.ndarray:
-    """The odometry's ``P`` (8x8) with the sun's states: the consider states from their
+    """The odometry's ``P`` (8x8) with the sun's states: the bias states from their
     ``prior`` (uncorrelated with the rest), then ``psi0`` set by the first sample ``m``:
-    ``e_psi0 = -e_yaw - consider_row . c - n`` (``n`` its white noise)."""
+    ``e_psi0 = -e_yaw - bias_row . b - n`` (``n`` its white noise)."""
     n = P.shape[0]
     k = len(prior)
     ext = np.zeros((n + k, n + k))
@@ -278,7 +288,7 @@ def augment(P: np.ndarray, m: Measurement, prior: np.ndarray) -> np.ndarray:
     T = np.zeros((n + 1 + k, n + k))
     T[:n, :n] = np.eye(n)
     T[n, 5] = -1.0
-    T[n, n:] = -np.asarray(m.consider_row, float)
+    T[n, n:] = -np.asarray(m.bias_row, float)
     T[n + 1:, n:] = np.eye(k)
     A = T @ ext @ T.T
     A[n, n] += m.white_variance
@@ -286,23 +296,23 @@ def augment(P: np.ndarray, m: Measurement, prior: np.ndarray) -> np.ndarray:
 
 
 def measurement_row(P: np.ndarray, m: Measurement) -> np.ndarray:
-    """``H`` of a sample: 1 at the yaw and at ``psi0``, its consider row."""
+    """``H`` of a sample: 1 at the yaw and at ``psi0``, its bias row."""
     H = np.zeros(P.shape[0])
     H[5] = H[PSI0] = 1.0
-    H[CONSIDER] = m.consider_row
+    H[BIASES] = m.bias_row
     return H
 
 
-def schmidt_update(P: np.ndarray, y: float, H: np.ndarray, r: float,
+def heading_update(P: np.ndarray, y: float, H: np.ndarray, r: float,
                    gain_from: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Update by innovation ``y`` of row ``H`` (white variance ``r``), only the yaw (5)
-    and ``psi0`` (8) corrected; returns the correction and the new covariance (Joseph
-    form, right for this gain). ``gain_from``: the covariance the gain is computed from
-    (default ``P``)."""
+    """Update by innovation ``y`` of row ``H`` (white variance ``r``), only the yaw (5),
+    ``psi0`` (8) and the bias states (9-12) corrected; returns the correction and the new
+    covariance (Joseph form, right for this gain). ``gain_from``: the covariance the gain
+    is computed from (default ``P``)."""
     G = P if gain_from is None else gain_from
     S = float(H @ G @ H) + r
     K = np.zeros(P.shape[0])
-    K[[5, PSI0]] = (G @ H)[[5, PSI0]] / S
+    K[CORRECTED] = (G @ H)[CORRECTED] / S
     A = np.eye(P.shape[0]) - np.outer(K, H)
     P2 = A @ P @ A.T + r * np.outer(K, K)
     return K * y, 0.5 * (P2 + P2.T)
@@ -330,12 +340,22 @@ class SunHeading:
     Args:
         sensor: the sensor (rover.yaml), or None.
         site: the site (rover.yaml), or None.
+        accel_bias_random_walk: the accelerometer's bias random walk (m/s^2/sqrt(s)):
+            how fast the tilt bias states drift.
+        gravity: m/s^2.
     """
 
-    def __init__(self, sensor: SunSensorModel | None, site: Site | None) -> None:
+    def __init__(self, sensor: SunSensorModel | None, site: Site | None,
+                 accel_bias_random_walk: float = ACCEL_BIAS_RANDOM_WALK,
+                 gravity: float = 9.81) -> None:
         self.sensor = sensor
         self.site = site
         self.psi0: float | None = None
+        #: Estimated bias states (rad): the sensor's two angles, the tilt about body x, y.
+        self.bias = np.zeros(4)
+        #: Variance rate of the tilt bias states (rad^2/s).
+        self.tilt_rate = (accel_bias_random_walk / gravity) ** 2
+        self._bias_t: float | None = None  # when the tilt states' drift was last added
         self.samples = 0
         self.updates = 0
         self.rejected = 0
@@ -371,7 +391,7 @@ class SunHeading:
             s_o = odom_R_base @ (small_rotation(d[2], d[3]) @ s_b)
             return s_o / np.linalg.norm(s_o)
 
-        s_o = sun_odom(np.zeros(4))
+        s_o = sun_odom(self.bias)
         alpha_odom = math.atan2(s_o[1], s_o[0])
         el_meas = math.asin(max(-1.0, min(1.0, float(s_o[2]))))
         row = np.zeros(4)
@@ -379,12 +399,12 @@ class SunHeading:
         for i in range(4):
             d = np.zeros(4)
             d[i] = h
-            up, down = sun_odom(d), sun_odom(-d)
+            up, down = sun_odom(self.bias + d), sun_odom(self.bias - d)
             row[i] = wrap(math.atan2(up[1], up[0]) - math.atan2(down[1], down[0])) / (2 * h)
         sensor = self.sensor
         white = (float(row[:2] @ row[:2]) * sensor.noise_rad**2
                  + float(row[2:] @ row[2:]) * AT_REST_TILT_NOISE_RAD**2)
-        var = white + float(row**2 @ consider_prior(sensor))
+        var = white + float(row**2 @ bias_prior(sensor))
         alpha_map, el = self.site.sun_grid(utc_s)
         m = Measurement(alpha_odom, alpha_map, el, el_meas, var, white, row)
         if el <= 0.0:
@@ -428,13 +448,21 @@ class SunHeading:
         self.last_elevation_deg = math.degrees(m.elevation)
         if self.psi0 is None:
             self.psi0 = wrap(m.alpha_map - m.alpha_odom)
-            prior = consider_prior(self.sensor)
+            prior = bias_prior(self.sensor)
             state.P = augment(state.P, m, prior)
             if reference is not None and reference.P.shape[0] <= PSI0:
                 reference.P = augment(reference.P, m, prior)
-            self.last_update_t = t
+            self.last_update_t = self._bias_t = t
             self.in_outage = False
             return "initialized"
+        # the tilt bias states drift with the accelerometer's bias since the last sample
+        grow = self.tilt_rate * max(0.0, t - self._bias_t) if self._bias_t is not None else 0.0
+        self._bias_t = t
+        others = [] if reference is None or reference.P is state.P else [reference.P]
+        for P_ in (state.P, *others):
+            if P_.shape[0] >= BIASES.stop:
+                P_[11, 11] += grow
+                P_[12, 12] += grow
         y = wrap(m.alpha_map - m.alpha_odom - self.psi0)
         self.last_innovation_deg = math.degrees(y)
         P = state.P
@@ -443,16 +471,17 @@ class SunHeading:
         if y * y / S > GATE_CHI2:
             self.rejected += 1
             return "rejected"
-        dx, state.P = schmidt_update(P, y, H, m.white_variance)
+        dx, state.P = heading_update(P, y, H, m.white_variance)
         turn = rotz(float(dx[5]))
         state.R = turn @ state.R
         if reference is not None:
             if reference.P.shape == P.shape:
-                _, reference.P = schmidt_update(reference.P, y, H, m.white_variance,
+                _, reference.P = heading_update(reference.P, y, H, m.white_variance,
                                                 gain_from=P)
             reference.R = turn @ reference.R
             reference.p = state.p + turn @ (reference.p - state.p)
         self.psi0 = wrap(self.psi0 + float(dx[PSI0]))
+        self.bias = self.bias + dx[BIASES]
         self.updates += 1
         self.last_update_t = t
         self.in_outage = False
