@@ -12,7 +12,7 @@ with OpenCV and BLAS on one thread (``--threads 1``).
 
 Usage (from the repository root, after ``source env.sh``)::
 
-    python bench/roi_bench.py --name eval bags/atacama_1km_s1 bags/atacama_1km_s2
+    python bench/roi_bench.py --name eval bags/atacama_1km_s1 bags/atacama_1km_s2 --jobs 2
     python bench/roi_bench.py --name recipes --every 2 --recipes bags/quick
     python bench/roi_bench.py --name cameras_other --as-they-come bags/quick_cam1024_s7
 """
@@ -211,7 +211,11 @@ def main(argv: list[str] | None = None) -> int:
                     "0), beside the default, which resamples a camera finer than its "
                     "working resolution")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="bags run side by side, one process each (default 1)")
     args = ap.parse_args(argv)
+    if args.jobs < 1:
+        ap.error("--jobs must be at least 1")
     if args.threads == 1:
         _one_thread()
     import cv2
@@ -228,11 +232,16 @@ def main(argv: list[str] | None = None) -> int:
     vo = dict(v.split("=", 1) for v in args.vo)
     gns = dict(v.split("=", 1) for v in args.gn)
     work = WORK / f"roi_{args.name}"
-    results = []
-    for bag in args.bags:
-        for tag, cfg, model in configs:
-            results.append(run_bag(bag, model, args.every, cfg, tag, work,
-                                   vo.get(Path(bag).name), gns.get(Path(bag).name)))
+    runs = [(bag, model, args.every, cfg, tag, work, vo.get(Path(bag).name),
+             gns.get(Path(bag).name)) for bag in args.bags for tag, cfg, model in configs]
+    if args.jobs == 1:
+        results = [run_bag(*r) for r in runs]
+    else:
+        # One process per bag (forked after the thread limits above), results in order.
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+            results = list(pool.map(run_bag, *zip(*runs, strict=True)))
     meta = {"name": args.name, "command": "python bench/roi_bench.py " + " ".join(
         argv if argv is not None else sys.argv[1:]), "date": time.strftime("%Y-%m-%d %H:%M"),
             "machine": f"{os.cpu_count()} cores, shared with other jobs"}

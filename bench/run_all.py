@@ -161,7 +161,7 @@ def e2e_roi_commands(step: tuple[str, str], bags: list[Path], tag: str, results:
             if run or dry_run:
                 extra += ["--vo", f"{bag.name}={vo}"]
             extra += ["--gn", f"{bag.name}={bag / 'gn.geojson'}"]
-        return _py("roi_bench.py", "--name", tag, *paths, *extra)
+        return _py("roi_bench.py", "--name", tag, *paths, *extra, "--jobs", jobs)
 
     return [e2e, Command(step[1], roi_argv)]
 
