@@ -20,7 +20,8 @@ Steps, in order (each one a bench script of bench/, run as its own process):
    (quick: three family GNs, the default matcher; full: the whole family, the paper
    protocol and its stressed version);
 7. heldout (full tier only): six held-out worlds of the quick preset (seeds 201-206, never
-   used to train or tune), each with panoramas and fixed: their bags, e2e and roi.
+   used to train or tune), each with panoramas and fixed: their bags, roi on truth
+   odometry, e2e.
 
 The results directory is emptied first (``--only`` keeps it), so that every file in it
 comes from one commit. Each result file then records the commit (and whether the tree
@@ -144,9 +145,10 @@ def bag_commands(step: str, bags_dir: Path,
 
 
 def e2e_roi_commands(step: tuple[str, str], bags: list[Path], tag: str, results: Path,
-                     dry_run: bool) -> list[Command]:
-    """``e2e_bench.py`` on ``bags`` (two graphs at a time), then ``roi_bench.py`` on truth
-    odometry and on the odometry of those runs; ``step`` names the two commands' steps."""
+                     dry_run: bool, with_vo: bool = True) -> list[Command]:
+    """``e2e_bench.py`` on ``bags`` (two graphs at a time) and ``roi_bench.py`` on truth
+    odometry and (``with_vo``) on the odometry of those runs; ``step`` names the two
+    commands' steps."""
     paths = [str(b) for b in bags]
     jobs = str(min(E2E_JOBS, len(paths)))
     e2e = Command(step[0], _py("e2e_bench.py", *paths, "--rate", f"{RATE:g}", "--jobs", jobs,
@@ -158,7 +160,7 @@ def e2e_roi_commands(step: tuple[str, str], bags: list[Path], tag: str, results:
         for bag in bags:
             run = runs.get(bag.name)
             vo = f"{run}/vo.tum" if run else f"<e2e run of {bag.name}>/vo.tum"
-            if run or dry_run:
+            if with_vo and (run or dry_run):
                 extra += ["--vo", f"{bag.name}={vo}"]
             extra += ["--gn", f"{bag.name}={bag / 'gn.geojson'}"]
         return _py("roi_bench.py", "--name", tag, *paths, *extra, "--jobs", jobs)
@@ -200,11 +202,13 @@ def plan(tier: str, bags_dir: Path, results: Path, dry_run: bool = False) -> lis
         cmds.append(Command("matcher", _py("darces_bench.py", "generality", *sizes)))
         cmds.append(Command("matcher", _py("darces_bench.py", "paper")))
         cmds.append(Command("matcher", _py("darces_bench.py", "stress")))
-        # 7. held-out worlds: their bags, end to end and rover detection
+        # 7. held-out worlds: their bags, rover detection on truth odometry (what the
+        # camera and the detector find), end to end
         cmds += bag_commands("heldout", bags_dir, HELDOUT_BAGS)
-        cmds += e2e_roi_commands(("heldout", "heldout"),
-                                 [bags_dir / name for name, *_ in HELDOUT_BAGS], HELDOUT_TAG,
-                                 results, dry_run)
+        e2e, roi = e2e_roi_commands(("heldout", "heldout"),
+                                    [bags_dir / name for name, *_ in HELDOUT_BAGS], HELDOUT_TAG,
+                                    results, dry_run, with_vo=False)
+        cmds += [roi, e2e]
     return cmds
 
 
