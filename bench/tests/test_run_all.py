@@ -54,7 +54,10 @@ def test_full_tier_adds_the_1km_seeds_and_the_paper_protocol(run_all, tmp_path, 
     held = [ln for ln in out.splitlines() if ln.startswith("[heldout]")]
     assert sum("atacama_sim generate" in ln for ln in held) == 2 * len(run_all.HELDOUT_SEEDS)
     assert f"--seed 201 --no-panoramas --no-progress --out {tmp_path}/quick_s201_fixed" in out
-    assert any("e2e_bench.py" in ln and "--tag heldout" in ln for ln in held)
+    e2e = [ln for ln in held if "e2e_bench.py" in ln]
+    assert len(e2e) == 1 and "--tag heldout" in e2e[0]
+    n = run_all.HELDOUT_E2E_SEEDS
+    assert sum(f"{tmp_path}/quick_s" in w for w in e2e[0].split()) == 2 * n  # pano and fixed
     roi = [ln for ln in held if "roi_bench.py --name heldout" in ln]
     assert len(roi) == 1 and "--vo" not in roi[0]  # on truth odometry, before the e2e runs
     assert held.index(roi[0]) < next(i for i, ln in enumerate(held) if "e2e_bench.py" in ln)
