@@ -146,17 +146,20 @@ def bag_commands(step: str, bags_dir: Path,
     return cmds
 
 
-def e2e_roi_commands(step: tuple[str, str], bags: list[Path], tag: str, results: Path,
-                     dry_run: bool, with_vo: bool = True) -> list[Command]:
-    """``e2e_bench.py`` on ``bags`` (two graphs at a time) and ``roi_bench.py`` on truth
-    odometry and (``with_vo``) on the odometry of those runs; ``step`` names the two
-    commands' steps."""
+def e2e_command(step: str, bags: list[Path], tag: str, results: Path) -> Command:
+    """``e2e_bench.py`` on ``bags``, two graphs at a time, results e2e_<tag>.*."""
     paths = [str(b) for b in bags]
-    jobs = str(min(E2E_JOBS, len(paths)))
-    e2e = Command(step[0], _py("e2e_bench.py", *paths, "--rate", f"{RATE:g}", "--jobs", jobs,
-                               "--tag", tag, "--out", str(RUNS), "--results", str(results)))
+    return Command(step, _py("e2e_bench.py", *paths, "--rate", f"{RATE:g}", "--jobs",
+                             str(min(E2E_JOBS, len(paths))), "--tag", tag, "--out", str(RUNS),
+                             "--results", str(results)))
 
-    def roi_argv() -> list[str]:
+
+def roi_command(step: str, bags: list[Path], tag: str, results: Path, dry_run: bool,
+                with_vo: bool = True) -> Command:
+    """``roi_bench.py`` on ``bags`` (two at a time), results roi_<tag>.*: on truth odometry
+    and (``with_vo``) on the odometry of the e2e runs of the same tag."""
+
+    def argv() -> list[str]:
         runs = {} if dry_run else e2e_runs(results, tag)
         extra: list[str] = []
         for bag in bags:
@@ -165,9 +168,10 @@ def e2e_roi_commands(step: tuple[str, str], bags: list[Path], tag: str, results:
             if with_vo and (run or dry_run):
                 extra += ["--vo", f"{bag.name}={vo}"]
             extra += ["--gn", f"{bag.name}={bag / 'gn.geojson'}"]
-        return _py("roi_bench.py", "--name", tag, *paths, *extra, "--jobs", jobs)
+        return _py("roi_bench.py", "--name", tag, *map(str, bags), *extra, "--jobs",
+                   str(min(E2E_JOBS, len(bags))))
 
-    return [e2e, Command(step[1], roi_argv)]
+    return Command(step, argv)
 
 
 def plan(tier: str, bags_dir: Path, results: Path, dry_run: bool = False) -> list[Command]:
@@ -177,13 +181,13 @@ def plan(tier: str, bags_dir: Path, results: Path, dry_run: bool = False) -> lis
     paths = [str(b) for b, _, _ in bags]
     # 1. bags and their GNs
     cmds = bag_commands("bags", bags_dir, EVAL_BAGS[tier])
-    # 2. end to end, and 4. rover detection (after the odometry, step 3)
-    e2e, roi = e2e_roi_commands(("e2e", "roi"), [b for b, _, _ in bags], TAG, results, dry_run)
-    cmds.append(e2e)
+    # 2. end to end
+    cmds.append(e2e_command("e2e", [b for b, _, _ in bags], TAG, results))
     # 3. odometry
     vo_methods = [] if tier == "full" else ["--methods", *_vo_modes()]
     cmds.append(Command("vo", _py("vo_bench.py", "--bags", *paths, *vo_methods, "--force")))
-    cmds.append(roi)
+    # 4. rover detection, on truth odometry and on the e2e runs' odometry
+    cmds.append(roi_command("roi", [b for b, _, _ in bags], TAG, results, dry_run))
     # 5. orbital GN (a _fixed bag's world, orbital image and GN are its twin's)
     worlds = [(bag, p, s) for bag, p, s in bags if not options[bag.name]]
     recipes = [] if tier == "full" else ["--recipes", "sun_aware"]
@@ -208,11 +212,8 @@ def plan(tier: str, bags_dir: Path, results: Path, dry_run: bool = False) -> lis
         # camera and the detector find), end to end
         cmds += bag_commands("heldout", bags_dir, HELDOUT_BAGS)
         held = [bags_dir / name for name, *_ in HELDOUT_BAGS]
-        _, roi = e2e_roi_commands(("heldout", "heldout"), held, HELDOUT_TAG, results, dry_run,
-                                  with_vo=False)
-        e2e, _ = e2e_roi_commands(("heldout", "heldout"), held[:2 * HELDOUT_E2E_SEEDS],
-                                  HELDOUT_TAG, results, dry_run)
-        cmds += [roi, e2e]
+        cmds.append(roi_command("heldout", held, HELDOUT_TAG, results, dry_run, with_vo=False))
+        cmds.append(e2e_command("heldout", held[:2 * HELDOUT_E2E_SEEDS], HELDOUT_TAG, results))
     return cmds
 
 

@@ -97,8 +97,10 @@ UNIT_TOLERANCE = 1e-3
 PSI0 = 8
 #: ... of the bias states: the sensor's two angle biases, the tilt bias about body x, y.
 BIASES = slice(9, 13)
+#: ... of the tilt bias states among them (they drift with the accelerometer's bias).
+TILT = [11, 12]
 #: State indices an update corrects: the yaw, ``psi0`` and the bias states.
-CORRECTED = [5, PSI0, 9, 10, 11, 12]
+CORRECTED = [5, PSI0, *range(BIASES.start, BIASES.stop)]
 #: 1-sigma tilt error of gravity at rest per body axis from the accelerometer's turn-on
 #: bias: 2 mg (a tactical-grade MEMS unit's; atan(0.002) = 0.115 deg), rad.
 AT_REST_TILT_BIAS_RAD = math.radians(0.115)
@@ -461,8 +463,7 @@ class SunHeading:
         others = [] if reference is None or reference.P is state.P else [reference.P]
         for P_ in (state.P, *others):
             if P_.shape[0] >= BIASES.stop:
-                P_[11, 11] += grow
-                P_[12, 12] += grow
+                P_[TILT, TILT] += grow
         y = wrap(m.alpha_map - m.alpha_odom - self.psi0)
         self.last_innovation_deg = math.degrees(y)
         P = state.P
