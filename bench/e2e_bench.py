@@ -19,6 +19,14 @@ For each bag:
 A bag the graph could not localize gets n/a, never a number made up; the results say
 which nodes ran.
 
+``--compare NODE:PARAM=VALUE`` (repeatable) runs every bag twice in the same bench: with
+the params file as it is, and with those parameters set (one variant, named by
+``--compare-label``); the results give both side by side and the spread of each, e.g.
+the graph without rover_vo's sun heading::
+
+    python bench/e2e_bench.py bags/quick --jobs 2 --tag sun \
+        --compare rover_vo:imu.sun_heading=false --compare-label no_sun
+
 Usage (from the repository root, after ``source env.sh``)::
 
     python bench/e2e_bench.py bags/atacama_1km_s1 bags/atacama_1km_s2 bags/atacama_1km_s3 \
@@ -54,13 +62,37 @@ RESULTS = Path(os.environ.get("BENCH_RESULTS")
                or Path(__file__).resolve().parents[1] / "out" / "bench" / "results")
 #: Metrics of the continuous estimate aggregated over bags.
 METRICS = ("final_error_m", "rmse_after_first_fix_m", "distance_before_first_fix_m",
-           "false_fixes", "consistency_3sigma")
+           "false_fixes", "consistency_3sigma", "longest_stretch_without_fix_m",
+           "error_at_stretch_end_m", "heading_final_error_deg", "heading_rmse_deg")
 #: Any ROI this close to the route can be an LN node (far rocks are triangulated up to 30 m).
 FAR_REACH_M = 30.0
 #: ROS domain of the first of graphs run side by side (``--jobs``); the next take +1, +2...
 DOMAIN_BASE = 40
 #: Distances along the route at which the ROIs passed are counted (see rois_passed).
 PASSED_MARKS_M = (100, 200, 300)
+
+
+def parse_override(text: str) -> tuple[str, str, Any]:
+    """``NODE:PARAM=VALUE`` as (node, parameter, value); the value is read as YAML (``false``
+    a bool, ``3`` an int). Raises ValueError naming what is missing."""
+    node, sep, rest = text.partition(":")
+    name, eq, value = rest.partition("=")
+    if not sep or not eq or not node or not name:
+        raise ValueError(f"--compare {text!r}: expected NODE:PARAM=VALUE "
+                         "(e.g. rover_vo:imu.sun_heading=false)")
+    return node, name, yaml.safe_load(value)
+
+
+def variant_params(base: Path, overrides: list[tuple[str, str, Any]], out: Path) -> Path:
+    """The params file ``base`` with ``overrides`` set, written to ``out``."""
+    from rover_bringup.graph import load_params
+
+    doc = load_params(base)
+    for node, name, value in overrides:
+        doc.setdefault(node, {"ros__parameters": {}})["ros__parameters"][name] = value
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_atomic(out, yaml.safe_dump(doc, sort_keys=False))
+    return out
 
 
 def _globloc() -> list[str]:
@@ -287,14 +319,17 @@ def _spread(values: list[float]) -> dict[str, float] | None:
 
 
 def bench_bag(bag: Path, args: argparse.Namespace, run_id: str,
-              domain_id: int | None = None) -> dict[str, Any]:
-    """Run, evaluate and compare on one bag (its graph in ROS domain ``domain_id``)."""
+              domain_id: int | None = None, params: Path | None = None,
+              variant: str | None = None) -> dict[str, Any]:
+    """Run, evaluate and compare on one bag (its graph in ROS domain ``domain_id``), with
+    ``params`` (None: ``--params`` or the package's), labelled ``variant``."""
+    params = params or args.params
     extra = [*(["--graph", str(args.graph)] if args.graph else []),
-             *(["--params", str(args.params)] if args.params else [])]
+             *(["--params", str(params)] if params else [])]
     run_dir, status, wall, cpu, err = run_graph(bag, args.out, args.rate, run_id, extra,
                                                 domain_id)
-    entry: dict[str, Any] = {"bag": str(bag), "run_dir": str(run_dir), "run_status": status,
-                             "wall_s": wall}
+    entry: dict[str, Any] = {"bag": str(bag), "variant": variant, "run_dir": str(run_dir),
+                             "run_status": status, "wall_s": wall}
     if not run_dir.is_dir():
         entry["error"] = err.strip().splitlines()[-1:] or ["globloc run failed"]
         return entry
@@ -324,14 +359,22 @@ def _fmt(v: Any, digits: int = 2) -> str:
     return str(v)
 
 
+def _label(e: dict[str, Any]) -> str:
+    """A result's bag name, with its variant when it has one."""
+    name = Path(e["bag"]).name
+    return f"{name} ({e['variant']})" if e.get("variant") else name
+
+
 def markdown(report: dict[str, Any]) -> str:
     """The results as a Markdown table per bag and the spread over bags."""
     lines = [f"# End-to-end benchmark `{report['tag']}`", "",
              f"{report['date']}; {report['machine']}; rate {report['rate']}; command: "
              f"`{report['command']}`", "",
              "| bag | localized | first fix after (m) | final error (m) | RMSE after fix (m) "
-             "| false fixes | 3-sigma | end-of-route (paper) final / RMSE (m) | nodes ran |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| false fixes | 3-sigma | longest stretch without a fix / error at its end (m) "
+             "| heading final / RMSE (deg) | end-of-route (paper) final / RMSE (m) "
+             "| nodes ran |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for e in report["bags"]:
         c = e.get("continuous", {})
         p = e.get("end_of_route", {})
@@ -340,15 +383,19 @@ def markdown(report: dict[str, Any]) -> str:
         cons = c.get("consistency_3sigma")
         ran = ", ".join(k for k, v in e.get("nodes", {}).items() if v == "ran") or "none"
         lines.append(
-            f"| {Path(e['bag']).name} | {_fmt(c.get('localized'))} "
+            f"| {_label(e)} | {_fmt(c.get('localized'))} "
             f"| {_fmt(c.get('distance_before_first_fix_m'), 1)} "
             f"| {_fmt(c.get('final_error_m'))} | {_fmt(c.get('rmse_after_first_fix_m'))} "
             f"| {_fmt(c.get('false_fixes'))} "
-            f"| {_fmt(None if cons is None else 100 * cons, 1)} % | {paper} | {ran} |")
+            f"| {_fmt(None if cons is None else 100 * cons, 1)} % "
+            f"| {_fmt(c.get('longest_stretch_without_fix_m'), 1)} / "
+            f"{_fmt(c.get('error_at_stretch_end_m'))} "
+            f"| {_fmt(c.get('heading_final_error_deg'))} / {_fmt(c.get('heading_rmse_deg'))} "
+            f"| {paper} | {ran} |")
     for e in report["bags"]:
         lag = e.get("continuous", {}).get("fix_lag_s")
         if lag:
-            lines.append(f"\n{Path(e['bag']).name}: fixes reached the graph {lag['median']:.1f} s "
+            lines.append(f"\n{_label(e)}: fixes reached the graph {lag['median']:.1f} s "
                          f"(median), at most {lag['max']:.1f} s (bag time) after their LN's "
                          "stamp; false fixes are judged from then (`globloc eval`).")
     marks = " / ".join(str(m) for m in PASSED_MARKS_M)
@@ -356,7 +403,7 @@ def markdown(report: dict[str, Any]) -> str:
               f"route) that the route has passed by {marks} m: what bounds the first fix:", ""]
     for e in report["bags"]:
         rp = e.get("rois_passed")
-        if rp:
+        if rp and not e.get("variant"):
             line = (f"- {Path(e['bag']).name}: "
                     + " / ".join(str(rp["by_m"][m]) for m in PASSED_MARKS_M)
                     + f" of {rp['counted']}")
@@ -365,15 +412,20 @@ def markdown(report: dict[str, Any]) -> str:
                          + " / ".join(str(rp["within_30m_by_m"][m]) for m in PASSED_MARKS_M)
                          + f" of {rp['within_30m']}")
             lines.append(line)
-    lines += ["", f"Paper (end-of-route alignment on its 1 km route): {PAPER_FINAL_ERROR_M} m.",
-              "", "Spread over bags (continuous estimate):", ""]
-    for k, v in report["spread"].items():
-        lines.append(f"- {k}: " + (", ".join(f"{a} {_fmt(b)}" for a, b in v.items())
-                                   if v else "n/a"))
+    lines += ["", f"Paper (end-of-route alignment on its 1 km route): {PAPER_FINAL_ERROR_M} m."]
+    compare = report.get("compare")
+    spreads = [("" if compare is None else f" ({compare['base']})", report["spread"])]
+    if compare is not None:
+        spreads.append((f" ({compare['label']})", compare["spread"]))
+    for label, spread in spreads:
+        lines += ["", f"Spread over bags{label} (continuous estimate):", ""]
+        for k, v in spread.items():
+            lines.append(f"- {k}: " + (", ".join(f"{a} {_fmt(b)}" for a, b in v.items())
+                                       if v else "n/a"))
     lines += ["", "CPU share per process (of the run's CPU seconds):", ""]
     for e in report["bags"]:
         if e.get("cpu_share"):
-            lines.append(f"- {Path(e['bag']).name}: " + ", ".join(
+            lines.append(f"- {_label(e)}: " + ", ".join(
                 f"{k} {100 * v:.0f} %" for k, v in e["cpu_share"].items()))
     return "\n".join(lines) + "\n"
 
@@ -406,9 +458,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--results", type=Path, default=RESULTS, help="results directory")
     ap.add_argument("--jobs", type=int, default=1,
                     help="graphs run side by side, each in its own ROS domain (default 1)")
+    ap.add_argument("--compare", action="append", default=[], metavar="NODE:PARAM=VALUE",
+                    help="also run every bag with these parameters set (repeatable)")
+    ap.add_argument("--compare-label", default="compared",
+                    help="name of the --compare variant in the results")
     args = ap.parse_args(argv)
     if args.jobs < 1:
         ap.error("--jobs must be at least 1")
+    try:
+        overrides = [parse_override(text) for text in args.compare]
+    except ValueError as exc:
+        ap.error(str(exc))
     for bag in args.bags:
         if not bag.is_dir():
             print(f"e2e_bench: error: bag directory not found: {bag}", file=sys.stderr)
@@ -421,15 +481,35 @@ def main(argv: list[str] | None = None) -> int:
               "tag", file=sys.stderr)
         return 1
     run_id = "bench-" + datetime.now().strftime("%Y%m%d-%H%M%S")
-    def one(i: int, bag: Path) -> dict[str, Any]:
-        print(f"e2e_bench: {bag} ...", file=sys.stderr, flush=True)
+    runs: list[tuple[Path, Path | None, str | None]] = [(bag, None, None) for bag in args.bags]
+    if args.compare:
+        from rover_bringup.share import config_file
+
+        params = variant_params(args.params or config_file("globloc.yaml"), overrides,
+                                args.out / f"{run_id}-{args.compare_label}.params.yaml")
+        # Interleaved: the two runs of a bag play side by side under --jobs 2.
+        runs = [r for bag in args.bags
+                for r in ((bag, None, None), (bag, params, args.compare_label))]
+
+    def one(i: int, run: tuple[Path, Path | None, str | None]) -> dict[str, Any]:
+        bag, params, variant = run
+        print(f"e2e_bench: {bag}{f' ({variant})' if variant else ''} ...", file=sys.stderr,
+              flush=True)
         # Side by side, each graph in a ROS domain of its own (they share topic names).
-        domain = DOMAIN_BASE + i if args.jobs > 1 else None
-        return bench_bag(bag, args, run_id, domain)
+        domain = DOMAIN_BASE + i % args.jobs if args.jobs > 1 else None
+        rid = f"{run_id}-{variant}" if variant else run_id
+        return bench_bag(bag, args, rid, domain, params, variant)
 
     with ThreadPoolExecutor(max_workers=args.jobs) as pool:
-        entries = list(pool.map(one, range(len(args.bags)), args.bags))
-    cont = [e.get("continuous", {}) for e in entries]
+        entries = list(pool.map(one, range(len(runs)), runs))
+
+    def spread(group: list[dict[str, Any]]) -> dict[str, Any]:
+        cont = [e.get("continuous", {}) for e in group]
+        return {m: _spread([c.get(m) for c in cont]) for m in METRICS} | {
+            "end_of_route_final_error_m": _spread(
+                [e.get("end_of_route", {}).get("final_error_m") for e in group])}
+
+    base = [e for e in entries if e["variant"] is None]
     report = {
         "tag": args.tag,
         "date": datetime.now().isoformat(timespec="seconds"),
@@ -440,9 +520,11 @@ def main(argv: list[str] | None = None) -> int:
                                                             else argv),
         "rate": args.rate,
         "bags": entries,
-        "spread": {m: _spread([c.get(m) for c in cont]) for m in METRICS}
-        | {"end_of_route_final_error_m": _spread(
-            [e.get("end_of_route", {}).get("final_error_m") for e in entries])},
+        "spread": spread(base),
+        "compare": None if not args.compare else {
+            "base": "as configured", "label": args.compare_label,
+            "overrides": [f"{n}:{k}={v}" for n, k, v in overrides],
+            "spread": spread([e for e in entries if e["variant"] is not None])},
         "paper_final_error_m": PAPER_FINAL_ERROR_M,
     }
     write_atomic(args.results / f"e2e_{args.tag}.json", json.dumps(report, indent=2) + "\n")

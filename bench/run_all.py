@@ -299,8 +299,9 @@ def e2e_table(doc: dict[str, Any]) -> list[str]:
         paper = (f"{_fmt(p.get('final_error_m'))} / {_fmt(p.get('rmse_m'))}"
                  if p.get("status") == "fix" else p.get("status", "n/a"))
         cons = c.get("consistency_3sigma")
+        name = Path(e["bag"]).name + (f" ({e['variant']})" if e.get("variant") else "")
         lines.append(
-            f"| {Path(e['bag']).name} | {_fmt(c.get('route_length_m'), 0)} "
+            f"| {name} | {_fmt(c.get('route_length_m'), 0)} "
             f"| {_fmt(c.get('distance_before_first_fix_m'), 1)} | {_fmt(c.get('final_error_m'))} "
             f"| {_fmt(c.get('rmse_after_first_fix_m'))} | {_fmt(c.get('false_fixes'), 0)} "
             f"| {_fmt(cons, 1, 100.0)}{' %' if cons is not None else ''} | {paper} |")

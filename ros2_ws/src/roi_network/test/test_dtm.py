@@ -59,7 +59,7 @@ def test_ground_z_variance_is_the_posts_plus_the_slope_through_the_horizontal_er
     _write(path, heights)
     dtm = read_dtm(path, FRAME)
     cov = np.array([[4.0, 0.0], [0.0, 1.0]])
-    z, g, var = dtm.ground_z(10.0, 5.0, cov)
+    z, _g, var = dtm.ground_z(10.0, 5.0, cov)
     assert z == pytest.approx(0.1 * 10.0 - 0.05 * 5.0 + 3.0, abs=1e-5)
     # 0.4^2 + 0.1^2 * 4 + 0.05^2 * 1
     assert var == pytest.approx(0.16 + 0.04 + 0.0025, rel=1e-4)

@@ -64,7 +64,7 @@ def test_malformed_fields_are_named(field, value):
 def test_missing_field_is_named():
     p = mast_params()
     del p["mast.head_to_left_camera"]
-    with pytest.raises(MastError, match="mast.head_to_left_camera"):
+    with pytest.raises(MastError, match=r"mast\.head_to_left_camera"):
         MastKinematics.from_params(p)
 
 
@@ -90,7 +90,7 @@ def test_misses_are_counted_by_reason():
 
 def test_unknown_joint_names_are_an_error_naming_them():
     poser = CameraPoser.from_params(mast_params())
-    with pytest.raises(MastError, match="'mast_tilt'.*'pan', 'tilt'"):
+    with pytest.raises(MastError, match=r"'mast_tilt'.*'pan', 'tilt'"):
         poser.add(1.0, ["pan", "tilt"], [0.0, 0.0])
     with pytest.raises(MastError, match="outside"):
         poser.add(1.0, ["mast_pan", "mast_tilt"], [0.0, 2.0])

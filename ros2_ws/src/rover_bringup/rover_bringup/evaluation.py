@@ -15,6 +15,13 @@ associated with the truth pose of the nearest stamp (evo's ``associate_trajector
   without matcher events, the number of episodes of /global_pose more than 10 m off.
   ``fix_lag_s``: how long after their LN's stamp the fixes arrived (median, max; bag
   seconds);
+- ``longest_stretch_without_fix_m``: the longest distance driven (along the true route)
+  between two fixes after the first, or from the last fix to the end of the route;
+  ``error_at_stretch_end_m``: the error of the last /global_pose before that stretch's
+  closing fix (the final error when the route ends it): how far the pose drifted with no
+  landmark to correct it;
+- ``heading_final_error_deg``, ``heading_rmse_deg``: the /global_pose yaw minus the true
+  yaw (wrapped to +-180 deg), at the last pose and over every pose;
 - ``consistency_3sigma``: fraction of poses whose truth lies inside the published 3-sigma
   ellipse (horizontal covariance, squared Mahalanobis distance <= 9). A Gaussian that is
   exactly right gives 98.9 % (chi-square, 2 degrees of freedom); the target >= 99 % asks
@@ -232,6 +239,34 @@ def _not_run(run_dir: Path) -> list[str]:
         return []
 
 
+def _yaw(rows: np.ndarray) -> np.ndarray:
+    """Yaw (rad) of TUM rows (qx qy qz qw in columns 4-7)."""
+    qx, qy, qz, qw = rows[:, 4], rows[:, 5], rows[:, 6], rows[:, 7]
+    return np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+
+
+def longest_stretch(fixes: list[tuple[float, float, str]], t: np.ndarray, error: np.ndarray,
+                    route_end_m: float) -> dict[str, float | None]:
+    """The longest stretch of route without a fix, after the first, and the error at its
+    end (module docstring).
+
+    Args:
+        fixes: (time, distance along the route, event) of each fix, in time order.
+        t, error: stamp and horizontal error of every associated /global_pose.
+        route_end_m: the route's length.
+    """
+    if not fixes:
+        return {'longest_stretch_without_fix_m': None, 'error_at_stretch_end_m': None}
+    fixes = sorted(fixes)
+    ends = [(d, te) for te, d, _ in fixes[1:]] + [(route_end_m, None)]
+    starts = [d for _, d, _ in fixes]
+    length, (_, end_t) = max(((end - start, (end, te)) for start, (end, te)
+                              in zip(starts, ends, strict=True)), key=lambda x: x[0])
+    k = len(t) - 1 if end_t is None else int(np.searchsorted(t, end_t)) - 1
+    return {'longest_stretch_without_fix_m': float(length),
+            'error_at_stretch_end_m': float(error[k]) if 0 <= k < len(t) else None}
+
+
 def _trajectory(rows: np.ndarray):
     from evo.core.trajectory import PoseTrajectory3D
 
@@ -360,6 +395,8 @@ def evaluate(data: RunData) -> Evaluation:
                          np.zeros((0, 2)), route_xy, [])
     keys = ('distance_before_first_fix_m', 'first_fix_t', 'final_error_m', 'final_pose_gap_m',
             'rmse_after_first_fix_m', 'median_error_m', 'max_error_m', 'false_fixes',
+            'longest_stretch_without_fix_m', 'error_at_stretch_end_m',
+            'heading_final_error_deg', 'heading_rmse_deg',
             'poses_over_10m', 'consistency_3sigma', 'ape_unaligned_rmse_m', 'z_estimated',
             'vertical_final_error_m', 'vertical_rmse_m', 'vertical_max_error_m',
             'vertical_consistency_3sigma', 'z_note')
@@ -425,6 +462,11 @@ def evaluate(data: RunData) -> Evaluation:
     if not fixes:  # no matcher events recorded: count episodes of large error
         false_fixes = int(over[0]) + int(np.sum(over[1:] & ~over[:-1]))
     first_t = float(data.estimate[0, 0])
+    summary.update(longest_stretch(fixes, t, error, float(route_d[-1])))
+    dyaw = _yaw(data.estimate[est_i]) - _yaw(truth[ref_i])
+    dyaw = np.degrees(np.arctan2(np.sin(dyaw), np.cos(dyaw)))
+    summary.update(heading_final_error_deg=float(dyaw[-1]),
+                   heading_rmse_deg=float(np.sqrt(np.mean(dyaw**2))))
     summary.update(
         localized=True,
         message=f'localized after {float(np.interp(first_t, truth[:, 0], route_d)):.1f} m',

@@ -108,6 +108,11 @@ def test_metrics_of_a_run_with_known_errors(tmp_path: Path):
     assert s['route_length_m'] == pytest.approx(299.9, abs=0.01)
     assert s['matcher_events'] == {'first_fix': 1, 'kept': 1, 'refined': 1, 'switched': 1}
     assert [f[2] for f in ev.fixes] == ['first_fix', 'refined', 'switched']
+    # Fixes at 50, 200 and 202 m on a 299.9 m route: the longest stretch is 50-200 m, and
+    # the pose before the fix closing it is the 0.5 m off one (the jump starts at 200 s).
+    assert s['longest_stretch_without_fix_m'] == pytest.approx(150.0, abs=0.11)
+    assert s['error_at_stretch_end_m'] == pytest.approx(0.5, abs=1e-6)
+    assert s['heading_final_error_deg'] == 0.0 and s['heading_rmse_deg'] == 0.0
     # A straight route cannot anchor a 3D alignment: said, not a crash.
     assert 'evo could not align' in s['vo']['error']
     assert s['meets_targets'] == {'final_error_m': True, 'rmse_after_first_fix_m': False,
@@ -225,6 +230,25 @@ def test_vo_drift_is_measured_with_evo_alignment():
     assert _vo_summary(vo, truth)['ape_aligned_rmse_m'] < 1e-6
     vo[:, 1] += 0.01 * np.arange(len(t)) * 0.1  # 1 % drift along x
     assert 0.2 < _vo_summary(vo, truth)['ape_aligned_rmse_m'] < 2.0
+
+
+def test_heading_error_is_the_wrapped_yaw_difference(tmp_path: Path):
+    bag, t, xy = _bag(tmp_path)
+    run = _run_dir(tmp_path, bag)
+    # The truth heads at 0 deg; the estimate at +1 deg, and at -179 deg (= 181 deg, 181 deg
+    # off, wrapped to -179) over its last 10 s.
+    yaw = np.where(t >= t[-1] - 10.0, np.radians(181.0), np.radians(1.0))
+    _write_estimate(run, t, xy, np.full(len(t), 0.3))
+    rows = [f'{ti:.9f} {x:.6f} {y:.6f} 0 0 0 {np.sin(a / 2):.9f} {np.cos(a / 2):.9f}\n'
+            for ti, (x, y), a in zip(t, xy, yaw, strict=True)]
+    (run / 'global_pose.tum').write_text('# t x y z qx qy qz qw\n' + ''.join(rows))
+    s = evaluate(load_run(run)).summary
+    assert s['heading_final_error_deg'] == pytest.approx(-179.0, abs=1e-4)
+    n_last = int(np.sum(t >= t[-1] - 10.0))
+    expected = np.sqrt(((len(t) - n_last) * 1.0 + n_last * 179.0**2) / len(t))
+    assert s['heading_rmse_deg'] == pytest.approx(expected, rel=1e-5)
+    # No matcher events: no fix to bound a stretch by.
+    assert s['longest_stretch_without_fix_m'] is None
 
 
 def test_false_fixes_without_events_count_episodes(tmp_path: Path):

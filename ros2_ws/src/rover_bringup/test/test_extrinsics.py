@@ -274,7 +274,7 @@ def test_run_warns_of_a_mast_without_joint_states(tmp_path, capsys):
     assert 'records no /joint_states' in err
     text = (bag / 'rover.yaml').read_text().replace('head_tilt', 'head_pan')
     (plain / 'rover.yaml').write_text(text)
-    with pytest.raises(GloblocError, match="mast.tilt_joint"):
+    with pytest.raises(GloblocError, match=r"mast\.tilt_joint"):
         _prepare(RunOptions(bag=plain))
 
 
@@ -404,7 +404,7 @@ def test_a_pan_tilt_head_comes_from_the_urdf_and_the_joint_names(tmp_path):
 
 
 def test_a_moving_head_without_its_urdf_or_joints_is_named(tmp_path):
-    with pytest.raises(CalibrationError, match='head_pan, head_tilt.*no /robot_description'):
+    with pytest.raises(CalibrationError, match=r'head_pan, head_tilt.*no /robot_description'):
         rover_parameters(bag_calibration(write_field_bag(tmp_path / 'a', mast=True,
                                                          urdf=False) / 'rosbag'))
     bag = write_field_bag(tmp_path / 'b', mast=True)
