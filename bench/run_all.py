@@ -21,7 +21,9 @@ Steps, in order (each one a bench script of bench/, run as its own process):
    protocol and its stressed version);
 7. heldout (full tier only): six held-out worlds of the quick preset (seeds 201-206, never
    used to train or tune), each with panoramas and fixed: their bags, roi on truth
-   odometry, e2e on the first three.
+   odometry, e2e on the first three;
+8. sun (full tier only): e2e on the demo bag and the first three held-out worlds with
+   panoramas, as configured and without rover_vo's sun heading, side by side.
 
 The results directory is emptied first (``--only`` keeps it), so that every file in it
 comes from one commit. Each result file then records the commit (and whether the tree
@@ -72,6 +74,12 @@ HELDOUT_BAGS = [(f"quick_s{s}{suffix}", "quick", s, opts) for s in HELDOUT_SEEDS
                 for suffix, opts in (("", ()), ("_fixed", FIXED))]
 #: The held-out runs' results name: e2e_heldout.*, roi_heldout.*.
 HELDOUT_TAG = "heldout"
+#: The sun heading end to end: the demo bag and the first ``SUN_HELDOUT_SEEDS`` held-out
+#: worlds with panoramas, each run as configured and without rover_vo's sun heading, side
+#: by side (``e2e_bench.py --compare``); results e2e_sun.*.
+SUN_HELDOUT_SEEDS = 3
+SUN_COMPARE = ("--compare", "rover_vo:imu.sun_heading=false", "--compare-label", "no_sun")
+SUN_TAG = "sun"
 #: Playback rate of the end-to-end runs (``globloc run --rate``).
 RATE = 5.0
 #: Graphs run side by side in the e2e step, each in its own ROS domain (2 cores keep up
@@ -86,7 +94,7 @@ QUICK_FAMILY = "thomas_few,matern_1000,thomas_strong"
 GENERALITY_LNS, GENERALITY_STRESS_LNS, GENERALITY_SEED = 120, 100, 7
 #: Perfect-LN trials on the demo bag (darces_bench.py quick).
 QUICK_TRIALS = 20
-STEPS = ("bags", "e2e", "vo", "roi", "orbital", "matcher", "heldout")
+STEPS = ("bags", "e2e", "vo", "roi", "orbital", "matcher", "heldout", "sun")
 
 
 @dataclass
@@ -146,12 +154,15 @@ def bag_commands(step: str, bags_dir: Path,
     return cmds
 
 
-def e2e_command(step: str, bags: list[Path], tag: str, results: Path) -> Command:
-    """``e2e_bench.py`` on ``bags``, two graphs at a time, results e2e_<tag>.*."""
+def e2e_command(step: str, bags: list[Path], tag: str, results: Path,
+                extra: tuple[str, ...] = ()) -> Command:
+    """``e2e_bench.py`` on ``bags``, two graphs at a time, results e2e_<tag>.*; ``extra``:
+    more of its options (``--compare`` runs two graphs per bag)."""
     paths = [str(b) for b in bags]
+    jobs = min(E2E_JOBS, len(paths) * (2 if "--compare" in extra else 1))
     return Command(step, _py("e2e_bench.py", *paths, "--rate", f"{RATE:g}", "--jobs",
-                             str(min(E2E_JOBS, len(paths))), "--tag", tag, "--out", str(RUNS),
-                             "--results", str(results)))
+                             str(jobs), "--tag", tag, "--out", str(RUNS), "--results",
+                             str(results), *extra))
 
 
 def roi_command(step: str, bags: list[Path], tag: str, results: Path, dry_run: bool,
@@ -214,6 +225,12 @@ def plan(tier: str, bags_dir: Path, results: Path, dry_run: bool = False) -> lis
         held = [bags_dir / name for name, *_ in HELDOUT_BAGS]
         cmds.append(roi_command("heldout", held, HELDOUT_TAG, results, dry_run, with_vo=False))
         cmds.append(e2e_command("heldout", held[:2 * HELDOUT_E2E_SEEDS], HELDOUT_TAG, results))
+        # 8. the sun heading end to end, with and without, on the worlds with panoramas
+        specs = [EVAL_BAGS[tier][0], *(b for b in HELDOUT_BAGS if not b[3])][
+            :1 + SUN_HELDOUT_SEEDS]
+        cmds += bag_commands("sun", bags_dir, specs)
+        sun = [bags_dir / name for name, *_ in specs]
+        cmds.append(e2e_command("sun", sun, SUN_TAG, results, SUN_COMPARE))
     return cmds
 
 
@@ -332,6 +349,7 @@ def first_table(md: str) -> list[str]:
 SECTIONS = (
     ("End to end", f"e2e_{TAG}.json", e2e_table, "e2e"),
     ("End to end, held-out worlds", f"e2e_{HELDOUT_TAG}.json", e2e_table, "heldout"),
+    ("End to end, with and without the sun heading", f"e2e_{SUN_TAG}.json", e2e_table, "sun"),
     ("Odometry (rover_vo)", "vo_bench.md", None, "vo"),
     ("Rover detection and LN (roi_detector)", f"roi_{TAG}.md", None, "roi"),
     ("Rover detection and LN, held-out worlds", f"roi_{HELDOUT_TAG}.md", None, "heldout"),

@@ -22,7 +22,7 @@ def test_quick_tier_dry_run_lists_every_bench_on_the_demo_bag(run_all, tmp_path,
     out = capsys.readouterr().out
     lines = [ln for ln in out.splitlines() if ln.startswith("[")]
     steps = [ln.split("]")[0][1:] for ln in lines]
-    assert steps[:2] == ["bags", "bags"] and set(steps) == set(run_all.STEPS) - {"heldout"}
+    assert steps[:2] == ["bags", "bags"] and set(steps) == set(run_all.STEPS) - {"heldout", "sun"}
     assert f"atacama_sim generate --preset quick --seed 1 --no-progress --out {tmp_path}/quick" \
         in out
     assert "skipped" not in out  # nothing exists under tmp_path: everything is generated
@@ -62,6 +62,16 @@ def test_full_tier_adds_the_1km_seeds_and_the_paper_protocol(run_all, tmp_path, 
     assert len(roi) == 1 and "--vo" not in roi[0]  # on truth odometry, before the e2e runs
     assert held.index(roi[0]) < next(i for i, ln in enumerate(held) if "e2e_bench.py" in ln)
     assert f"--gn quick_s206_fixed={tmp_path}/quick_s206_fixed/gn.geojson --jobs 2" in roi[0]
+    # The sun heading: the demo bag and held-out worlds with panoramas, each with and
+    # without, generated here when missing (``--only sun``).
+    sun = [ln for ln in out.splitlines() if ln.startswith("[sun]")]
+    assert f"--seed 201 --no-progress --out {tmp_path}/quick_s201" in "\n".join(sun)
+    e2e = [ln for ln in sun if "e2e_bench.py" in ln]
+    assert len(e2e) == 1 and "--tag sun" in e2e[0]
+    assert "--compare rover_vo:imu.sun_heading=false --compare-label no_sun" in e2e[0]
+    bags = [w for w in e2e[0].split() if w.startswith(str(tmp_path))]
+    assert bags == [f"{tmp_path}/quick", *(f"{tmp_path}/quick_s{s}" for s in
+                                           run_all.HELDOUT_SEEDS[:run_all.SUN_HELDOUT_SEEDS])]
 
 
 def test_a_run_stamps_every_result_and_summarises_it(run_all, tmp_path, monkeypatch):

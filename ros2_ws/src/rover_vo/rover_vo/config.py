@@ -112,16 +112,14 @@ class ImuOptions:
             than this (px) ...
         zero_velocity_gyro_rad_s: ... and the gyro rate stays below this (rad/s).
         sun_heading: Update the heading from /sun_sensor and gravity when rover.yaml has a
-            sun sensor and a site. Off by default: the update at stops, with the sensor
-            and tilt biases estimated, is measured offline, not yet end to end
-            (docs/rover_vo.md, Limits).
+            sun sensor and a site (without them there is nothing to update from).
     """
 
     accel_tilt_sigma_deg: float = 0.5
     max_gap_s: float = 0.2
     zero_velocity_flow_px: float = 0.3
     zero_velocity_gyro_rad_s: float = 0.01
-    sun_heading: bool = False
+    sun_heading: bool = True
 
 
 @dataclass

@@ -40,7 +40,7 @@ from rover_vo.arrivals import WAIT_FRAMES, Arrivals
 from rover_vo.config import ROVER_PARAMETERS, VoConfig
 from rover_vo.features import stereo_match, track
 from rover_vo.keyframes import Keyframe, make_keyframe
-from rover_vo.motion import estimate_motion, refine_motion
+from rover_vo.motion import MotionEstimate, estimate_motion, refine_motion
 from rover_vo.propagator import ImuInterval, Propagator
 from rover_vo.rig import RigError, StereoRig, rig_from_camera_info
 from rover_vo.state import N_ERR, OdomState, step_noise, systematic_prior
@@ -73,6 +73,10 @@ UNSEEN_ROTATION_SIGMA_DEG = 10.0
 #: fastest speed and turn rate seen before it, times the gap.
 RESUME_MOTION_FRACTION = 0.5
 
+#: A vision step at this fraction of the fastest speed seen or more is a drive step: the
+#: prediction a lost track is retried with after a stop (the standing steps of a stop
+#: predict no motion when the rover drives on).
+DRIVE_SPEED_FRACTION = 0.5
 #: A mast that holds a new camera pose for this many pairs in a row gets a new reference
 #: frame there (a new drive tilt); fewer, and the pose is waited out (a panorama's views).
 MAST_SETTLE_FRAMES = 3
@@ -148,6 +152,7 @@ class Counters:
     mast_moved: int = 0  # pairs not measured: the camera was off the reference's pose
     no_joint_states: int = 0  # pairs with no joint state within the tolerance
     mast_reanchors: int = 0  # references started at a new camera pose
+    drive_step_predictions: int = 0  # lost tracks after a stop retried with the drive step
     bad: Counter = field(default_factory=Counter)
 
 
@@ -214,6 +219,8 @@ class VoEstimator:
         self.kf: Keyframe | None = None
         self.last_image: np.ndarray | None = None
         self.last_step = (np.eye(3), np.zeros(3))  # last moving step b0_T_b1 (prediction)
+        # The last drive step (DRIVE_SPEED_FRACTION): how the rover drives on after a stop.
+        self.drive_step: tuple[np.ndarray, np.ndarray] | None = None
         self.velocity = (np.zeros(3), np.zeros(3))
         self.source = "initializing"
         self.stats = FrameStats()
@@ -231,7 +238,7 @@ class VoEstimator:
         self._sun_off = False  # rover.yaml has a sun sensor, the updates are switched off
         if sensor is not None and not config.imu.sun_heading:
             self._log(logging.INFO, f"{m.TOPIC_SUN}: rover.yaml has a sun sensor; heading "
-                      "updates off (imu.sun_heading: false, the default)")
+                      "updates off (imu.sun_heading: false)")
             sensor = None
             self._sun_off = True
         site, why = Site.from_params(self.params) if sensor is not None else (None, None)
@@ -960,12 +967,15 @@ class VoEstimator:
             dp_last = np.zeros(3)
         return (iv.R if iv is not None else dR_last), dp_last
 
-    def _propagate(self, t: float, iv: ImuInterval | None,
-                   standing: bool = False) -> VoOutput:
-        """No usable image: dead-reckon with the gyro and the last step (``standing``: no
-        step, a mast frame at a stop), covariance growing."""
+    def _propagate(self, t: float, iv: ImuInterval | None, standing: bool = False,
+                   step: np.ndarray | None = None) -> VoOutput:
+        """No usable image: dead-reckon with the gyro and the last step (``step``: that
+        translation instead; ``standing``: none, a mast frame at a stop), covariance
+        growing."""
         self.counts.propagated += 1
         dR, dp = self._predict(iv)
+        if step is not None:
+            dp = step
         if standing:
             dp = np.zeros(3)
         cov = self.cfg.covariance
@@ -1010,12 +1020,16 @@ class VoEstimator:
             rig.cx, rig.cy]
         return R_guess, t_guess, Xp, predicted
 
-    def _vision(self, t: float, iv: ImuInterval | None, images: tuple) -> VoOutput:
+    def _track_and_estimate(self, t: float, iv: ImuInterval | None, images: tuple,
+                            idx: np.ndarray, dR: np.ndarray, dp: np.ndarray
+                            ) -> tuple[np.ndarray, np.ndarray, MotionEstimate | None,
+                                       MotionEstimate | None]:
+        """Steps 5-7 for the predicted body motion ``(dR, dp)``: the keyframe points
+        ``idx`` tracked into the pair, matched in its right image, and the motion; returns
+        ``(tracked pixels, tracked mask, vision-only estimate, fused estimate)`` (None
+        when the motion was not found)."""
         cfg, rig, kf = self.cfg, self.rig, self.kf
         left, right = images
-        R_bc, p_bc = self._cam()
-        dR, dp = self._predict(iv)
-        idx = np.flatnonzero(kf.alive)
         X = kf.points[idx]
         need = cfg.motion.min_inliers
         # 5. Tracking: LK from the keyframe's own image (no tracking drift accumulates over
@@ -1040,7 +1054,7 @@ class VoEstimator:
             uv, ok = track(self.last_image, left, kf.tracked[idx])
         in_front = Xp[:, 2] > 0.1
         self.stats.tracked = int(ok.sum())
-        est = None
+        est = est_vo = None
         if ok.sum() >= cfg.motion.min_inliers:
             # 6. Stereo and reconstruction (points triangulated in make_keyframe).
             # Right image: each tracked corner is searched where its predicted depth puts it.
@@ -1064,10 +1078,29 @@ class VoEstimator:
                 est = refine_motion(X[ok][inl], uv[ok][inl], uv_r[inl], K, rig.baseline_m,
                                     est_vo.R, est_vo.t, cfg.motion, prior, prior_cov)
                 est.inliers = inl
+        return uv, ok, est_vo, est
+
+    def _vision(self, t: float, iv: ImuInterval | None, images: tuple) -> VoOutput:
+        cfg, kf = self.cfg, self.kf
+        left, right = images
+        R_bc, p_bc = self._cam()
+        dR, dp = self._predict(iv)
+        idx = np.flatnonzero(kf.alive)
+        uv, ok, est_vo, est = self._track_and_estimate(t, iv, images, idx, dR, dp)
+        # A rover that stood (its last step a standing one) and whose image now moves
+        # drives on at its pace: when the track is lost, the last drive step is tried as
+        # the prediction, and is the dead-reckoned step if that fails too.
+        resumed = (self.drive_step is not None and not self._after_mast
+                   and not np.allclose(self.drive_step[1], dp))
+        if est is None and resumed:
+            self.counts.drive_step_predictions += 1
+            retry = self._track_and_estimate(t, iv, images, idx, dR, self.drive_step[1])
+            if retry[3] is not None:
+                uv, ok, est_vo, est = retry
         if est is None:
             self.bad("vision_failed", f"{self.image_topics['left']}: too few tracked inliers "
                      f"at {t:.3f} s (motion from the IMU and the last step)")
-            out = self._propagate(t, iv)
+            out = self._propagate(t, iv, step=self.drive_step[1] if resumed else None)
             # The keyframe is lost: start a new one where the propagated pose puts us.
             self._new_keyframe(left, right)
             self.last_image = left
@@ -1096,6 +1129,10 @@ class VoEstimator:
         kf.alive = alive
         kf.frames += 1
         out = self._output(new, "vision", moving=True)
+        # A step at half the fastest speed seen or more is the rover driving, not standing.
+        speed = float(np.linalg.norm(self.velocity[0][:2]))
+        if speed >= DRIVE_SPEED_FRACTION * self.max_speed > 0.0:
+            self.drive_step = self.last_step
         self.last_image = left
         tracked_frac = kf.n_alive / max(len(kf.points), 1)
         w = cfg.window
@@ -1144,6 +1181,7 @@ class VoEstimator:
             "joint_state_samples": c.joint_states, "mast_moved_frames": c.mast_moved,
             "frames_without_joint_states": c.no_joint_states,
             "mast_reanchors": c.mast_reanchors,
+            "drive_step_predictions": c.drive_step_predictions,
             "distance_m": round(self.state.distance_m, 3) if self.state else 0.0,
         }
         if self.propagator is not None:

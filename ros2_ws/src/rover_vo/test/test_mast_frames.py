@@ -318,3 +318,23 @@ def test_stop_drift_sees_a_jump_that_comes_back_and_not_the_creep():
     # From the 4.5 s pose: the truth moved 0.5 m, the estimate 0.563 m.
     assert d.poses == 14 and d.error_mm == pytest.approx(63.0, abs=1e-3)
     assert d.yaw_error_deg == pytest.approx(0.0, abs=1e-9)
+
+
+def test_a_standing_vision_pair_keeps_the_drive_step_for_the_resume():
+    """A pair at a stop that the gyro does not call still (a blip) is measured by vision:
+    its step is far below the drive speed, so the rover's last drive step, not that standing
+    one, is what a lost track after the stop is retried with."""
+    s = fw.Schedule().drive(6).stand(3)
+    last = s.frames[-1].t
+    stream = []
+    for topic, msg in fw.stream(s):
+        t = (m.stamp_ns(msg) - fw.START_NS) * 1e-9
+        if topic == m.TOPIC_IMU and last - 1.0 < t <= last:
+            msg = copy.deepcopy(msg)
+            msg.angular_velocity.z += 0.02  # above the zero-velocity gyro threshold
+        stream.append((topic, msg))
+    est, outputs, _ = run(stream, fw.rover_params())
+    assert outputs[-1].source == "vision" and outputs[-2].source == "zero_velocity"
+    assert np.linalg.norm(est.last_step[1]) < 0.02  # the standing step
+    assert np.linalg.norm(est.drive_step[1]) == pytest.approx(0.35, abs=0.02)
+    assert est.status()["drive_step_predictions"] == 0

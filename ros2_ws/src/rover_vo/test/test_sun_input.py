@@ -17,8 +17,9 @@ from rover_vo.config import ImuOptions, VoConfig
 from rover_vo.sun_heading import Site, rotz
 from rover_vo.testing import run
 
-#: Sun heading updates on (imu.sun_heading: off by default).
+#: Sun heading updates on (imu.sun_heading, the default) and off.
 ON = VoConfig(imu=ImuOptions(sun_heading=True))
+OFF = VoConfig(imu=ImuOptions(sun_heading=False))
 SHORT = fw.Schedule(period_s=1.0).drive(2).stand(3, period_s=1.0)
 PSI0_TRUE_DEG = 40.0
 SENSOR = {"sun_sensor.frame": "sun_sensor",
@@ -167,10 +168,12 @@ def test_a_vector_the_ephemeris_says_is_impossible_is_skipped(base, no_sun):
     assert len(said) == 1 and "below the horizon" in said[0]
 
 
-def test_the_sun_updates_are_off_by_default(day, no_sun):
+def test_the_sun_updates_switched_off_read_no_sample(day, no_sun):
     """With rover.yaml's sun sensor but imu.sun_heading false, /sun_sensor is not read: the
-    odometry is the gyro's, no sample is counted bad, and the log says so once."""
-    est, outputs, logs = run(day, params(SENSOR, DAY))
+    odometry is the gyro's, no sample is counted bad, and the log says so once. On is the
+    default."""
+    assert VoConfig().imu.sun_heading is True
+    est, outputs, logs = run(day, params(SENSOR, DAY), OFF)
     assert len(outputs) == len(no_sun)
     for a, b in zip(outputs, no_sun, strict=True):
         assert np.array_equal(a.state.p, b.state.p)
