@@ -562,6 +562,9 @@ def summary_lines(s: dict[str, Any]) -> list[str]:
         f"RMSE after first fix: horizontal {_fmt(s['rmse_after_first_fix_m'], ' m')} (max "
         f"{_fmt(s['max_error_m'], ' m')}), vertical {_vertical_fmt(s, 'vertical_rmse_m')}",
         f"false fixes (> 10 m) {s['false_fixes']}",
+        f"longest stretch without a fix {_fmt(s.get('longest_stretch_without_fix_m'), ' m', 1)}"
+        f", {_fmt(s.get('error_at_stretch_end_m'), ' m')} off at its end; heading "
+        f"{_fmt(s.get('heading_final_error_deg'), ' deg')} off at the end",
         f"3-sigma consistency {_fmt(None if cons is None else 100 * cons, ' %', 1)} "
         "(horizontal)",
         _ape_3d_text(s),
@@ -602,6 +605,11 @@ def report_markdown(s: dict[str, Any], plots: list[str]) -> str:
             ('3-sigma consistency (horizontal)',
              _fmt(None if cons is None else 100 * cons, ' %', 1), '>= 99 %',
              meets['consistency_3sigma']),
+            ('longest stretch without a fix / error at its end',
+             f"{_fmt(s.get('longest_stretch_without_fix_m'), ' m', 1)} / "
+             f"{_fmt(s.get('error_at_stretch_end_m'), ' m')}", '-', None),
+            ('heading error, final / RMSE', f"{_fmt(s.get('heading_final_error_deg'), ' deg')} / "
+             f"{_fmt(s.get('heading_rmse_deg'), ' deg')}", '-', None),
             ('final vertical error', _vertical_fmt(s, 'vertical_final_error_m'), '-', None),
             ('vertical RMSE after the first fix', _vertical_fmt(s, 'vertical_rmse_m'), '-',
              None),
