@@ -239,12 +239,6 @@ def _not_run(run_dir: Path) -> list[str]:
         return []
 
 
-def _yaw(rows: np.ndarray) -> np.ndarray:
-    """Yaw (rad) of TUM rows (qx qy qz qw in columns 4-7)."""
-    qx, qy, qz, qw = rows[:, 4], rows[:, 5], rows[:, 6], rows[:, 7]
-    return np.arctan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-
-
 def longest_stretch(fixes: list[tuple[float, float, str]], t: np.ndarray, error: np.ndarray,
                     route_end_m: float) -> dict[str, float | None]:
     """The longest stretch of route without a fix, after the first, and the error at its
@@ -463,7 +457,8 @@ def evaluate(data: RunData) -> Evaluation:
         false_fixes = int(over[0]) + int(np.sum(over[1:] & ~over[:-1]))
     first_t = float(data.estimate[0, 0])
     summary.update(longest_stretch(fixes, t, error, float(route_d[-1])))
-    dyaw = _yaw(data.estimate[est_i]) - _yaw(truth[ref_i])
+    # evo's associated trajectories: yaw is the z angle of the static xyz Euler angles.
+    dyaw = est.get_orientations_euler()[:, 2] - ref.get_orientations_euler()[:, 2]
     dyaw = np.degrees(np.arctan2(np.sin(dyaw), np.cos(dyaw)))
     summary.update(heading_final_error_deg=float(dyaw[-1]),
                    heading_rmse_deg=float(np.sqrt(np.mean(dyaw**2))))

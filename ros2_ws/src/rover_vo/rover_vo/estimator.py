@@ -219,8 +219,9 @@ class VoEstimator:
         self.kf: Keyframe | None = None
         self.last_image: np.ndarray | None = None
         self.last_step = (np.eye(3), np.zeros(3))  # last moving step b0_T_b1 (prediction)
-        # The last drive step (DRIVE_SPEED_FRACTION): how the rover drives on after a stop.
-        self.drive_step: tuple[np.ndarray, np.ndarray] | None = None
+        # The last drive step's translation (DRIVE_SPEED_FRACTION): how the rover drives on
+        # after a stop.
+        self.drive_step: np.ndarray | None = None
         self.velocity = (np.zeros(3), np.zeros(3))
         self.source = "initializing"
         self.stats = FrameStats()
@@ -1091,16 +1092,16 @@ class VoEstimator:
         # drives on at its pace: when the track is lost, the last drive step is tried as
         # the prediction, and is the dead-reckoned step if that fails too.
         resumed = (self.drive_step is not None and not self._after_mast
-                   and not np.allclose(self.drive_step[1], dp))
+                   and not np.allclose(self.drive_step, dp))
         if est is None and resumed:
             self.counts.drive_step_predictions += 1
-            retry = self._track_and_estimate(t, iv, images, idx, dR, self.drive_step[1])
+            retry = self._track_and_estimate(t, iv, images, idx, dR, self.drive_step)
             if retry[3] is not None:
                 uv, ok, est_vo, est = retry
         if est is None:
             self.bad("vision_failed", f"{self.image_topics['left']}: too few tracked inliers "
                      f"at {t:.3f} s (motion from the IMU and the last step)")
-            out = self._propagate(t, iv, step=self.drive_step[1] if resumed else None)
+            out = self._propagate(t, iv, step=self.drive_step if resumed else None)
             # The keyframe is lost: start a new one where the propagated pose puts us.
             self._new_keyframe(left, right)
             self.last_image = left
@@ -1132,7 +1133,7 @@ class VoEstimator:
         # A step at half the fastest speed seen or more is the rover driving, not standing.
         speed = float(np.linalg.norm(self.velocity[0][:2]))
         if speed >= DRIVE_SPEED_FRACTION * self.max_speed > 0.0:
-            self.drive_step = self.last_step
+            self.drive_step = self.last_step[1]
         self.last_image = left
         tracked_frac = kf.n_alive / max(len(kf.points), 1)
         w = cfg.window

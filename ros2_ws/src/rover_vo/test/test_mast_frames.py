@@ -336,5 +336,5 @@ def test_a_standing_vision_pair_keeps_the_drive_step_for_the_resume():
     est, outputs, _ = run(stream, fw.rover_params())
     assert outputs[-1].source == "vision" and outputs[-2].source == "zero_velocity"
     assert np.linalg.norm(est.last_step[1]) < 0.02  # the standing step
-    assert np.linalg.norm(est.drive_step[1]) == pytest.approx(0.35, abs=0.02)
+    assert np.linalg.norm(est.drive_step) == pytest.approx(0.35, abs=0.02)
     assert est.status()["drive_step_predictions"] == 0
